@@ -1,0 +1,31 @@
+# Two commands: `make test` and `make demo`. Both set up .venv on first use.
+PYTHON ?= python3
+VENV   ?= .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.trase-bench-installed
+TORCH_PIN := torch==2.13.0
+
+.PHONY: test demo venv clean
+
+venv: $(STAMP)
+
+$(PY):
+	$(PYTHON) -m venv $(VENV)
+
+# Torch first: the pinned CPU wheel where the machine has it, so the dependency range in
+# pyproject.toml is already satisfied and pip never resolves a multi-GB CUDA build.
+$(STAMP): pyproject.toml | $(PY)
+	@$(PY) -c "import torch" 2>/dev/null || \
+	  $(PY) -m pip install --quiet "$(TORCH_PIN)" || \
+	  echo "warning: $(TORCH_PIN) not available here; pip will resolve torch from pyproject.toml"
+	$(PY) -m pip install --quiet -e ".[dev]"
+	@touch $(STAMP)
+
+test: $(STAMP)
+	$(PY) -m pytest
+
+demo: $(STAMP)
+	$(PY) -m benchmark.demo
+
+clean:
+	rm -rf $(VENV) build *.egg-info

@@ -1,0 +1,1 @@
+"""Other feature-learning objectives behind the same interface as TRASE's."""

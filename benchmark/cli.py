@@ -1,0 +1,68 @@
+"""The ``trase-bench`` command line.
+
+Subcommands live in their own modules and are imported only when invoked, so ``--help`` and
+light commands (``score``, ``datasets``) never pay for torch or numba imports. To add a
+command, add one line to ``COMMANDS``: name -> "module:click_command".
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+import click
+
+COMMANDS: dict[str, tuple[str, str]] = {
+    # name: (import path of the click command, one-line help shown by --help)
+    "score": ("benchmark.commands.score:score", "Score predicted masks against ground truth."),
+}
+
+
+class LazyGroup(click.Group):
+    """A click group whose subcommands are imported on first use."""
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return sorted(COMMANDS)
+
+    def get_command(self, ctx: click.Context, name: str) -> click.Command | None:
+        if name not in COMMANDS:
+            return None
+        module_name, attr = COMMANDS[name][0].split(":")
+        return getattr(importlib.import_module(module_name), attr)
+
+    def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        rows = [(name, COMMANDS[name][1]) for name in self.list_commands(ctx)]
+        with formatter.section("Commands"):
+            formatter.write_dl(rows)
+
+
+@click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(package_name="trase-bench")
+def cli() -> None:
+    """trase-bench: segmentation in novel views of dynamic 3D scenes."""
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Console entry point. Known errors print one line and exit 1, never a traceback."""
+    from benchmark.errors import is_user_error
+
+    try:
+        cli.main(args=argv, prog_name="trase-bench", standalone_mode=False)
+    except click.exceptions.Abort:
+        click.echo("aborted", err=True)
+        return 130
+    except click.ClickException as exc:
+        exc.show()
+        return exc.exit_code
+    except SystemExit as exc:  # --help / --version exit through here
+        return int(exc.code or 0)
+    except Exception as exc:
+        if not is_user_error(exc):
+            raise
+        click.echo(f"error: {exc}", err=True)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

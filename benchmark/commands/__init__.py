@@ -1,0 +1,1 @@
+"""One module per ``trase-bench`` subcommand (registered in ``benchmark.cli.COMMANDS``)."""

@@ -1,0 +1,1 @@
+"""2D "anything" masks: generators, bit-packed storage, sampling rules."""
