@@ -1,0 +1,54 @@
+import pytest
+import torch
+
+from trase.objectives.base import (
+    ObjectiveInputError,
+    PixelSample,
+    norm_regulariser,
+    pair_stats,
+    pair_weights,
+)
+
+
+def _sample(membership, areas=None):
+    m = torch.tensor(membership, dtype=torch.bool)
+    n, k = m.shape
+    area = torch.tensor(areas if areas is not None else [10.0] * k)
+    mean_area = torch.stack([area[row].mean() if row.any() else torch.tensor(0.0) for row in m])
+    return PixelSample(torch.arange(n), m, area, mean_area)
+
+
+def test_pair_stats_drops_pixels_in_no_sampled_mask():
+    s = _sample([[1, 0], [1, 1], [0, 1], [0, 0]])
+    f = torch.tensor([[1.0, 0.0], [1.0, 1.0], [0.0, 2.0], [5.0, 5.0]])
+    ps = pair_stats(f, s)
+    assert ps.valid.tolist() == [True, True, True, False]
+    assert ps.C.tolist() == [[True, True, False], [True, True, True], [False, True, True]]
+    assert ps.CF[0, 1].item() == pytest.approx(2**-0.5)
+    assert ps.CF[0, 2].item() == pytest.approx(0.0)
+    assert ps.upper.tolist() == [[False, True, True], [False, False, True], [False, False, False]]
+
+
+def test_pair_weights_hand_computed():
+    # areas 1, 2, 0: S = [[1,2,0],[2,4,0],[0,0,0]]; max 4; W = 4/S -> [[4,2,1],[2,1,1],[1,1,1]]
+    W = pair_weights(torch.tensor([1.0, 2.0, 0.0]))
+    expected = 1 + 9 * (torch.tensor([[4.0, 2, 1], [2, 1, 1], [1, 1, 1]]) - 1) / 3
+    torch.testing.assert_close(W, expected)
+    assert torch.equal(pair_weights(torch.tensor([3.0, 3.0])), torch.ones(2, 2))
+
+
+def test_zero_features_are_finite():
+    s = _sample([[1], [1]])
+    f = torch.zeros(2, 4, requires_grad=True)
+    ps = pair_stats(f, s)
+    loss = ps.CF.sum() + norm_regulariser(f)
+    loss.backward()
+    assert torch.isfinite(ps.CF).all() and torch.isfinite(f.grad).all()
+
+
+def test_bad_shapes_fail_clearly():
+    with pytest.raises(ObjectiveInputError, match="membership must be"):
+        PixelSample(torch.arange(3), torch.ones(2, 1, dtype=torch.bool), torch.ones(1), torch.ones(3))
+    s = _sample([[1], [1]])
+    with pytest.raises(ObjectiveInputError, match=r"features must be \[Np=2, D\]"):
+        pair_stats(torch.zeros(3, 4), s)

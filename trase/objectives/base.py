@@ -1,0 +1,184 @@
+"""The contract every feature-learning objective implements, and the pair statistics they share.
+
+One training step samples pixels and masks of one view (``PixelSample``), renders the
+gaussian features at those pixels (``features [Np, D]``, unnormalised, as the rasterizer or
+the frozen-geometry fast path returns them) and asks an ``Objective`` for a loss.
+
+Pixels that fall in no *sampled* mask are dropped from the pair terms (``PairStats.valid``).
+The public code keeps them, and such a pixel becomes a negative anchor against every other
+pixel (its own C is 0 while its C_F with itself is 1), pushing apart pixels that an unsampled
+mask may well group together. They still count in the feature-norm regulariser.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Callable
+
+import torch
+import torch.nn.functional as F
+
+TAU_POS = 0.75  # positive pairs with cosine below this are imperfect (public code)
+TAU_NEG = 0.5  # negative pairs with cosine above this are imperfect (public code)
+W_MAX = 10.0  # pixel-pair weights are rescaled to [1, W_MAX]
+
+
+class ObjectiveInputError(ValueError):
+    """Inconsistent objective input (shapes, dtypes); the message says which tensor."""
+
+    user_facing = True
+
+
+@dataclasses.dataclass
+class PixelSample:
+    """Pixels and masks sampled from one training view for one step."""
+
+    pixels: torch.Tensor  # [Np] int64 linear pixel ids (row * W + col) at mask resolution
+    membership: torch.Tensor  # [Np, M] bool: pixel i lies in sampled mask m
+    mask_area: torch.Tensor  # [M] float: pixel count of each sampled mask
+    pixel_mean_area: torch.Tensor  # [Np] float: mean area of ALL masks covering pixel (0: none)
+    alpha: torch.Tensor | None = None  # [Np] rendered alpha (silhouette-based objectives)
+    view: int = -1  # index of the training view, for logging
+
+    def __post_init__(self) -> None:
+        n = self.pixels.shape[0]
+        if self.pixels.ndim != 1:
+            raise ObjectiveInputError(f"pixels must be [Np], got {tuple(self.pixels.shape)}")
+        if self.membership.ndim != 2 or self.membership.shape[0] != n:
+            raise ObjectiveInputError(
+                f"membership must be [Np={n}, M], got {tuple(self.membership.shape)}"
+            )
+        if self.membership.dtype != torch.bool:
+            raise ObjectiveInputError(f"membership must be bool, got {self.membership.dtype}")
+        if self.mask_area.shape != (self.membership.shape[1],):
+            raise ObjectiveInputError(
+                f"mask_area must be [M={self.membership.shape[1]}], got {tuple(self.mask_area.shape)}"
+            )
+        if self.pixel_mean_area.shape != (n,):
+            raise ObjectiveInputError(
+                f"pixel_mean_area must be [Np={n}], got {tuple(self.pixel_mean_area.shape)}"
+            )
+        if self.alpha is not None and self.alpha.shape != (n,):
+            raise ObjectiveInputError(f"alpha must be [Np={n}], got {tuple(self.alpha.shape)}")
+
+    @property
+    def n_pixels(self) -> int:
+        return int(self.pixels.shape[0])
+
+    @property
+    def n_masks(self) -> int:
+        return int(self.membership.shape[1])
+
+
+@dataclasses.dataclass
+class PairStats:
+    """Pairwise quantities over the valid sampled pixels (those in >= 1 sampled mask)."""
+
+    valid: torch.Tensor  # [Np] bool: pixel is in at least one sampled mask
+    C: torch.Tensor  # [V, V] bool: valid pixels i, j share a sampled mask
+    CF: torch.Tensor  # [V, V] cosine similarity of normalised rendered features (differentiable)
+    W: torch.Tensor  # [V, V] pair weights in [1, W_MAX]
+    upper: torch.Tensor  # [V, V] bool: i < j (non-redundant pairs)
+
+
+def check_features(features: torch.Tensor, sample: PixelSample) -> None:
+    if features.ndim != 2 or features.shape[0] != sample.n_pixels:
+        raise ObjectiveInputError(
+            f"features must be [Np={sample.n_pixels}, D], got {tuple(features.shape)}"
+        )
+    if not features.is_floating_point():
+        raise ObjectiveInputError(f"features must be floating point, got {features.dtype}")
+
+
+def pair_weights(mean_area: torch.Tensor) -> torch.Tensor:
+    """[V] mean covering-mask area per pixel -> [V, V] weights in [1, W_MAX].
+
+    S = s s^T; W = max(S) / S clamped to >= 1 (S = 0 counts as huge, i.e. W = 1); then
+    min-max rescaled to [1, W_MAX]. Small-segment pairs get large weights, so small objects
+    are not drowned by the many pairs a large segment produces (as SAGA weighs pixels).
+    """
+    s = mean_area.to(torch.float64)
+    S = s[:, None] * s[None, :]
+    smax = S.max() if S.numel() else S.new_tensor(0.0)
+    W = torch.where(S > 0, smax / torch.where(S > 0, S, torch.ones_like(S)), torch.ones_like(S))
+    W = W.clamp_min(1.0)
+    if W.numel() == 0:
+        return W.to(mean_area.dtype if mean_area.is_floating_point() else torch.float32)
+    lo, hi = W.min(), W.max()
+    if hi - lo > 0:
+        W = 1.0 + (W_MAX - 1.0) * (W - lo) / (hi - lo)
+    else:
+        W = torch.ones_like(W)
+    return W.to(torch.float32)
+
+
+def pair_stats(features: torch.Tensor, sample: PixelSample) -> PairStats:
+    """Correspondence C, feature cosine C_F and weights W over the valid sampled pixels."""
+    check_features(features, sample)
+    member = sample.membership
+    valid = member.any(dim=1)  # [Np]
+    m = member[valid].to(torch.float32)  # [V, M]
+    C = (m @ m.T) > 0  # [V, V]
+    f = F.normalize(features[valid], dim=1, eps=1e-12)  # zero features stay zero, not NaN
+    CF = f @ f.T  # [V, V]
+    W = pair_weights(sample.pixel_mean_area[valid]).to(features.dtype)
+    V = int(valid.sum())
+    upper = torch.ones(V, V, dtype=torch.bool, device=features.device).triu(diagonal=1)
+    return PairStats(valid=valid, C=C, CF=CF, W=W, upper=upper)
+
+
+def norm_regulariser(features: torch.Tensor) -> torch.Tensor:
+    """(1 - mean ||F(p)||)^2 over all sampled pixels: keeps rendered features near unit norm."""
+    if features.shape[0] == 0:
+        return features.sum() * 0.0
+    return (1.0 - features.norm(dim=1).mean()) ** 2
+
+
+class Objective(torch.nn.Module):
+    """A feature-learning loss. Subclasses implement ``forward``; ``gaussian_loss`` is an
+    optional extra term on the gaussians themselves (e.g. CGC's 3D spatial term)."""
+
+    name: str = ""
+
+    def forward(self, features: torch.Tensor, sample: PixelSample) -> tuple[torch.Tensor, dict]:
+        """features [Np, D] rendered at sample.pixels -> (scalar loss, stats of floats)."""
+        raise NotImplementedError
+
+    def gaussian_loss(
+        self, features: torch.Tensor, xyz: torch.Tensor, rng: torch.Generator | None = None
+    ) -> torch.Tensor | None:
+        """features [N, D], canonical positions [N, 3] -> scalar loss, or None (no 3D term)."""
+        return None
+
+
+OBJECTIVES: dict[str, Callable[..., Objective]] = {}
+
+
+def register_objective(name: str) -> Callable:
+    """Class decorator: make an objective constructible by name (``get_objective``)."""
+
+    def wrap(cls):
+        if name in OBJECTIVES:
+            raise ValueError(f"objective {name!r} registered twice")
+        cls.name = name
+        OBJECTIVES[name] = cls
+        return cls
+
+    return wrap
+
+
+def get_objective(name: str, **kwargs) -> Objective:
+    """Build a registered objective; importing ``baselines`` registers the baseline ones."""
+    if name not in OBJECTIVES:
+        import importlib
+
+        for module in ("trase.objectives.soft", "baselines"):
+            try:
+                importlib.import_module(module)
+            except ModuleNotFoundError:
+                pass
+    if name not in OBJECTIVES:
+        raise ObjectiveInputError(
+            f"unknown objective {name!r}; known: {', '.join(sorted(OBJECTIVES)) or 'none'}"
+        )
+    return OBJECTIVES[name](**kwargs)
