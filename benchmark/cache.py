@@ -1,0 +1,134 @@
+"""The stage cache: each pipeline stage's output lives under a key of its inputs and config.
+
+``<root>/<stage>/<key>/`` holds a finished stage; ``_stage.json`` inside it records how it was
+made. Work in progress lives in ``<root>/<stage>/<key>.partial/`` and is renamed into place
+only when the stage function returns, so a killed run never leaves a directory that looks
+finished. A partial directory is kept on failure: stages that checkpoint (reconstruction)
+resume from what it holds; others simply overwrite their files.
+
+Keys hash the stage name, the stage's own config and the keys of its inputs, so a change
+anywhere upstream gives every downstream stage a new key, and another method run on the same
+scene finds the shared upstream stages (masks, reconstruction) already done.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import os
+import shutil
+import threading
+import time
+from pathlib import Path
+from typing import Callable
+
+from benchmark.io import atomic_write_json, read_json
+
+STAGE_FILE = "_stage.json"
+
+
+def config_hash(obj) -> str:
+    """Stable short hash of a JSON-able object (sorted keys)."""
+    blob = json.dumps(obj, sort_keys=True, separators=(",", ":"), default=str)
+    return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+@dataclasses.dataclass
+class StageRecord:
+    stage: str
+    key: str
+    path: Path
+    skipped: bool  # True when a finished output was reused
+    seconds: float  # wall time when it was computed (the original time if skipped)
+    peak_rss_mb: float  # peak resident memory of the process while it ran
+    info: dict  # what the stage function returned (small JSON-able facts)
+
+    def to_dict(self) -> dict:
+        return {
+            "key": self.key,
+            "skipped": self.skipped,
+            "seconds": round(self.seconds, 3),
+            "peak_rss_mb": round(self.peak_rss_mb, 1),
+            **({"info": self.info} if self.info else {}),
+        }
+
+
+class StageCache:
+    def __init__(self, root: str | Path):
+        self.root = Path(root)
+
+    def key(self, stage: str, config: dict, inputs: dict[str, str] | None = None) -> str:
+        return config_hash({"stage": stage, "config": config, "inputs": inputs or {}})
+
+    def path(self, stage: str, key: str) -> Path:
+        return self.root / stage / key
+
+    def is_done(self, stage: str, key: str) -> bool:
+        return (self.path(stage, key) / STAGE_FILE).is_file()
+
+    def run(
+        self,
+        stage: str,
+        key: str,
+        fn: Callable[[Path], dict | None],
+        config: dict | None = None,
+    ) -> StageRecord:
+        """Return the finished stage ``key``, computing it with ``fn(work_dir)`` if needed."""
+        final = self.path(stage, key)
+        if self.is_done(stage, key):
+            meta = read_json(final / STAGE_FILE, "stage record")
+            return StageRecord(stage, key, final, True, meta.get("seconds", 0.0),
+                               meta.get("peak_rss_mb", 0.0), meta.get("info", {}))
+        partial = final.with_name(key + ".partial")
+        partial.mkdir(parents=True, exist_ok=True)
+        with PeakMemory() as mem:
+            t0 = time.perf_counter()
+            info = fn(partial) or {}
+            seconds = time.perf_counter() - t0
+        meta = {"stage": stage, "key": key, "config": config or {}, "seconds": seconds,
+                "peak_rss_mb": mem.peak_mb, "info": info, "finished": time.time()}
+        atomic_write_json(partial / STAGE_FILE, meta)
+        if final.exists():  # a stale directory without a stage record
+            shutil.rmtree(final)
+        os.replace(partial, final)
+        return StageRecord(stage, key, final, False, seconds, mem.peak_mb, info)
+
+
+def current_rss_mb() -> float:
+    """Resident memory of this process in MiB (Linux /proc; falls back to ru_maxrss)."""
+    try:
+        with open("/proc/self/statm") as f:
+            pages = int(f.read().split()[1])
+        return pages * os.sysconf("SC_PAGE_SIZE") / 2**20
+    except (OSError, ValueError, IndexError):
+        import resource
+
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+class PeakMemory:
+    """Samples resident memory in a background thread; ``peak_mb`` after the block."""
+
+    def __init__(self, interval: float = 0.05):
+        self.interval = interval
+        self.peak_mb = 0.0
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def _poll(self) -> None:
+        while not self._stop.is_set():
+            self.peak_mb = max(self.peak_mb, current_rss_mb())
+            self._stop.wait(self.interval)
+
+    def __enter__(self) -> "PeakMemory":
+        self.peak_mb = current_rss_mb()
+        self._thread = threading.Thread(target=self._poll, daemon=True)
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+        self.peak_mb = max(self.peak_mb, current_rss_mb())
