@@ -1,0 +1,149 @@
+"""TRASE's soft-mined contrastive objective (paper Sec. 3.2), plus the anchor/selection helpers
+that the "hard" and "all" mining baselines reuse.
+
+Exact choices (the paper's equations and the public code differ in details):
+
+* Pixels in no *sampled* mask are dropped from the pair terms (``pair_stats``, see base.py).
+  They still count in the norm regulariser.
+* Anchors. Pixel ``a`` is a positive anchor if some *other* valid pixel ``k != a`` has
+  C[a, k] = 1 and C_F[a, k] < tau_p; a negative anchor if some ``k != a`` has C[a, k] = 0 and
+  C_F[a, k] > tau_n. The diagonal is excluded (the public code includes it; with dropped
+  no-mask pixels it only matters for zero-norm features, where C_F[a, a] = 0 would make the
+  pixel a positive anchor by itself).
+* Anchor side. C and C_F are symmetric, so the existential test is the same over rows or
+  columns; what differs is *which member of the pair (i < j)* must be the anchor. The paper
+  writes M_ij = anchor(i) & (i < j) (rows); the public code ORs over dim 0 and masks columns,
+  i.e. M_ij = anchor(j) & (i < j). Default ``"column"`` follows the public code; ``"row"``
+  follows the paper, ``"either"`` uses anchor(i) | anchor(j). Sampled pixels are in random
+  order, so row and column are statistically equivalent.
+* Selected positives: C & upper & anchor_pos; selected negatives: ~C & upper & anchor_neg.
+* Normalisation Z (``normalise``): ``"anchor_pairs"`` (default, the public code) divides each
+  term by the number of upper-triangle pairs whose anchor side is an anchor of that term's
+  kind (positive *and* negative pairs of those anchors, i.e. "the total number of pixel pairs"
+  considered); ``"selected"`` divides by the number of selected pairs of that term. Z is
+  clamped to >= 1 so an empty selection gives a zero (not NaN) term.
+* L = L_pos + L_neg + reg_weight * (1 - mean ||F(p)||)^2 with reg_weight = 1.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from trase.objectives.base import (
+    TAU_NEG,
+    TAU_POS,
+    Objective,
+    PairStats,
+    PixelSample,
+    norm_regulariser,
+    pair_stats,
+    register_objective,
+)
+
+ANCHOR_SIDES = ("column", "row", "either")
+NORMALISATIONS = ("anchor_pairs", "selected")
+
+
+def _offdiag(n: int, device) -> torch.Tensor:
+    """[n, n] bool, False on the diagonal."""
+    return ~torch.eye(n, dtype=torch.bool, device=device)
+
+
+def soft_anchors(ps: PairStats, tau_pos: float = TAU_POS, tau_neg: float = TAU_NEG):
+    """-> (pos_anchor [V] bool, neg_anchor [V] bool): pixels with at least one imperfect
+    positive (C=1, C_F < tau_pos) or negative (C=0, C_F > tau_neg) partner, diagonal excluded."""
+    CF = ps.CF.detach()
+    off = _offdiag(CF.shape[0], CF.device)
+    pos = (ps.C & (CF < tau_pos) & off).any(dim=0)
+    neg = (~ps.C & (CF > tau_neg) & off).any(dim=0)
+    return pos, neg
+
+
+def all_anchors(ps: PairStats):
+    """-> (pos_anchor, neg_anchor): pixels with any positive / any negative partner ("all")."""
+    off = _offdiag(ps.C.shape[0], ps.C.device)
+    return (ps.C & off).any(dim=0), (~ps.C & off).any(dim=0)
+
+
+def anchor_pairs(anchor: torch.Tensor, upper: torch.Tensor, side: str = "column") -> torch.Tensor:
+    """[V] anchor flags -> [V, V] bool upper-triangle pairs whose ``side`` member is an anchor."""
+    if side == "column":
+        sel = anchor[None, :]
+    elif side == "row":
+        sel = anchor[:, None]
+    elif side == "either":
+        sel = anchor[None, :] | anchor[:, None]
+    else:
+        raise ValueError(f"anchor side must be one of {ANCHOR_SIDES}, got {side!r}")
+    return upper & sel
+
+
+def select_pairs(ps: PairStats, pos_anchor, neg_anchor, side: str = "column"):
+    """-> (pos_pairs, neg_pairs, pos_candidates, neg_candidates), all [V, V] bool.
+
+    candidates: upper pairs on an anchor of that kind (the public code's Z); pairs: the
+    candidates that are positive (C) resp. negative (~C)."""
+    pos_cand = anchor_pairs(pos_anchor, ps.upper, side)
+    neg_cand = anchor_pairs(neg_anchor, ps.upper, side)
+    return pos_cand & ps.C, neg_cand & ~ps.C, pos_cand, neg_cand
+
+
+def weighted_pair_losses(ps: PairStats, pos_pairs, neg_pairs, z_pos, z_neg):
+    """L_pos = -sum(W C_F)/Z_pos over pos_pairs, L_neg = sum(W relu(C_F))/Z_neg over neg_pairs.
+
+    Masked sums (not boolean indexing) keep the graph dense and the gradient exact; Z is
+    clamped to >= 1, so empty selections give 0."""
+    W, CF = ps.W, ps.CF
+    zp = max(float(z_pos), 1.0)
+    zn = max(float(z_neg), 1.0)
+    l_pos = -(W * CF * pos_pairs).sum() / zp
+    l_neg = (W * torch.relu(CF) * neg_pairs).sum() / zn
+    return l_pos, l_neg
+
+
+@register_objective("trase")
+class SoftMining(Objective):
+    """Soft-mined contrastive loss + feature-norm regulariser (TRASE)."""
+
+    def __init__(
+        self,
+        tau_pos: float = TAU_POS,
+        tau_neg: float = TAU_NEG,
+        anchor_side: str = "column",
+        normalise: str = "anchor_pairs",
+        reg_weight: float = 1.0,
+    ) -> None:
+        super().__init__()
+        if anchor_side not in ANCHOR_SIDES:
+            raise ValueError(f"anchor_side must be one of {ANCHOR_SIDES}, got {anchor_side!r}")
+        if normalise not in NORMALISATIONS:
+            raise ValueError(f"normalise must be one of {NORMALISATIONS}, got {normalise!r}")
+        self.tau_pos, self.tau_neg = float(tau_pos), float(tau_neg)
+        self.anchor_side, self.normalise = anchor_side, normalise
+        self.reg_weight = float(reg_weight)
+
+    def anchors(self, ps: PairStats):
+        return soft_anchors(ps, self.tau_pos, self.tau_neg)
+
+    def forward(self, features: torch.Tensor, sample: PixelSample) -> tuple[torch.Tensor, dict]:
+        """features [Np, D] rendered at sample.pixels -> (loss, stats)."""
+        ps = pair_stats(features, sample)
+        pos_a, neg_a = self.anchors(ps)
+        pos, neg, pos_cand, neg_cand = select_pairs(ps, pos_a, neg_a, self.anchor_side)
+        n_pos, n_neg = int(pos.sum()), int(neg.sum())
+        if self.normalise == "anchor_pairs":
+            z_pos, z_neg = int(pos_cand.sum()), int(neg_cand.sum())
+        else:
+            z_pos, z_neg = n_pos, n_neg
+        l_pos, l_neg = weighted_pair_losses(ps, pos, neg, z_pos, z_neg)
+        reg = norm_regulariser(features)
+        loss = l_pos + l_neg + self.reg_weight * reg
+        stats = {
+            "loss_pos": float(l_pos.detach()),
+            "loss_neg": float(l_neg.detach()),
+            "reg": float(reg.detach()),
+            "n_pos": n_pos,
+            "n_neg": n_neg,
+            "n_valid": int(ps.valid.sum()),
+        }
+        return loss, stats
