@@ -14,6 +14,8 @@ import click
 
 COMMANDS: dict[str, tuple[str, str]] = {
     # name: (import path of the click command, one-line help shown by --help)
+    "leaderboard": ("benchmark.commands.leaderboard:leaderboard",
+                    "Leaderboards (markdown/latex/csv/html) from results files."),
     "score": ("benchmark.commands.score:score", "Score predicted masks against ground truth."),
 }
 
