@@ -1,0 +1,59 @@
+"""Smooth gaussian features: each gaussian's feature is the mean of its K nearest neighbours'
+(on canonical positions, the gaussian itself included) L2-normalised features.
+
+As the public code: during training each step averages a random ``n_keep`` of the K
+neighbour slots (the same slots for every gaussian, a cheap neighbour dropout); the saved
+features are the mean over all K slots. K = 0 means no smoothing (features pass through).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from scipy.spatial import cKDTree
+
+NORM_EPS = 1e-12  # zero features stay zero instead of NaN
+
+
+def knn_indices(xyz, K: int = 16) -> torch.Tensor:
+    """Canonical positions [N, 3] -> [N, min(K, N)] int64 neighbour ids, nearest first
+    (the point itself first). K = 0 or N = 0 gives [N, 0]."""
+    pts = np.asarray(xyz.detach().cpu() if torch.is_tensor(xyz) else xyz, dtype=np.float64)
+    pts = pts.reshape(-1, 3)
+    n = pts.shape[0]
+    k = min(int(K), n)
+    if k <= 0:
+        return torch.zeros(n, 0, dtype=torch.long)
+    _, idx = cKDTree(pts).query(pts, k=k)
+    idx = np.asarray(idx, dtype=np.int64).reshape(n, k)
+    # duplicate points: make sure each row starts with the point itself
+    self_id = np.arange(n)
+    bad = idx[:, 0] != self_id
+    if bad.any():
+        for r in np.nonzero(bad)[0]:
+            row = [self_id[r]] + [j for j in idx[r] if j != self_id[r]]
+            idx[r] = row[:k]
+    return torch.from_numpy(idx)
+
+
+def smooth_features(
+    features: torch.Tensor,
+    knn: torch.Tensor,
+    n_keep: int | None = 8,
+    generator: torch.Generator | None = None,
+) -> torch.Tensor:
+    """features [N, D], knn [N, K] -> [N, D] mean of normalised neighbour features.
+
+    n_keep: average a random n_keep of the K slots (shared by all gaussians); None or
+    n_keep >= K averages all K (the saved, deterministic form). With K = 0 the features are
+    returned unchanged (no normalisation either: "no smoothing")."""
+    if knn.shape[1] == 0:
+        return features
+    f = F.normalize(features, dim=1, eps=NORM_EPS)
+    K = knn.shape[1]
+    slots = knn.to(features.device)
+    if n_keep is not None and 0 < n_keep < K:
+        keep = torch.randperm(K, generator=generator)[:n_keep].to(features.device)
+        slots = slots[:, keep]
+    return f[slots].mean(dim=1)
