@@ -1,0 +1,81 @@
+"""Numba CPU compositing as a torch.autograd.Function (forward and hand-written backward
+kernels in numba_kernels.py). Inputs are composited in float32 and results cast back to the
+caller's dtype; projection and SH stay in torch (see projection.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from trase.render import numba_kernels as nk
+
+
+def _np32(t: torch.Tensor) -> np.ndarray:
+    return np.ascontiguousarray(t.detach().to("cpu", torch.float32).numpy())
+
+
+class _Composite(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, means2d, conics, opac, chans, depths, rects, width, height, ts):
+        gx = (width + ts - 1) // ts
+        gy = (height + ts - 1) // ts
+        m2, co, op, ch = _np32(means2d), _np32(conics), _np32(opac), _np32(chans)
+        tile_off, entries, g_ptr, g_pos = nk.bin_gaussians(
+            np.ascontiguousarray(rects.numpy()), depths.detach().to(torch.float64).numpy(), gx, gy
+        )
+        C = ch.shape[1]
+        out = np.zeros((height * width, C), np.float32)
+        t_final = np.ones(height * width, np.float64)
+        n_done = np.zeros(height * width, np.int64)
+        nk.forward(m2, co, op, ch, tile_off, entries, width, height, ts, gx, gy, out, t_final, n_done)
+        ctx.state = (m2, co, op, ch, tile_off, entries, g_ptr, g_pos, t_final, n_done, width, height, ts, gx, gy)
+        ctx.dtype = chans.dtype
+        alpha = (1.0 - t_final).astype(np.float32)
+        dt = chans.dtype
+        return (
+            torch.from_numpy(out).reshape(height, width, C).to(dt),
+            torch.from_numpy(alpha).reshape(height, width).to(dt),
+        )
+
+    @staticmethod
+    def backward(ctx, g_out, g_alpha):
+        m2, co, op, ch, tile_off, entries, g_ptr, g_pos, t_final, n_done, width, height, ts, gx, gy = ctx.state
+        n, C = ch.shape
+        E = entries.shape[0]
+        go = np.ascontiguousarray(g_out.detach().to(torch.float32).reshape(height * width, C).numpy())
+        ga = np.ascontiguousarray(g_alpha.detach().to(torch.float64).reshape(height * width).numpy())
+        buf_geo = np.zeros((E, 6), np.float64)
+        buf_chan = np.zeros((E, C), np.float32)
+        nk.backward(m2, co, op, ch, tile_off, entries, width, height, ts, gx, gy,
+                    t_final, n_done, go, ga, buf_geo, buf_chan)
+        grad_geo = np.zeros((n, 6), np.float64)
+        grad_chan = np.zeros((n, C), np.float32)
+        nk.reduce_grads(g_ptr, g_pos, buf_geo, buf_chan, grad_geo, grad_chan)
+        dt = ctx.dtype
+        gg = torch.from_numpy(grad_geo).to(dt)
+        return gg[:, 0:2], gg[:, 2:5], gg[:, 5], torch.from_numpy(grad_chan).to(dt), None, None, None, None, None
+
+
+def composite_numba(means2d, conics, opac, chans, depths, rects, width, height, tile_size):
+    """Same contract as torch_backend.composite_torch: -> (out [H, W, C], alpha [H, W])."""
+    return _Composite.apply(means2d, conics, opac, chans, depths, rects, int(width), int(height), int(tile_size))
+
+
+def pixel_weights_numba(means2d, conics, opac, depths, rects, width, height, tile_size, pixels, min_weight):
+    """-> (indptr [P+1], indices [nnz], weights [nnz] float32) torch CPU tensors."""
+    ts = int(tile_size)
+    gx = (width + ts - 1) // ts
+    gy = (height + ts - 1) // ts
+    m2, co, op = _np32(means2d), _np32(conics), _np32(opac)
+    tile_off, entries, _, _ = nk.bin_gaussians(
+        np.ascontiguousarray(rects.numpy()), depths.detach().to(torch.float64).numpy(), gx, gy
+    )
+    pix = np.ascontiguousarray(pixels.numpy())
+    counts = np.zeros(pix.shape[0], np.int64)
+    nk.pixel_weight_counts(pix, width, ts, gx, m2, co, op, tile_off, entries, min_weight, counts)
+    indptr = np.zeros(pix.shape[0] + 1, np.int64)
+    np.cumsum(counts, out=indptr[1:])
+    idx = np.empty(indptr[-1], np.int64)
+    w = np.empty(indptr[-1], np.float32)
+    nk.pixel_weight_fill(pix, width, ts, gx, m2, co, op, tile_off, entries, min_weight, indptr, idx, w)
+    return torch.from_numpy(indptr), torch.from_numpy(idx), torch.from_numpy(w)
