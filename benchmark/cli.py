@@ -16,6 +16,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     # name: (import path of the click command, one-line help shown by --help)
     "leaderboard": ("benchmark.commands.leaderboard:leaderboard",
                     "Leaderboards (markdown/latex/csv/html) from results files."),
+    "report": ("benchmark.commands.report:report", "Per-sequence HTML report of a run."),
     "score": ("benchmark.commands.score:score", "Score predicted masks against ground truth."),
 }
 

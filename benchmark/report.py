@@ -1,0 +1,150 @@
+"""Per-sequence report: one self-contained HTML page (images embedded) plus its PNGs.
+
+Built only from a run directory, so it can be made long after the run and on another
+machine. Layout of a run directory (written by the runner):
+
+    results.json                 metrics, per-frame values, stages, config (benchmark.results)
+    pred/<frame>.png             predicted masks (0/255)
+    clusters/<frame>.png         optional: test view rendered with one colour per cluster
+The test images and ground-truth masks are found through ``results["frames"]``.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import json
+from pathlib import Path
+
+import numpy as np
+
+from benchmark.io import atomic_write_bytes, atomic_write_text
+from benchmark.results import load_results
+from benchmark.scoring import read_mask
+
+MAX_FRAMES_SHOWN = 8
+
+
+def overlay(image: np.ndarray, pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
+    """RGB uint8 [H,W,3] with true positives green, false positives red, misses blue."""
+    out = image.astype(np.float32) * 0.55
+    tp, fp, fn = pred & gt, pred & ~gt, ~pred & gt
+    for m, colour in ((tp, (40, 200, 40)), (fp, (230, 40, 40)), (fn, (40, 90, 240))):
+        out[m] = out[m] * 0.35 + np.array(colour, np.float32) * 0.65
+    return out.clip(0, 255).astype(np.uint8)
+
+
+def _read_rgb(path: Path, shape: tuple[int, int]) -> np.ndarray:
+    import cv2
+
+    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if img is None:
+        return np.full((*shape, 3), 128, np.uint8)  # image moved away: grey backdrop, stated below
+    img = img[..., ::-1]
+    if img.shape[:2] != shape:
+        img = cv2.resize(img, (shape[1], shape[0]), interpolation=cv2.INTER_AREA)
+    return img
+
+
+def _png(rgb: np.ndarray) -> bytes:
+    import cv2
+
+    ok, buf = cv2.imencode(".png", np.ascontiguousarray(rgb[..., ::-1]))
+    if not ok:
+        raise RuntimeError("PNG encoding failed")
+    return buf.tobytes()
+
+
+def _iou_plot(record: dict) -> bytes:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    frames = record.get("per_frame", [])
+    iou = [np.nan if f["iou"] is None else f["iou"] for f in frames]
+    acc = [f["acc"] for f in frames]
+    fig, ax = plt.subplots(figsize=(7, 2.6), dpi=100)
+    ax.plot(iou, marker="o", ms=3, label="IoU")
+    ax.plot(acc, marker=".", ms=3, label="accuracy", alpha=0.7)
+    ax.set_ylim(0, 1.02)
+    ax.set_xlabel("test frame")
+    ax.legend(loc="lower left")
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png")
+    plt.close(fig)
+    return buf.getvalue()
+
+
+def _img_tag(data: bytes, alt: str) -> str:
+    return f'<img alt="{html.escape(alt)}" src="data:image/png;base64,{base64.b64encode(data).decode()}">'
+
+
+def make_report(run_dir: str | Path) -> Path:
+    """Write ``report.html`` and ``report/*.png`` into ``run_dir``; returns the HTML path."""
+    run_dir = Path(run_dir)
+    record = load_results(run_dir / "results.json")
+    png_dir = run_dir / "report"
+    frames = record.get("frames", [])
+    step = max(1, len(frames) // MAX_FRAMES_SHOWN)
+    shown = frames[::step][:MAX_FRAMES_SHOWN]
+    per_frame = {f["frame"]: f for f in record.get("per_frame", [])}
+    tiles, missing_images = [], 0
+    for f in shown:
+        gt = read_mask(f["gt"])
+        pred_path = run_dir / f["pred"]
+        pred = read_mask(pred_path) if pred_path.exists() else np.zeros_like(gt)
+        if not Path(f["image"]).exists():
+            missing_images += 1
+        ov = overlay(_read_rgb(Path(f["image"]), gt.shape), pred, gt)
+        data = _png(ov)
+        atomic_write_bytes(png_dir / f"overlay_{f['frame']}.png", data)
+        iou = per_frame.get(f["frame"], {}).get("iou")
+        caption = f"{f['frame']}  IoU {'n/a' if iou is None else f'{iou:.3f}'}"
+        cluster_png = run_dir / "clusters" / f"{f['frame']}.png"
+        extra = _img_tag(cluster_png.read_bytes(), "clusters") if cluster_png.exists() else ""
+        tiles.append(f"<figure>{_img_tag(data, caption)}{extra}<figcaption>{html.escape(caption)}"
+                     "</figcaption></figure>")
+    plot = _iou_plot(record)
+    atomic_write_bytes(png_dir / "per_frame_iou.png", plot)
+
+    m = record["metrics"]
+    fmt = lambda x: "n/a" if x is None else f"{x:.4f}"  # noqa: E731
+    stage_rows = "".join(
+        f"<tr><td>{html.escape(name)}</td><td>{s.get('seconds', 0):.1f}</td>"
+        f"<td>{s.get('peak_rss_mb', 0):.0f}</td><td>{'cached' if s.get('skipped') else 'run'}</td></tr>"
+        for name, s in record.get("stages", {}).items()
+    )
+    official = m.get("official", {})
+    title = f"{record['method']} on {record['dataset']} / {record['sequence']} ({record['variant']} data)"
+    notes = []
+    if missing_images:
+        notes.append(f"{missing_images} test image(s) not found: grey backdrop shown.")
+    if record.get("oracle"):
+        o = record["oracle"]
+        notes.append(f"Oracle cluster selection (upper bound, not the method's score): "
+                     f"mIoU {fmt(o.get('miou'))}, mAcc {fmt(o.get('macc'))}.")
+    page = f"""<!doctype html><html><head><meta charset="utf-8"><title>{html.escape(title)}</title>
+<style>body{{font-family:sans-serif;max-width:1100px;margin:auto}}figure{{display:inline-block;margin:4px}}
+figure img{{display:block;max-width:260px}}table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:2px 8px}}
+pre{{background:#f6f6f6;padding:8px;overflow:auto;font-size:12px}}</style></head><body>
+<h1>{html.escape(title)}</h1>
+<p><b>mIoU {fmt(m['miou'])}</b> &middot; mAcc {fmt(m['macc'])} &middot; pooled IoU {fmt(m['pooled_iou'])}
+&middot; {m['n_frames']} test frames &middot; metric {html.escape(m['metric_version'])}
+{f"&middot; official script rules: mIoU {fmt(official.get('miou'))}, mAcc {fmt(official.get('macc'))}" if official else ""}</p>
+<p>{' '.join(html.escape(n) for n in notes)}</p>
+<h2>Test views</h2><p>green: correct object pixels, red: false positives, blue: missed.</p>
+{''.join(tiles)}
+<h2>Per-frame scores</h2>{_img_tag(plot, 'per-frame IoU')}
+<h2>Stages</h2><table><tr><th>stage</th><th>seconds</th><th>peak RSS MiB</th><th></th></tr>{stage_rows}</table>
+<p>{record.get('n_gaussians', 'n/a')} gaussians; model {record.get('model_size_bytes', 0) / 2**20:.1f} MiB on disk.</p>
+<h2>Config</h2><pre>{html.escape(json.dumps(record.get('config', {}), indent=2))}</pre>
+<h2>Versions</h2><pre>{html.escape(json.dumps(record.get('versions', {}), indent=2))}</pre>
+</body></html>
+"""
+    out = run_dir / "report.html"
+    atomic_write_text(out, page)
+    return out

@@ -1,0 +1,47 @@
+import cv2
+import numpy as np
+
+from benchmark.cli import main
+from benchmark.report import overlay
+from benchmark.results import results_path, write_results
+
+
+def test_overlay_colours():
+    img = np.zeros((1, 3, 3), np.uint8)
+    pred = np.array([[True, True, False]])
+    gt = np.array([[True, False, True]])
+    ov = overlay(img, pred, gt)
+    assert ov[0, 0, 1] > ov[0, 0, 0]  # true positive: green
+    assert ov[0, 1, 0] > ov[0, 1, 1]  # false positive: red
+    assert ov[0, 2, 2] > ov[0, 2, 0]  # miss: blue
+
+
+def test_report_from_run_dir(tmp_path, capsys):
+    run = results_path(tmp_path, "trase", "hypernerf", "synthetic").parent
+    (run / "pred").mkdir(parents=True)
+    frames = []
+    for i in range(3):
+        name = f"{i:05d}"
+        img, gt = tmp_path / f"img{i}.png", tmp_path / f"gt{i}.png"
+        cv2.imwrite(str(img), np.full((8, 10, 3), 100, np.uint8))
+        m = np.zeros((8, 10), np.uint8)
+        m[2:6, 2:6] = 255
+        cv2.imwrite(str(gt), m)
+        cv2.imwrite(str(run / "pred" / f"{name}.png"), m)
+        frames.append({"frame": name, "image": str(img), "gt": str(gt), "pred": f"pred/{name}.png"})
+    write_results(run / "results.json", {
+        "method": "trase", "dataset": "hypernerf", "sequence": "synthetic", "variant": "synthetic",
+        "metrics": {"miou": 1.0, "macc": 1.0, "pooled_iou": 1.0, "metric_version": "v1/bin1",
+                    "n_frames": 3},
+        "per_frame": [{"frame": f["frame"], "iou": 1.0, "acc": 1.0} for f in frames],
+        "frames": frames, "stages": {"masks": {"seconds": 1.5, "peak_rss_mb": 100}},
+        "config": {"features": {"dim": 32}},
+    })
+    assert main(["report", "--method", "trase", "--dataset", "hypernerf", "--sequence", "synthetic",
+                 "--out", str(tmp_path)]) == 0
+    page = (run / "report.html").read_text()
+    assert "mIoU 1.0000" in page and page.count("data:image/png;base64") == 4
+    assert (run / "report" / "per_frame_iou.png").exists()
+    assert main(["report", "--method", "x", "--dataset", "hypernerf", "--sequence", "s",
+                 "--out", str(tmp_path)]) == 1
+    assert "no results for x" in capsys.readouterr().err
