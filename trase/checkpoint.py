@@ -1,0 +1,173 @@
+"""Model checkpoints in the public Deformable-3DGS / TRASE layout, both ways.
+
+    <model_dir>/point_cloud/iteration_N/point_cloud.ply   canonical gaussians (3DGS PLY)
+    <model_dir>/deform/iteration_N/deform.pth             DeformNetwork state dict
+
+A model trained with the public GPU code can be loaded here, and one trained here loads in
+the public code. Deformation networks are rebuilt from the state dict's shapes (paper size
+or the small CPU preset). The synthetic scenes' ground truth (geometry.npz) loads into the
+same types with a TabulatedDeformation.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import re
+import tempfile
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from trase.deformation import DeformMLP, TabulatedDeformation, infer_mlp_config
+from trase.gaussians import GaussianFileError, GaussianModel, rgb_to_sh_dc
+
+
+class CheckpointError(ValueError):
+    """A missing or corrupt checkpoint; the message names the file and the problem."""
+
+    user_facing = True
+
+
+_ITER_RE = re.compile(r"^iteration_(\d+)$")
+
+
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    """Write to a temp file beside ``path`` and rename, so readers never see half a file."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def atomic_torch_save(obj, path: Path) -> None:
+    buf = io.BytesIO()
+    torch.save(obj, buf)
+    atomic_write_bytes(Path(path), buf.getvalue())
+
+
+def available_iterations(model_dir: str | Path) -> list[int]:
+    """Iterations with a point cloud saved under model_dir, ascending."""
+    pc = Path(model_dir) / "point_cloud"
+    if not pc.is_dir():
+        return []
+    its = []
+    for d in pc.iterdir():
+        m = _ITER_RE.match(d.name)
+        if m and (d / "point_cloud.ply").is_file():
+            its.append(int(m.group(1)))
+    return sorted(its)
+
+
+def ply_path(model_dir: str | Path, iteration: int) -> Path:
+    return Path(model_dir) / "point_cloud" / f"iteration_{iteration}" / "point_cloud.ply"
+
+
+def deform_path(model_dir: str | Path, iteration: int) -> Path:
+    return Path(model_dir) / "deform" / f"iteration_{iteration}" / "deform.pth"
+
+
+def save_model(model_dir: str | Path, gaussians: GaussianModel, deformation, iteration: int) -> None:
+    """Write both files of ``iteration`` atomically; the deform file is written first so a
+    point cloud (which marks the iteration as present) never exists without it.
+
+    ``deformation`` must be a DeformMLP (the public format has no tabulated deformation) or
+    None for a static model (no deform file).
+    """
+    if deformation is not None:
+        if not isinstance(deformation, DeformMLP):
+            raise TypeError(f"save_model: can only save a DeformMLP, got {type(deformation).__name__}")
+        sd = {k: v.detach().cpu().clone() for k, v in deformation.state_dict().items()}
+        atomic_torch_save(sd, deform_path(model_dir, iteration))
+    gaussians.save_ply(ply_path(model_dir, iteration))
+
+
+def load_deformation(path: Path) -> DeformMLP:
+    """A DeformMLP from a public-layout deform.pth (architecture inferred from its shapes)."""
+    if not path.is_file():
+        raise CheckpointError(f"{path}: deformation weights not found")
+    try:
+        sd = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:
+        raise CheckpointError(f"{path}: not a readable torch state dict ({type(exc).__name__}: {exc})") from None
+    if not isinstance(sd, dict) or not all(torch.is_tensor(v) for v in sd.values()):
+        raise CheckpointError(f"{path}: expected a state dict of tensors, got {type(sd).__name__}")
+    try:
+        net = DeformMLP(**infer_mlp_config(sd))
+        net.load_state_dict(sd, strict=True)
+    except (ValueError, RuntimeError, KeyError) as exc:
+        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise CheckpointError(f"{path}: {msg}") from None
+    net.eval()
+    return net
+
+
+def load_model(model_dir: str | Path, iteration: int | None = None) -> tuple[GaussianModel, DeformMLP | None]:
+    """(gaussians, deformation) saved at ``iteration`` (the latest when None).
+
+    The deformation is None when the model has no deform folder at all (a static 3DGS
+    model); a deform folder without the requested iteration is an error.
+    """
+    model_dir = Path(model_dir)
+    if not model_dir.is_dir():
+        raise CheckpointError(f"{model_dir}: model directory not found")
+    its = available_iterations(model_dir)
+    if iteration is None:
+        if not its:
+            raise CheckpointError(f"{model_dir}: no point_cloud/iteration_N/point_cloud.ply checkpoint found")
+        iteration = its[-1]
+    ply = ply_path(model_dir, iteration)
+    if not ply.is_file():
+        have = ", ".join(map(str, its)) or "none"
+        raise CheckpointError(f"{ply}: no checkpoint for iteration {iteration} (available: {have})")
+    try:
+        gaussians = GaussianModel.load_ply(ply)
+    except GaussianFileError as exc:
+        raise CheckpointError(str(exc)) from None
+    dpath = deform_path(model_dir, iteration)
+    if not (model_dir / "deform").exists():
+        return gaussians, None
+    return gaussians, load_deformation(dpath)
+
+
+def load_synthetic_geometry(npz_path: str | Path) -> tuple[GaussianModel, TabulatedDeformation, np.ndarray]:
+    """Ground-truth gaussians, their tabulated motion and object ids [N] from geometry.npz."""
+    path = Path(npz_path)
+    if not path.is_file():
+        raise CheckpointError(f"{path}: synthetic geometry file not found")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            d = {k: z[k] for k in z.files}
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+        raise CheckpointError(f"{path}: not a readable .npz file ({type(exc).__name__}: {exc})") from None
+    keys = ["means", "log_scales", "quats", "opacity_logits", "colors", "object_ids", "times", "d_xyz", "d_rot", "d_scale"]
+    missing = [k for k in keys if k not in d]
+    if missing:
+        raise CheckpointError(f"{path}: missing arrays {', '.join(missing)}")
+    n = d["means"].shape[0] if d["means"].ndim == 2 else -1
+    t = d["times"].reshape(-1).shape[0]
+    want = {
+        "means": (n, 3), "log_scales": (n, 3), "quats": (n, 4), "opacity_logits": (n,), "colors": (n, 3),
+        "object_ids": (n,), "d_xyz": (t, n, 3), "d_rot": (t, n, 4), "d_scale": (t, n, 3),
+    }
+    for k, shape in want.items():
+        if n < 0 or tuple(d[k].shape) != shape:
+            raise CheckpointError(f"{path}: array {k} has shape {tuple(d[k].shape)}, expected {shape}")
+    for k in keys:
+        if k != "object_ids" and not np.isfinite(d[k]).all():
+            raise CheckpointError(f"{path}: array {k} has non-finite values")
+    f = lambda a: torch.as_tensor(np.asarray(a, dtype=np.float32))  # noqa: E731
+    sh = rgb_to_sh_dc(np.clip(d["colors"].astype(np.float64), 0.0, 1.0))[:, None, :]
+    g = GaussianModel(f(d["means"]), f(d["log_scales"]), f(d["quats"]), f(d["opacity_logits"]), f(sh))
+    try:
+        deform = TabulatedDeformation(d["times"], d["d_xyz"], d["d_rot"], d["d_scale"])
+    except ValueError as exc:
+        raise CheckpointError(f"{path}: {exc}") from None
+    return g, deform, np.asarray(d["object_ids"]).astype(np.int32)

@@ -1,0 +1,231 @@
+"""Time-dependent deformation of canonical gaussians: (xyz, t) -> (d_xyz, d_rot, d_scale).
+
+Two implementations share one protocol:
+
+* ``DeformMLP``: the Deformable-3DGS network (positional encoding of xyz and t, an MLP with a
+  skip connection, three linear heads without activation). Its parameter names match the
+  public code (``linear.{i}``, ``gaussian_warp``, ``gaussian_rotation``, ``gaussian_scaling``,
+  and ``timenet.{0,2}`` in the D-NeRF "blender" variant) so ``deform/iteration_N/deform.pth``
+  files written by Deformable-3DGS or TRASE load into it unchanged.
+* ``TabulatedDeformation``: offsets given per time step and interpolated linearly; the
+  synthetic scenes ship their ground-truth motion this way, so tests can skip training.
+
+``deformed`` applies the offsets with Deformable-3DGS semantics: means + d_xyz,
+normalize(q) + d_rot, exp(log_s) + d_scale.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol, runtime_checkable
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+# Smallest scale handed to the rasterizer: exp(log_s) + d_scale may go negative.
+MIN_SCALE = 1e-7
+
+
+@runtime_checkable
+class Deformation(Protocol):
+    def __call__(self, xyz: torch.Tensor, t: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """xyz [N, 3] canonical means, t in [0, 1] -> (d_xyz [N, 3], d_rot [N, 4], d_scale [N, 3])."""
+        ...
+
+
+def positional_encoding(x: torch.Tensor, num_freqs: int) -> torch.Tensor:
+    """NeRF encoding with the raw input first: [x, sin(x), cos(x), sin(2x), cos(2x), ...].
+
+    x [..., d] -> [..., d * (1 + 2 * num_freqs)]; frequencies 2^0 .. 2^(num_freqs-1), the
+    same order as Deformable-3DGS's embedder so trained weights stay meaningful.
+    """
+    parts = [x]
+    for k in range(num_freqs):
+        f = float(2.0**k)
+        parts.append(torch.sin(x * f))
+        parts.append(torch.cos(x * f))
+    return torch.cat(parts, dim=-1)
+
+
+class DeformMLP(nn.Module):
+    """The Deformable-3DGS deformation network.
+
+    depth D, width W, xyz encoded with ``xyz_freqs`` frequencies (10 in the paper), t with
+    ``t_freqs`` (10 for real scenes; the D-NeRF "blender" variant uses 6 plus a small
+    ``timenet`` that maps the time encoding to 30 channels). The encoded input is
+    concatenated again after layer D // 2.
+    """
+
+    def __init__(
+        self,
+        D: int = 8,
+        W: int = 256,
+        xyz_freqs: int = 10,
+        t_freqs: int | None = None,
+        blender: bool = False,
+    ) -> None:
+        super().__init__()
+        if D < 2 or W < 1:
+            raise ValueError(f"DeformMLP needs D >= 2 and W >= 1, got D={D}, W={W}")
+        self.D, self.W = D, W
+        self.xyz_freqs = xyz_freqs
+        self.t_freqs = t_freqs if t_freqs is not None else (6 if blender else 10)
+        self.blender = blender
+        self.skip = D // 2  # the encoded input is concatenated after this layer
+        xyz_ch = 3 * (1 + 2 * xyz_freqs)
+        t_ch = 1 * (1 + 2 * self.t_freqs)
+        if blender:
+            self.time_out = 30
+            self.timenet = nn.Sequential(nn.Linear(t_ch, 256), nn.ReLU(inplace=True), nn.Linear(256, self.time_out))
+            t_ch = self.time_out
+        in_ch = xyz_ch + t_ch
+        layers = [nn.Linear(in_ch, W)]
+        for i in range(D - 1):
+            layers.append(nn.Linear(W + in_ch, W) if i == self.skip else nn.Linear(W, W))
+        self.linear = nn.ModuleList(layers)
+        self.gaussian_warp = nn.Linear(W, 3)
+        self.gaussian_rotation = nn.Linear(W, 4)
+        self.gaussian_scaling = nn.Linear(W, 3)
+
+    @classmethod
+    def preset(cls, name: str) -> "DeformMLP":
+        """``paper``: D=8, W=256 (Deformable-3DGS); ``small``: D=4, W=64 for CPU training."""
+        if name == "paper":
+            return cls(D=8, W=256)
+        if name == "small":
+            return cls(D=4, W=64)
+        raise ValueError(f"unknown deformation preset {name!r} (use 'paper' or 'small')")
+
+    def config(self) -> dict:
+        """Constructor arguments, enough to rebuild the module before loading a state dict."""
+        return {"D": self.D, "W": self.W, "xyz_freqs": self.xyz_freqs, "t_freqs": self.t_freqs, "blender": self.blender}
+
+    def forward(self, xyz: torch.Tensor, t: float | torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """xyz [N, 3]; t a float or [N, 1] tensor (per-gaussian times, e.g. with noise)."""
+        n = xyz.shape[0]
+        if not torch.is_tensor(t):
+            t = torch.full((n, 1), float(t), dtype=xyz.dtype, device=xyz.device)
+        elif t.dim() == 0:
+            t = t.reshape(1, 1).expand(n, 1)
+        elif t.dim() == 1:
+            t = t.reshape(-1, 1).expand(n, 1) if t.numel() == 1 else t.reshape(n, 1)
+        t_emb = positional_encoding(t.to(xyz.dtype), self.t_freqs)
+        if self.blender:
+            t_emb = self.timenet(t_emb)
+        x_emb = positional_encoding(xyz, self.xyz_freqs)
+        inp = torch.cat([x_emb, t_emb], dim=-1)
+        h = inp
+        for i, layer in enumerate(self.linear):
+            h = F.relu(layer(h))
+            if i == self.skip:
+                h = torch.cat([inp, h], dim=-1)
+        return self.gaussian_warp(h), self.gaussian_rotation(h), self.gaussian_scaling(h)
+
+
+def infer_mlp_config(state_dict: dict) -> dict:
+    """Rebuild DeformMLP constructor arguments from a Deformable-3DGS state dict.
+
+    D from the number of ``linear.i`` layers, W from the first layer's output size, the
+    time encoding size from the input width (xyz uses 10 frequencies in all public code).
+    Raises ValueError when the dict does not look like that network.
+    """
+    idx = sorted({int(k.split(".")[1]) for k in state_dict if k.startswith("linear.") and k.endswith(".weight")})
+    needed = ["gaussian_warp.weight", "gaussian_rotation.weight", "gaussian_scaling.weight"]
+    missing = [k for k in needed if k not in state_dict]
+    if not idx or missing:
+        what = "no linear.N layers" if not idx else f"missing {', '.join(missing)}"
+        raise ValueError(f"not a Deformable-3DGS deform network state dict ({what})")
+    D = len(idx)
+    first = state_dict["linear.0.weight"]
+    W = int(first.shape[0])
+    in_ch = int(first.shape[1])
+    xyz_freqs = 10
+    xyz_ch = 3 * (1 + 2 * xyz_freqs)
+    blender = "timenet.0.weight" in state_dict
+    if blender:
+        t_ch = int(state_dict["timenet.0.weight"].shape[1])
+    else:
+        t_ch = in_ch - xyz_ch
+    if t_ch < 1 or (t_ch - 1) % 2:
+        raise ValueError(f"not a Deformable-3DGS deform network state dict (input width {in_ch})")
+    return {"D": D, "W": W, "xyz_freqs": xyz_freqs, "t_freqs": (t_ch - 1) // 2, "blender": blender}
+
+
+class TabulatedDeformation(nn.Module):
+    """Offsets known at times[T], linearly interpolated between them (clamped outside).
+
+    times [T] ascending, d_xyz [T, N, 3], d_rot [T, N, 4], d_scale [T, N, 3]; exact at the
+    tabulated times. Holds buffers, not parameters: it describes given motion.
+    """
+
+    def __init__(self, times, d_xyz, d_rot, d_scale) -> None:
+        super().__init__()
+        times = torch.as_tensor(times, dtype=torch.float64).reshape(-1)
+        d_xyz = torch.as_tensor(d_xyz, dtype=torch.float32)
+        d_rot = torch.as_tensor(d_rot, dtype=torch.float32)
+        d_scale = torch.as_tensor(d_scale, dtype=torch.float32)
+        T = times.shape[0]
+        if T < 1:
+            raise ValueError("TabulatedDeformation needs at least one time")
+        if d_xyz.dim() != 3 or d_xyz.shape[0] != T or d_xyz.shape[2] != 3:
+            raise ValueError(f"d_xyz must be [T={T}, N, 3], got {tuple(d_xyz.shape)}")
+        n = d_xyz.shape[1]
+        if tuple(d_rot.shape) != (T, n, 4) or tuple(d_scale.shape) != (T, n, 3):
+            raise ValueError(
+                f"d_rot must be [{T}, {n}, 4] and d_scale [{T}, {n}, 3], got {tuple(d_rot.shape)}, {tuple(d_scale.shape)}"
+            )
+        if not bool(torch.isfinite(times).all()) or (T > 1 and not bool((times[1:] > times[:-1]).all())):
+            raise ValueError("TabulatedDeformation times must be finite and strictly increasing")
+        self.register_buffer("times", times)
+        self.register_buffer("d_xyz", d_xyz)
+        self.register_buffer("d_rot", d_rot)
+        self.register_buffer("d_scale", d_scale)
+
+    @property
+    def num_gaussians(self) -> int:
+        return int(self.d_xyz.shape[1])
+
+    def _bracket(self, t: float) -> tuple[int, int, float]:
+        """Indices (i0, i1) and weight w of t: value = (1 - w) * v[i0] + w * v[i1]."""
+        times = self.times
+        T = times.shape[0]
+        if T == 1 or t <= float(times[0]):
+            return 0, 0, 0.0
+        if t >= float(times[-1]):
+            return T - 1, T - 1, 0.0
+        i1 = int(torch.searchsorted(times, torch.tensor([t], dtype=torch.float64), right=False)[0])
+        if float(times[i1]) == t:
+            return i1, i1, 0.0
+        i0 = i1 - 1
+        w = (t - float(times[i0])) / (float(times[i1]) - float(times[i0]))
+        return i0, i1, w
+
+    def forward(self, xyz: torch.Tensor, t: float | torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        if torch.is_tensor(t):
+            t = float(t.reshape(-1)[0])
+        if xyz.shape[0] != self.num_gaussians:
+            raise ValueError(f"TabulatedDeformation holds {self.num_gaussians} gaussians, got xyz for {xyz.shape[0]}")
+        i0, i1, w = self._bracket(float(t))
+        out = []
+        for table in (self.d_xyz, self.d_rot, self.d_scale):
+            v = table[i0] if w == 0.0 else table[i0] * (1.0 - w) + table[i1] * w
+            out.append(v.to(device=xyz.device, dtype=xyz.dtype))
+        return out[0], out[1], out[2]
+
+
+def deformed(gaussians, deformation, t: float, detach_xyz_input: bool = True):
+    """Means [N, 3], quats [N, 4] wxyz, scales [N, 3] of ``gaussians`` at time t.
+
+    Deformable-3DGS semantics: means + d_xyz, normalize(q) + d_rot, exp(log_s) + d_scale;
+    the network sees the canonical means detached (as in the public trainer). Scales are
+    clamped to MIN_SCALE so a negative offset cannot produce an invalid gaussian. With
+    ``deformation=None`` the canonical geometry is returned.
+    """
+    means = gaussians.means
+    quats = gaussians.rotations
+    scales = gaussians.scales
+    if deformation is None:
+        return means, quats, scales
+    xyz_in = means.detach() if detach_xyz_input else means
+    d_xyz, d_rot, d_scale = deformation(xyz_in, t)
+    return means + d_xyz, quats + d_rot, torch.clamp(scales + d_scale, min=MIN_SCALE)

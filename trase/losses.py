@@ -1,0 +1,72 @@
+"""Photometric losses of 3DGS-style training: L1, SSIM (11x11 gaussian window, sigma 1.5), PSNR.
+
+Images are [H, W, C] or [B, H, W, C] float tensors in [0, 1] (channels last, as the
+rasterizer returns them).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import torch
+import torch.nn.functional as F
+
+
+def _check_pair(pred: torch.Tensor, target: torch.Tensor, what: str) -> None:
+    if pred.shape != target.shape:
+        raise ValueError(f"{what}: prediction {tuple(pred.shape)} and target {tuple(target.shape)} differ in shape")
+    if pred.dim() not in (3, 4):
+        raise ValueError(f"{what}: expected [H, W, C] or [B, H, W, C], got {tuple(pred.shape)}")
+
+
+def l1_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    _check_pair(pred, target, "l1_loss")
+    return (pred - target).abs().mean()
+
+
+@functools.lru_cache(maxsize=8)
+def _window(size: int, sigma: float, channels: int, dtype: torch.dtype) -> torch.Tensor:
+    """[C, 1, size, size] normalised separable gaussian window, one per channel."""
+    x = torch.arange(size, dtype=torch.float64) - (size // 2)
+    g = torch.exp(-(x * x) / (2 * sigma * sigma))
+    g = g / g.sum()
+    w2 = g[:, None] @ g[None, :]
+    return w2.to(dtype).expand(channels, 1, size, size).contiguous()
+
+
+def ssim(pred: torch.Tensor, target: torch.Tensor, window_size: int = 11, sigma: float = 1.5) -> torch.Tensor:
+    """Mean SSIM as 3DGS computes it: per-channel gaussian-window statistics with zero
+    padding of window_size // 2 (so the output keeps the image size), C1 = 0.01^2,
+    C2 = 0.03^2, averaged over all pixels and channels."""
+    _check_pair(pred, target, "ssim")
+    if pred.dim() == 3:
+        pred, target = pred[None], target[None]
+    x = pred.permute(0, 3, 1, 2)  # [B, C, H, W]
+    y = target.permute(0, 3, 1, 2)
+    c = x.shape[1]
+    w = _window(window_size, sigma, c, x.dtype).to(x.device)
+    pad = window_size // 2
+    conv = lambda t: F.conv2d(t, w, padding=pad, groups=c)  # noqa: E731
+    mu_x, mu_y = conv(x), conv(y)
+    mu_x2, mu_y2, mu_xy = mu_x * mu_x, mu_y * mu_y, mu_x * mu_y
+    s_x = conv(x * x) - mu_x2
+    s_y = conv(y * y) - mu_y2
+    s_xy = conv(x * y) - mu_xy
+    c1, c2 = 0.01**2, 0.03**2
+    m = ((2 * mu_xy + c1) * (2 * s_xy + c2)) / ((mu_x2 + mu_y2 + c1) * (s_x + s_y + c2))
+    return m.mean()
+
+
+def dssim_l1_loss(pred: torch.Tensor, target: torch.Tensor, lambda_dssim: float = 0.2) -> torch.Tensor:
+    """(1 - lambda) * L1 + lambda * (1 - SSIM): the Deformable-3DGS photometric loss."""
+    return (1.0 - lambda_dssim) * l1_loss(pred, target) + lambda_dssim * (1.0 - ssim(pred, target))
+
+
+def psnr(pred: torch.Tensor, target: torch.Tensor, max_value: float = 1.0) -> float:
+    """Peak signal-to-noise ratio in dB over all pixels and channels (inf for identical)."""
+    _check_pair(pred, target, "psnr")
+    mse = float(((pred.detach().double() - target.detach().double()) ** 2).mean())
+    if mse == 0.0:
+        return math.inf
+    return 10.0 * math.log10(max_value * max_value / mse)

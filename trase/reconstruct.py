@@ -1,0 +1,492 @@
+"""Dynamic reconstruction: canonical gaussians + Deformable-3DGS deformation, trained on CPU.
+
+The schedule is Deformable-3DGS's: gaussians initialised from the scene's points, a warm-up
+without deformation, densification (clone / split by screen-space gradient) and pruning,
+periodic opacity resets, one more SH band every 1000 iterations, L1 + D-SSIM loss, and a
+time-noise on the deformation input annealed to zero. Checkpoints use the public layout
+(``trase.checkpoint``) plus a sidecar with optimizer and schedule state, so an interrupted
+run resumes where it stopped.
+
+Deviations from the public trainer (documented because they change numbers slightly):
+* the rasterizer does not return screen-space mean gradients, so the densification
+  statistic is recovered from the gradient of the deformed 3D means by least squares through
+  the projection Jacobian (exact when the loss depends on a mean only through its pixel
+  position), in NDC units like 3DGS's;
+* the time-noise scale uses 1 / (number of training views) rather than 1 / (views left in the
+  current random pass);
+* ``max_gaussians`` caps densification (keeping the largest-gradient candidates).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from pathlib import Path
+from typing import Any, Iterable, Sequence
+
+import numpy as np
+import torch
+
+from trase.camera import Camera
+from trase.checkpoint import (
+    CheckpointError,
+    atomic_torch_save,
+    available_iterations,
+    load_model,
+    save_model,
+)
+from trase.deformation import DeformMLP, deformed
+from trase.gaussians import GaussianModel
+from trase.losses import l1_loss, psnr, ssim
+
+
+class ImageLoadError(ValueError):
+    """A training image that cannot be used; the message names the file and the problem."""
+
+    user_facing = True
+
+
+# Per-dataset (warm_up, densify_until) of the public configs (DESIGN.md).
+DATASET_SCHEDULES = {
+    "nerfds": (3000, 15000),
+    "hypernerf": (1500, 9000),
+    "neu3d": (3000, 8000),
+    "immersive": (1000, 3000),
+    "technicolor": (3000, 5000),
+}
+
+
+@dataclasses.dataclass
+class ReconstructionConfig:
+    iterations: int = 20_000
+    warm_up: int = 3_000  # iterations without deformation
+    # learning rates (Deformable-3DGS): positions and the deform net decay exponentially
+    position_lr_init: float = 0.00016
+    position_lr_final: float = 0.0000016
+    position_lr_max_steps: int = 30_000
+    deform_lr_max_steps: int = 40_000
+    spatial_lr_scale: float = 5.0
+    feature_lr: float = 0.0025  # SH DC; higher bands use feature_lr / 20
+    opacity_lr: float = 0.05
+    scaling_lr: float = 0.001
+    rotation_lr: float = 0.001
+    # densification
+    percent_dense: float = 0.01
+    densify_from: int = 500
+    densify_until: int = 15_000
+    densify_interval: int = 100
+    densify_grad_threshold: float = 0.0007
+    min_opacity: float = 0.005
+    opacity_reset_interval: int = 3_000
+    max_gaussians: int = 0  # 0 = no cap
+    # appearance
+    sh_degree: int = 3
+    sh_interval: int = 1_000  # one more SH band every this many iterations
+    lambda_dssim: float = 0.2
+    white_background: bool = False
+    # deformation
+    deform_preset: str = "paper"  # "paper" (D=8, W=256) or "small" (D=4, W=64)
+    time_noise: float = 0.1
+    time_noise_steps: int = 20_000
+    # data and bookkeeping
+    image_downscale: float = 1.0
+    seed: int = 0
+    checkpoint_interval: int = 5_000  # also saved at the end
+    log_interval: int = 10
+
+    @classmethod
+    def paper(cls, dataset: str | None = None, **overrides) -> "ReconstructionConfig":
+        """Public settings; ``dataset`` picks the per-dataset warm-up / densify-until."""
+        kw: dict[str, Any] = {}
+        if dataset is not None:
+            if dataset not in DATASET_SCHEDULES:
+                raise ValueError(f"unknown dataset {dataset!r}; known: {', '.join(DATASET_SCHEDULES)}")
+            kw["warm_up"], kw["densify_until"] = DATASET_SCHEDULES[dataset]
+        kw.update(overrides)
+        return cls(**kw)
+
+    @classmethod
+    def cpu(cls, **overrides) -> "ReconstructionConfig":
+        """A short schedule for a few CPU minutes on small scenes: the same recipe compressed
+        (schedules scaled to 3000 iterations), the small deformation net, SH up to degree 1."""
+        kw: dict[str, Any] = dict(
+            iterations=3000,
+            warm_up=300,
+            position_lr_max_steps=3000,
+            deform_lr_max_steps=3000,
+            densify_from=100,
+            densify_until=1500,
+            densify_interval=100,
+            densify_grad_threshold=0.0004,
+            opacity_reset_interval=100_000,  # no reset in a short run: it costs more than it gains
+            max_gaussians=30_000,
+            sh_degree=1,
+            sh_interval=1000,
+            deform_preset="small",
+            time_noise_steps=2000,
+            checkpoint_interval=1000,
+        )
+        kw.update(overrides)
+        return cls(**kw)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+# -- schedules -------------------------------------------------------------------------------
+def expon_lr(step: int, lr_init: float, lr_final: float, max_steps: int) -> float:
+    """Log-linear decay from lr_init to lr_final over max_steps (3DGS's get_expon_lr_func
+    with no delay), constant afterwards."""
+    if lr_init <= 0 or lr_final <= 0:
+        return 0.0
+    t = min(max(step / max(max_steps, 1), 0.0), 1.0)
+    return math.exp(math.log(lr_init) * (1 - t) + math.log(lr_final) * t)
+
+
+def time_noise_scale(step: int, cfg: ReconstructionConfig) -> float:
+    """Linear anneal of the time-noise amplitude to zero over time_noise_steps."""
+    t = min(max(step / max(cfg.time_noise_steps, 1), 0.0), 1.0)
+    return cfg.time_noise * (1.0 - t)
+
+
+# -- data ------------------------------------------------------------------------------------
+def load_image(path: Path, camera: Camera, background: np.ndarray) -> np.ndarray:
+    """[H, W, 3] float32 RGB in [0, 1] at the camera's size (resized with INTER_AREA when the
+    file is larger by the downscale factor). RGBA is composited over the background."""
+    import cv2
+
+    path = Path(path)
+    if not path.is_file():
+        raise ImageLoadError(f"{path}: training image not found")
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise ImageLoadError(f"{path}: cannot decode image")
+    if img.dtype == np.uint16:
+        img = img.astype(np.float32) / 65535.0
+    elif img.dtype == np.uint8:
+        img = img.astype(np.float32) / 255.0
+    else:
+        img = img.astype(np.float32)
+    if img.ndim == 2:
+        img = np.repeat(img[:, :, None], 3, axis=2)
+    if img.shape[2] == 4:
+        a = img[:, :, 3:4]
+        img = img[:, :, :3] * a + background[::-1][None, None, :] * (1 - a)  # BGR order still
+    img = np.ascontiguousarray(img[:, :, 2::-1])  # BGR -> RGB
+    h, w = img.shape[:2]
+    if (w, h) != (camera.width, camera.height):
+        sx, sy = w / camera.width, h / camera.height
+        if abs(sx - sy) > 0.02 * max(sx, sy) or sx < 1:
+            raise ImageLoadError(
+                f"{path}: image is {w}x{h} but its camera is {camera.width}x{camera.height}"
+            )
+        img = cv2.resize(img, (camera.width, camera.height), interpolation=cv2.INTER_AREA)
+    return np.clip(img, 0.0, 1.0)
+
+
+class ImageCache:
+    """Images loaded once, as torch tensors [H, W, 3]."""
+
+    def __init__(self, views: Sequence, downscale: float, background: np.ndarray) -> None:
+        self.cameras: list[Camera] = []
+        self.images: list[torch.Tensor] = []
+        for v in views:
+            cam = v.camera if downscale == 1 else v.camera.scaled(downscale)
+            if not cam.is_pinhole:
+                raise ImageLoadError(f"{v.image_path}: reconstruction needs undistorted pinhole cameras")
+            self.cameras.append(cam)
+            self.images.append(torch.from_numpy(load_image(Path(v.image_path), cam, background)))
+
+    def __len__(self) -> int:
+        return len(self.cameras)
+
+
+def scene_extent(cameras: Iterable[Camera]) -> float:
+    """3DGS's scene radius: 1.1 x the largest camera-centre distance from their mean."""
+    centers = np.stack([c.center for c in cameras])
+    diag = float(np.linalg.norm(centers - centers.mean(0), axis=1).max())
+    return max(diag * 1.1, 1e-6) if diag > 0 else 1.0
+
+
+# -- rendering ------------------------------------------------------------------------------
+def render_view(gaussians: GaussianModel, deformation, camera: Camera, background=None,
+                backend: str = "auto", time_offset: float = 0.0, with_deform: bool = True):
+    """Render gaussians deformed to camera.time. Returns (RenderOutput, deformed means [N,3])."""
+    from trase.render import rasterize
+
+    t = float(camera.time) + time_offset
+    means, quats, scales = deformed(gaussians, deformation if with_deform else None, t)
+    out = rasterize(
+        means, quats, scales, gaussians.opacities, camera,
+        colors=gaussians.sh_for_render(), sh_degree=gaussians.active_sh_degree,
+        background=background, backend=backend,
+    )
+    return out, means
+
+
+@torch.no_grad()
+def evaluate_psnr(gaussians: GaussianModel, deformation, views: Sequence, background=None,
+                  backend: str = "auto", downscale: float = 1.0) -> float:
+    """Mean over views of the PSNR (dB) of the clamped render against the view's image."""
+    if not views:
+        raise ValueError("evaluate_psnr: no views")
+    bg = torch.zeros(3) if background is None else torch.as_tensor(background, dtype=torch.float32)
+    vals = []
+    for v in views:
+        cam = v.camera if downscale == 1 else v.camera.scaled(downscale)
+        gt = torch.from_numpy(load_image(Path(v.image_path), cam, bg.numpy()))
+        out, _ = render_view(gaussians, deformation, cam, bg, backend)
+        vals.append(psnr(out.color.clamp(0, 1), gt))
+    return float(np.mean(vals))
+
+
+def _screen_grad_norm(grad_means: torch.Tensor, means: torch.Tensor, camera: Camera) -> torch.Tensor:
+    """|dL/d(mean2D)| in NDC units [N] from dL/d(mean3D) [N, 3] by least squares through the
+    projection Jacobian J [2, 3]: g2 = (J J^T)^-1 J g3."""
+    R = torch.as_tensor(camera.w2c[:3, :3], dtype=torch.float32)
+    t = torch.as_tensor(camera.w2c[:3, 3], dtype=torch.float32)
+    p = means.detach() @ R.T + t
+    g = grad_means @ R.T  # camera-space gradient
+    z = p[:, 2].clamp_min(1e-6)
+    fx, fy = camera.fx, camera.fy
+    J = torch.zeros(means.shape[0], 2, 3)
+    J[:, 0, 0] = fx / z
+    J[:, 0, 2] = -fx * p[:, 0] / (z * z)
+    J[:, 1, 1] = fy / z
+    J[:, 1, 2] = -fy * p[:, 1] / (z * z)
+    JJt = J @ J.transpose(1, 2) + 1e-12 * torch.eye(2)
+    g2 = torch.linalg.solve(JJt, (J @ g[:, :, None]))[:, :, 0]  # pixels
+    g2 = g2 * torch.tensor([0.5 * camera.width, 0.5 * camera.height])
+    return g2.norm(dim=1)
+
+
+# -- training --------------------------------------------------------------------------------
+def _make_optimizers(g: GaussianModel, deform: DeformMLP, cfg: ReconstructionConfig):
+    groups = [
+        {"params": [g.means], "lr": cfg.position_lr_init * cfg.spatial_lr_scale, "name": "means"},
+        {"params": [g.sh_dc], "lr": cfg.feature_lr, "name": "sh_dc"},
+        {"params": [g.sh_rest], "lr": cfg.feature_lr / 20.0, "name": "sh_rest"},
+        {"params": [g.opacity_logits], "lr": cfg.opacity_lr, "name": "opacity_logits"},
+        {"params": [g.log_scales], "lr": cfg.scaling_lr, "name": "log_scales"},
+        {"params": [g.quats], "lr": cfg.rotation_lr, "name": "quats"},
+    ]
+    opt_g = torch.optim.Adam(groups, lr=0.0, eps=1e-15)
+    opt_d = torch.optim.Adam(
+        [{"params": list(deform.parameters()), "lr": cfg.position_lr_init * cfg.spatial_lr_scale, "name": "deform"}],
+        lr=0.0, eps=1e-15,
+    )
+    return opt_g, opt_d
+
+
+def _state_path(out_dir: Path, iteration: int) -> Path:
+    return out_dir / "trainer_state" / f"iteration_{iteration}.pt"
+
+
+class _Progress:
+    """rich progress bar with loss and PSNR (no-op when disabled)."""
+
+    def __init__(self, enabled: bool, total: int, start: int) -> None:
+        self.bar = None
+        if enabled:
+            from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+            self.bar = Progress(
+                TextColumn("reconstruct"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                TextColumn("{task.fields[info]}"),
+            )
+            self.bar.start()
+            self.task = self.bar.add_task("train", total=total, completed=start, info="")
+
+    def update(self, it: int, info: str) -> None:
+        if self.bar is not None:
+            self.bar.update(self.task, completed=it, info=info)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.stop()
+
+
+def reconstruct(
+    views: Sequence,
+    points: np.ndarray,
+    point_colors: np.ndarray | None,
+    config: ReconstructionConfig,
+    out_dir: str | Path,
+    resume: bool = True,
+    progress: bool = True,
+    backend: str = "auto",
+    max_seconds: float | None = None,
+) -> tuple[GaussianModel, DeformMLP]:
+    """Train canonical gaussians and a deformation MLP on ``views`` (objects with .camera, a
+    pinhole Camera whose .time is the frame time, and .image_path).
+
+    Checkpoints go to out_dir in the public layout every ``checkpoint_interval`` iterations
+    and at the end; with ``resume`` the latest one (with its sidecar state) is continued.
+    ``max_seconds`` stops early (and checkpoints) once that much wall time has been spent.
+    """
+    cfg = config
+    out_dir = Path(out_dir)
+    if not views:
+        raise ValueError("reconstruct: no training views")
+    bg_np = np.ones(3, np.float32) if cfg.white_background else np.zeros(3, np.float32)
+    bg = torch.from_numpy(bg_np)
+    data = ImageCache(views, cfg.image_downscale, bg_np)
+    extent = scene_extent(data.cameras)
+    n_views = len(data)
+
+    torch.manual_seed(cfg.seed)
+    gen = torch.Generator().manual_seed(cfg.seed)
+    start = 0
+    existing = available_iterations(out_dir) if resume else []
+    if existing:
+        start = existing[-1]
+        gaussians, deform = load_model(out_dir, start)
+        if deform is None:
+            raise CheckpointError(f"{out_dir}: checkpoint {start} has no deformation network to resume")
+        sp = _state_path(out_dir, start)
+        if not sp.is_file():
+            raise CheckpointError(f"{sp}: trainer state for iteration {start} is missing; cannot resume")
+        try:
+            state = torch.load(sp, map_location="cpu", weights_only=True)
+        except Exception as exc:
+            raise CheckpointError(f"{sp}: unreadable trainer state ({type(exc).__name__})") from None
+        gaussians.active_sh_degree = int(state["active_sh_degree"])
+        deform.train()
+        opt_g, opt_d = _make_optimizers(gaussians, deform, cfg)
+        opt_g.load_state_dict(state["opt_g"])
+        opt_d.load_state_dict(state["opt_d"])
+        grad_accum, denom = state["grad_accum"], state["denom"]
+        gen.set_state(state["rng"])
+        view_stack = [int(i) for i in state["view_stack"]]
+        ema_loss, ema_psnr = float(state["ema_loss"]), float(state["ema_psnr"])
+    else:
+        gaussians = GaussianModel.from_points(points, point_colors, sh_degree=cfg.sh_degree)
+        deform = DeformMLP.preset(cfg.deform_preset)
+        opt_g, opt_d = _make_optimizers(gaussians, deform, cfg)
+        n = gaussians.num_gaussians
+        grad_accum, denom = torch.zeros(n), torch.zeros(n)
+        view_stack = []
+        ema_loss, ema_psnr = 0.0, 0.0
+
+    from trase.render.projection import project_gaussians
+
+    def save(it: int) -> None:
+        state = {
+            "iteration": it,
+            "active_sh_degree": gaussians.active_sh_degree,
+            "opt_g": opt_g.state_dict(),
+            "opt_d": opt_d.state_dict(),
+            "grad_accum": grad_accum, "denom": denom,
+            "rng": gen.get_state(),
+            "view_stack": torch.tensor(view_stack, dtype=torch.int64),
+            "ema_loss": ema_loss, "ema_psnr": ema_psnr,
+        }
+        atomic_torch_save(state, _state_path(out_dir, it))
+        save_model(out_dir, gaussians, deform, it)  # the PLY, written last, marks it complete
+
+    bar = _Progress(progress, cfg.iterations, start)
+    t0 = time.perf_counter()
+    it = start
+    try:
+        for it in range(start + 1, cfg.iterations + 1):
+            # learning rates
+            for grp in opt_g.param_groups:
+                if grp["name"] == "means":
+                    grp["lr"] = expon_lr(it, cfg.position_lr_init * cfg.spatial_lr_scale,
+                                         cfg.position_lr_final * cfg.spatial_lr_scale, cfg.position_lr_max_steps)
+            opt_d.param_groups[0]["lr"] = expon_lr(it, cfg.position_lr_init * cfg.spatial_lr_scale,
+                                                   cfg.position_lr_final, cfg.deform_lr_max_steps)
+            if cfg.sh_interval > 0 and it % cfg.sh_interval == 0:
+                gaussians.active_sh_degree = min(gaussians.active_sh_degree + 1, gaussians.max_sh_degree)
+
+            if not view_stack:
+                view_stack = torch.randperm(n_views, generator=gen).tolist()
+            vi = view_stack.pop()
+            cam, gt = data.cameras[vi], data.images[vi]
+
+            use_deform = it >= cfg.warm_up
+            offset = 0.0
+            if use_deform:
+                noise = float(torch.randn(1, generator=gen))
+                offset = noise * time_noise_scale(it, cfg) / n_views
+            out, means_t = render_view(gaussians, deform, cam, bg, backend, offset, use_deform)
+            means_t.retain_grad()
+            image = out.color
+            l1 = l1_loss(image, gt)
+            loss = (1.0 - cfg.lambda_dssim) * l1 + cfg.lambda_dssim * (1.0 - ssim(image, gt))
+            loss.backward()
+
+            with torch.no_grad():
+                lv = float(loss)
+                pv = psnr(image.clamp(0, 1), gt)
+                ema_loss = lv if it == 1 else 0.4 * lv + 0.6 * ema_loss
+                ema_psnr = pv if it == 1 else 0.4 * pv + 0.6 * ema_psnr
+                if it % cfg.log_interval == 0 or it == cfg.iterations:
+                    bar.update(it, f"loss {ema_loss:.4f}  psnr {ema_psnr:.2f} dB  N={gaussians.num_gaussians}")
+
+                # densification statistics and steps
+                if it < cfg.densify_until:
+                    mt = means_t.detach()
+                    proj = project_gaussians(mt, gaussians.rotations.detach(), gaussians.scales.detach(), cam)
+                    vis = proj.radii > 0
+                    if means_t.grad is not None:
+                        gn = _screen_grad_norm(means_t.grad, mt, cam)
+                        grad_accum[vis] += gn[vis]
+                        denom[vis] += 1
+                    if it > cfg.densify_from and it % cfg.densify_interval == 0:
+                        prune_large = it > cfg.opacity_reset_interval
+                        _densify_and_prune(gaussians, opt_g, cfg, grad_accum, denom, extent, prune_large, gen)
+                        n = gaussians.num_gaussians
+                        grad_accum, denom = torch.zeros(n), torch.zeros(n)
+                    if it % cfg.opacity_reset_interval == 0 or (cfg.white_background and it == cfg.densify_from):
+                        gaussians.reset_opacity(opt_g)
+
+                opt_g.step()
+                opt_g.zero_grad(set_to_none=True)
+                if use_deform:
+                    opt_d.step()
+                opt_d.zero_grad(set_to_none=True)
+
+            if it % cfg.checkpoint_interval == 0 or it == cfg.iterations:
+                save(it)
+            if max_seconds is not None and time.perf_counter() - t0 > max_seconds:
+                if it % cfg.checkpoint_interval != 0 and it != cfg.iterations:
+                    save(it)
+                break
+    finally:
+        bar.close()
+    deform.eval()
+    return gaussians, deform
+
+
+@torch.no_grad()
+def _densify_and_prune(g: GaussianModel, opt, cfg: ReconstructionConfig, grad_accum, denom,
+                       extent: float, prune_large: bool, gen: torch.Generator) -> None:
+    """3DGS densify_and_prune: clone small / split large high-gradient gaussians, then drop
+    transparent ones and, after the first opacity reset, ones larger than 0.1 x the scene
+    extent. (3DGS also tests a screen-size limit, but its radii statistic has just been reset
+    to zero by the densification, so that test never fires; it is left out here.)"""
+    grads = torch.where(denom > 0, grad_accum / denom.clamp_min(1), torch.zeros_like(grad_accum))
+    big = g.scales.max(dim=1).values > cfg.percent_dense * extent
+    cand = grads >= cfg.densify_grad_threshold
+    if cfg.max_gaussians > 0:
+        # each clone adds one, each split adds one net (2 new, 1 removed)
+        room = max(cfg.max_gaussians - g.num_gaussians, 0)
+        if int(cand.sum()) > room:
+            order = torch.argsort(torch.where(cand, grads, torch.full_like(grads, -1.0)), descending=True)
+            keep = torch.zeros_like(cand)
+            keep[order[:room]] = True
+            cand = cand & keep
+    clone = cand & ~big
+    split = cand & big
+    n0 = g.num_gaussians
+    g.clone_gaussians(clone, opt)
+    split = torch.cat([split, torch.zeros(g.num_gaussians - n0, dtype=torch.bool)])
+    g.split_gaussians(split, opt, n=2, generator=gen)
+    prune = g.opacities < cfg.min_opacity
+    if prune_large:
+        prune |= g.scales.max(dim=1).values > 0.1 * extent
+    if bool(prune.all()):
+        prune[torch.argmax(g.opacities)] = False  # never delete every gaussian
+    g.prune(~prune, opt)
