@@ -14,8 +14,10 @@ import click
 
 COMMANDS: dict[str, tuple[str, str]] = {
     # name: (import path of the click command, one-line help shown by --help)
+    "datasets": ("benchmark.commands.datasets:datasets", "List the five *-Mask benchmarks (--json for data)."),
     "leaderboard": ("benchmark.commands.leaderboard:leaderboard",
                     "Leaderboards (markdown/latex/csv/html) from results files."),
+    "prepare": ("benchmark.commands.prepare:prepare", "Raw multi-view downloads -> training frames."),
     "report": ("benchmark.commands.report:report", "Per-sequence HTML report of a run."),
     "score": ("benchmark.commands.score:score", "Score predicted masks against ground truth."),
 }

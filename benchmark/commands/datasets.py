@@ -1,0 +1,49 @@
+"""``trase-bench datasets [--json]``: the five benchmarks, their sequences and splits."""
+
+from __future__ import annotations
+
+import json
+
+import click
+
+from benchmark.datasets.registry import DATASETS
+
+
+@click.command()
+@click.option("--json", "as_json", is_flag=True, help="Print the registry as JSON.")
+def datasets(as_json: bool) -> None:
+    """List the five *-Mask benchmarks: sequences, split, resolution, frames, method defaults."""
+    if as_json:
+        click.echo(json.dumps({k: s.to_dict() for k, s in DATASETS.items()}, indent=2))
+        return
+    try:
+        from rich.console import Console
+        from rich.table import Table
+    except ImportError:  # rich is a dependency; plain text keeps the command usable without it
+        for s in DATASETS.values():
+            click.echo(f"{s.key} ({s.display_name}): {', '.join(s.sequences)}")
+            click.echo(f"  split: {s.split}")
+        return
+    times = sorted({s.time_rule for s in DATASETS.values()})
+    table = Table(title="trase-bench datasets", show_lines=True,
+                  caption="time: " + " | ".join(times))
+    table.add_column("benchmark", no_wrap=True)
+    table.add_column("sequences", no_wrap=True)
+    table.add_column("split", overflow="fold", min_width=16)
+    table.add_column("resolution, frames", overflow="fold")
+    table.add_column("defaults", no_wrap=True)
+    for s in DATASETS.values():
+        res = f"{s.resolution[0]}x{s.resolution[1]}" if s.resolution else f"rgb/{s.downscale}x"
+        if s.frame_ranges:
+            frames = "; ".join(f"{k} {a}-{b}" for k, (a, b) in s.frame_ranges.items())
+            if len({v for v in s.frame_ranges.values()}) == 1:
+                a, b = next(iter(s.frame_ranges.values()))
+                frames = f"frames {a}-{b}"
+        else:
+            frames = "dataset.json items"
+        defaults = (f"Np {s.n_pixels}\nM' {s.n_masks}\nfilter {s.filter_threshold}\n"
+                    f"warm-up {s.warm_up}\ndensify {s.densify_until}")
+        kind = "monocular" if s.monocular else "multi-view"
+        table.add_row(f"{s.key}\n{s.display_name}\n{s.format}, {kind}", "\n".join(s.sequences),
+                      s.split, f"{res}\n{frames}", defaults)
+    Console().print(table)
