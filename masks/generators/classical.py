@@ -1,0 +1,170 @@
+"""Offline "anything" masks without a network: graph-based segmentation at several scales.
+
+Why: SAM needs a checkpoint and, realistically, a GPU; the benchmark must still run anywhere.
+Felzenszwalb-Huttenlocher graph segmentation (``cv2.ximgproc.segmentation``) at a few values
+of its scale ``k`` gives nested-ish partitions from parts to whole objects; pooled together they
+are overlapping, multi-granularity masks like SAM's. Optionally SLIC superpixels add a
+part-level layer.
+
+Per candidate segment:
+  * area = pixel count;
+  * score = a stability-like number in [0, 1]: the mean, over the neighbouring scales, of the
+    best IoU of this segment with any segment of that scale (a region that survives a change
+    of scale is "stable", in the spirit of SAM's stability score);
+Then, as SAM does: segments smaller than ``min_area`` (SAM's 100 px scaled to the image size,
+``min_area_for``) and whole-image segments are dropped, and near-duplicates across scales are
+removed greedily by score (mask IoU > ``dedup_iou``). ``k`` is scaled with the pixel count
+(the FH threshold k/|C| is in pixels), so the same scene gives similar masks at any size.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from masks.generators.base import REFERENCE_PIXELS, check_image, min_area_for
+from masks.maskset import MaskError, MaskSet
+
+
+def _pair_iou(la: np.ndarray, lb: np.ndarray, area_a: np.ndarray, area_b: np.ndarray):
+    """Sparse IoU between every segment of label map ``la`` and of ``lb`` (flat int arrays).
+
+    Returns (a_idx, b_idx, iou) for the pairs that overlap.
+    """
+    nb = int(area_b.shape[0])
+    joint = la.astype(np.int64) * nb + lb
+    keys, inter = np.unique(joint, return_counts=True)
+    a, b = keys // nb, keys % nb
+    iou = inter / (area_a[a] + area_b[b] - inter)
+    return a, b, iou
+
+
+@dataclasses.dataclass
+class ClassicalGenerator:
+    scales: tuple[float, ...] = (150.0, 500.0, 1500.0, 5000.0)  # FH k at 536x960
+    k_exponent: float = 0.3  # k scales with (pixels / 536*960) ** k_exponent (see docstring)
+    sigma: float = 0.8  # Gaussian pre-smoothing of the FH segmentation
+    slic: bool = False  # add SLIC superpixels as a finest layer
+    slic_region: int = 48  # SLIC region size in pixels at 536x960 (scaled by sqrt of size)
+    dedup_iou: float = 0.9  # drop a mask whose IoU with a better-scored kept one exceeds this
+    min_area: int | None = None  # None: SAM's 100 px scaled to the image size
+    min_segment_px: int = 20  # FH merges smaller components into neighbours: an absolute floor
+    # against pixel noise on small images, where the scaled min_area is only a few pixels
+    max_masks: int = 256  # keep at most this many, best score first
+    name: str = dataclasses.field(default="classical", init=False)
+    needs_instance_map: bool = dataclasses.field(default=False, init=False)
+
+    def __post_init__(self) -> None:
+        if not self.scales or any(s <= 0 for s in self.scales):
+            raise MaskError(f"classical generator: scales must be positive, got {self.scales}")
+        if not 0 < self.dedup_iou <= 1:
+            raise MaskError(f"classical generator: dedup_iou must be in (0, 1], got {self.dedup_iou}")
+
+    def settings(self) -> dict:
+        d = dataclasses.asdict(self)
+        d["scales"] = list(self.scales)
+        return d
+
+    # ------------------------------------------------------------------ layers
+    def _layers(self, img: np.ndarray, min_area: int) -> list[np.ndarray]:
+        """[H, W] int32 label maps, one per scale (+ SLIC), labels 0..L-1."""
+        import cv2
+
+        h, w = img.shape[:2]
+        ratio = h * w / REFERENCE_PIXELS
+        layers = []
+        for k in self.scales:
+            seg = cv2.ximgproc.segmentation.createGraphSegmentation(
+                sigma=self.sigma, k=float(k) * ratio ** self.k_exponent, min_size=int(max(min_area, self.min_segment_px)))
+            layers.append(seg.processImage(img).astype(np.int32))
+        if self.slic:
+            region = max(4, int(round(self.slic_region * np.sqrt(ratio))))
+            lab = cv2.cvtColor(img, cv2.COLOR_RGB2LAB)
+            sp = cv2.ximgproc.createSuperpixelSLIC(lab, algorithm=cv2.ximgproc.SLICO,
+                                                   region_size=region)
+            sp.iterate(10)
+            sp.enforceLabelConnectivity(max(1, min_area, self.min_segment_px))
+            labels = sp.getLabels().astype(np.int32)
+            _, labels = np.unique(labels, return_inverse=True)  # compact label ids
+            layers.append(labels.reshape(h, w).astype(np.int32))
+        return layers
+
+    # ---------------------------------------------------------------- generate
+    def generate(self, image: np.ndarray | None, key: str = "",
+                 instance_map: np.ndarray | None = None) -> MaskSet:
+        img = check_image(image, "classical generator")
+        h, w = img.shape[:2]
+        min_area = self.min_area if self.min_area is not None else min_area_for(h, w)
+        layers = [lm.reshape(-1) for lm in self._layers(img, min_area)]
+        areas = [np.bincount(lm).astype(np.int64) for lm in layers]
+        n_graph = len(self.scales)
+
+        # stability: mean best IoU with the neighbouring graph scales (SLIC: with any scale)
+        best = {}
+        pair_cache = {}
+
+        def pair(i, j):
+            if (i, j) not in pair_cache:
+                pair_cache[(i, j)] = _pair_iou(layers[i], layers[j], areas[i], areas[j])
+            return pair_cache[(i, j)]
+
+        for i in range(len(layers)):
+            if i < n_graph:
+                neigh = [j for j in (i - 1, i + 1) if 0 <= j < n_graph]
+            else:
+                neigh = list(range(n_graph))
+            acc = np.zeros(areas[i].shape[0])
+            if not neigh:  # a single scale: nothing to compare with
+                best[i] = np.ones_like(acc)
+                continue
+            for j in neigh:
+                a, _, iou = pair(i, j)
+                m = np.zeros_like(acc)
+                np.maximum.at(m, a, iou)
+                acc += m
+            best[i] = acc / len(neigh)
+
+        # candidates, best score first (ties: larger area, then coarser layer)
+        cand = []
+        for i, ar in enumerate(areas):
+            ok = np.flatnonzero((ar >= min_area) & (ar < h * w))
+            for lab in ok:
+                cand.append((-float(best[i][lab]), -int(ar[lab]), -i, int(lab)))
+        cand.sort()
+
+        # greedy dedup across layers (segments of one layer are disjoint, IoU 0)
+        dup_partner: dict[tuple[int, int], dict[int, np.ndarray]] = {}
+
+        def partners(i, j):  # for each label of layer i: labels of layer j with IoU > dedup
+            if (i, j) not in dup_partner:
+                a, b, iou = pair(i, j)
+                sel = iou > self.dedup_iou
+                d: dict[int, list] = {}
+                for x, y in zip(a[sel], b[sel]):
+                    d.setdefault(int(x), []).append(int(y))
+                dup_partner[(i, j)] = d
+            return dup_partner[(i, j)]
+
+        kept: list[tuple[int, int, float]] = []
+        taken: set[tuple[int, int]] = set()
+        for negscore, _, negi, lab in cand:
+            i = -negi
+            if (i, lab) in taken:
+                continue
+            kept.append((i, lab, -negscore))
+            taken.add((i, lab))
+            for j in range(len(layers)):
+                if j != i:
+                    for other in partners(i, j).get(lab, ()):
+                        taken.add((j, other))
+            if len(kept) >= self.max_masks:
+                break
+
+        masks = np.zeros((len(kept), h, w), bool)
+        for n, (i, lab, _) in enumerate(kept):
+            masks[n] = (layers[i] == lab).reshape(h, w)
+        score = np.array([s for _, _, s in kept], np.float32)
+        order = np.argsort(-masks.reshape(len(kept), h * w).sum(1), kind="stable")  # by area
+        info = {"key": key, "min_area": int(min_area), "settings": self.settings()}
+        return MaskSet.from_masks(masks[order], score=score[order], generator=self.name, info=info)
