@@ -26,7 +26,13 @@ def prepare(dataset: str, raw_dir: Path, out_dir: Path, sequence: str | None, po
     video, 2x down, undistorted to pinhole, principal point centred. Technicolor: the paper's
     frame range, 2x down, principal point centred. Resumable; writes OUT_DIR/prepared.json.
     """
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeRemainingColumn,
+    )
 
     from benchmark.datasets.errors import fail
     from benchmark.datasets.prepare import prepare_sequence

@@ -99,9 +99,11 @@ def _sequence_from_dir(scene_dir: Path) -> str:
 def _lenient(spec, name: str) -> str:
     """A directory name that is no known sequence is still loadable (e.g. synthetic scenes);
     the canonical name is used when it resolves."""
+    from benchmark.datasets.errors import DatasetError
+
     try:
         return spec.resolve_sequence(name)
-    except Exception:
+    except DatasetError:
         return name
 
 

@@ -26,7 +26,7 @@ def read_points(path: Path | str) -> tuple[np.ndarray, np.ndarray | None]:
 
         try:
             v = PlyData.read(str(path))["vertex"]
-        except Exception as exc:  # plyfile raises several unrelated types
+        except Exception as exc:  # noqa: BLE001 - plyfile raises several unrelated types
             raise fail(path, f"cannot read PLY vertices ({exc.__class__.__name__})") from None
         names = v.data.dtype.names or ()
         if not {"x", "y", "z"} <= set(names):

@@ -125,7 +125,7 @@ def prepare_sequence(
         "image_pattern": "images/{camera}/{frame:05d}.png",
         "n_images": len(names) * len(frame_list),
         "points_source": points_source,
-        "n_points": int(len(pts)),
+        "n_points": len(pts),
         "created": time.strftime("%Y-%m-%dT%H:%M:%S"),
     }
     _write_json(out_dir / MANIFEST, manifest)

@@ -82,15 +82,15 @@ class DatasetSpec:
         return d
 
 
-def nerfies_time(time_id: int | float, max_time_id: int | float) -> float:
+def nerfies_time(time_id: float, max_time_id: float) -> float:
     """Nerfies time rule: time_id / max over all items of dataset.json (max 0 -> 0)."""
     if max_time_id <= 0:
         return 0.0
     return float(time_id) / float(max_time_id)
 
 
-_MONO = dict(monocular=True, n_pixels=5000, n_masks=25)
-_MULTI = dict(monocular=False, n_pixels=10000, n_masks=50)
+_MONO = {"monocular": True, "n_pixels": 5000, "n_masks": 25}
+_MULTI = {"monocular": False, "n_pixels": 10000, "n_masks": 50}
 _NERFIES_TIME = "t = time_id / max(time_id) over all items of dataset.json (warp_id if time_id is missing)"
 _MV_TIME = "frames of the range are indexed i = 0..n-1; t = i / n"
 

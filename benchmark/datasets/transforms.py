@@ -42,7 +42,7 @@ def _camera_name(spec: DatasetSpec, raw: str) -> str:
 
 
 def _intrinsics(src: dict, path: Path, where: str) -> tuple[np.ndarray, int, int]:
-    get = lambda k: finite_float(field(src, k, path, where), path, f"{k} of {where}")  # noqa: E731
+    get = lambda k: finite_float(field(src, k, path, where), path, f"{k} of {where}")
     w, h = get("w"), get("h")
     if w <= 0 or h <= 0 or w != int(w) or h != int(h):
         raise fail(path, f"{where}: image size {w}x{h} is not two positive integers")

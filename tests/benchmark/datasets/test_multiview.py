@@ -223,7 +223,8 @@ def test_technicolor_cameras_match_hand_arithmetic(tmp_path):
         R = _quat_to_R(qw, qx, qy, qz)
         pc = R @ X[0] + [tx, ty, tz]
         uv, _ = cam.project(X)
-        np.testing.assert_allclose(uv[0], [f * pc[0] / pc[2] + cu, f * ar * pc[1] / pc[2] + cv], atol=1e-9)
+        x, y = pc[0] / pc[2], pc[1] / pc[2]
+        np.testing.assert_allclose(uv[0], [f * x + sk * y + cu, f * ar * y + cv], atol=1e-9)
 
 
 def test_technicolor_principal_point_shift():
