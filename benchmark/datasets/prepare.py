@@ -125,6 +125,7 @@ def prepare_sequence(
         "image_pattern": "images/{camera}/{frame:05d}.png",
         "n_images": len(names) * len(frame_list),
         "points_source": points_source,
+        "repaired_images": list(getattr(source, "repaired", [])),
         "n_points": len(pts),
         "created": time.strftime("%Y-%m-%dT%H:%M:%S"),
     }

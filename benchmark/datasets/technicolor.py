@@ -64,6 +64,7 @@ class TechnicolorSource:
     def __init__(self, scene_dir: Path):
         self.dir = scene_dir
         self.files: dict[tuple[str, int], Path] = {}
+        self.repaired: list[str] = []
         for p in scene_dir.glob("*_undist_*.png"):
             m = _FILE.match(p.name)
             if m:
@@ -84,11 +85,39 @@ class TechnicolorSource:
             p = self.files.get((camera, fr))
             if p is None:
                 raise fail(self.dir, f"missing image for camera {camera} frame {fr} (*_undist_{fr:05d}_{camera[3:]}.png)")
-            img = read_image(p)
+            img = self._read(p, camera, fr)
             cam = next(c for c in self.cameras if c.name == camera)
             if (img.shape[1], img.shape[0]) != (cam.width, cam.height):
                 raise fail(p, f"image is {img.shape[1]}x{img.shape[0]} but the rig's images are {cam.width}x{cam.height}")
             yield fr, img
+
+    def _read(self, p: Path, camera: str, frame: int) -> np.ndarray:
+        """Read one PNG. A truncated file (the publisher's Birthday_undist_00173_09.png is one)
+        is completed from the previous frame of the same camera where its pixels are missing
+        (black), as the public preprocessing does; repairs are listed in ``self.repaired``."""
+        from PIL import Image, ImageFile
+
+        try:
+            with Image.open(p) as im:
+                im.load()
+            return read_image(p)
+        except (OSError, SyntaxError):
+            pass
+        prev = self.files.get((camera, frame - 1))
+        if prev is None:
+            raise fail(p, "truncated image and no previous frame to complete it from")
+        old = ImageFile.LOAD_TRUNCATED_IMAGES
+        ImageFile.LOAD_TRUNCATED_IMAGES = True
+        try:
+            with Image.open(p) as im:
+                part = np.asarray(im.convert("RGB"))[..., ::-1]  # RGB -> BGR
+        finally:
+            ImageFile.LOAD_TRUNCATED_IMAGES = old
+        ref = read_image(prev)
+        if ref.shape != part.shape:
+            raise fail(p, "truncated image and its previous frame differ in size")
+        self.repaired.append(p.name)
+        return np.where(part == 0, ref, part)
 
     def depth_range(self) -> None:
         return None

@@ -280,3 +280,19 @@ def test_prepare_unknown_sequence(tmp_path):
     raw = write_technicolor(tmp_path / "Train", frames=[151], n_cams=2)
     with pytest.raises(DatasetError, match="unknown sequence 'Train'; valid: Birthday"):
         prepare_sequence("technicolor", raw, tmp_path / "out")
+
+
+def test_technicolor_truncated_png_is_completed_from_previous_frame(tmp_path):
+    raw = write_technicolor(tmp_path / "Birthday", frames=[151, 152], n_cams=2)
+    victim = raw / "Birthday_undist_00152_01.png"
+    big = np.random.default_rng(0).integers(1, 255, size=(16, 32, 3), dtype=np.uint8)
+    cv2.imwrite(str(victim), big)
+    data = victim.read_bytes()
+    victim.write_bytes(data[: len(data) // 2])  # cut the file
+    m = prepare_sequence("technicolor", raw, tmp_path / "out", frames=[151, 152])
+    assert m["repaired_images"] == ["Birthday_undist_00152_01.png"]
+    (raw / "Birthday_undist_00151_01.png").unlink()
+    raw2 = write_technicolor(tmp_path / "b2" / "Birthday", frames=[151], n_cams=2)
+    (raw2 / "Birthday_undist_00151_01.png").write_bytes(data[: len(data) // 2])
+    with pytest.raises(DatasetError, match="truncated image and no previous frame"):
+        prepare_sequence("technicolor", raw2, tmp_path / "out2", frames=[151])
