@@ -61,3 +61,20 @@ def test_to_dict_is_json():
     import json
 
     json.dumps({k: s.to_dict() for k, s in DATASETS.items()})
+
+
+def test_find_scene_dir_nested_and_alias(tmp_path):
+    from benchmark.datasets import find_gt_dir, find_scene_dir
+
+    (tmp_path / "hypernerf" / "interp" / "chickchicken").mkdir(parents=True)
+    (tmp_path / "immersive" / "10_Alexa_Meade_Face_Paint_1").mkdir(parents=True)
+    assert find_scene_dir("hypernerf", "chickchicken", tmp_path) == tmp_path / "hypernerf" / "interp" / "chickchicken"
+    assert find_scene_dir("immersive", "10_Alexa_1", tmp_path).name == "10_Alexa_Meade_Face_Paint_1"
+    assert find_scene_dir("neu3d", "sear_steak", tmp_path) is None
+    gt = tmp_path / "Immersive-Mask" / "10_Alexa_1" / "gt_masks"
+    gt.mkdir(parents=True)
+    assert find_gt_dir("immersive", "10_Alexa_1", tmp_path) == gt
+    scene = tmp_path / "immersive" / "10_Alexa_Meade_Face_Paint_1"
+    assert find_gt_dir("immersive", "10_Alexa_1", scene_dir=scene) == gt  # data root inferred
+    with pytest.raises(DatasetError, match="unknown sequence"):
+        find_scene_dir("neu3d", "flame_salmon", tmp_path)
