@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import torch
 
-from trase.objectives.base import PixelSample, TAU_NEG, TAU_POS, register_objective
+from trase.objectives.base import TAU_NEG, TAU_POS, PixelSample, register_objective
 from trase.objectives.soft import SoftMining, all_anchors
 
 

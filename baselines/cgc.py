@@ -91,7 +91,9 @@ def cgc_labels(
     labels = order[first]
     labels = torch.where(covered.any(dim=1), labels, torch.full_like(labels, -1))
     keep = area > float(min_mask_pixels)  # [M]
-    labels = torch.where((labels >= 0) & keep[labels.clamp_min(0)], labels, torch.full_like(labels, -1))
+    labels = torch.where(
+        (labels >= 0) & keep[labels.clamp_min(0)], labels, torch.full_like(labels, -1)
+    )
     return labels
 
 
@@ -106,9 +108,7 @@ def cgc_temperature(f: torch.Tensor, onehot: torch.Tensor, means: torch.Tensor) 
         return phi.clamp(PHI_MIN, PHI_MAX)
 
 
-def cgc_2d_loss(
-    features: torch.Tensor, labels: torch.Tensor
-) -> tuple[torch.Tensor, dict]:
+def cgc_2d_loss(features: torch.Tensor, labels: torch.Tensor) -> tuple[torch.Tensor, dict]:
     """features [Np, D], labels [Np] int64 (-1: ignored) -> (mean -log softmax, stats)."""
     if labels.shape != features.shape[:1]:
         raise ObjectiveInputError(
@@ -162,7 +162,12 @@ def cgc_spatial_loss(
 
     L = lambda_pull * sigmoid(1 - mean cos(f_s, f_near)) + lambda_push * sigmoid(mean cos(f_s, f_far)).
     k is capped at N; N = 0 gives a zero loss."""
-    if features.ndim != 2 or xyz.ndim != 2 or xyz.shape[1] != 3 or xyz.shape[0] != features.shape[0]:
+    if (
+        features.ndim != 2
+        or xyz.ndim != 2
+        or xyz.shape[1] != 3
+        or xyz.shape[0] != features.shape[0]
+    ):
         raise ObjectiveInputError(
             f"gaussian features must be [N, D] and xyz [N, 3] with the same N, got "
             f"{tuple(features.shape)} and {tuple(xyz.shape)}"
@@ -238,6 +243,13 @@ class ContrastiveGaussianClustering(Objective):
         if self.weight_3d == 0.0:
             return None
         return self.weight_3d * cgc_spatial_loss(
-            features, xyz, rng, self.k_pull, self.k_push, self.lambda_pull,
-            self.lambda_push, self.sample_size, self.max_points,
+            features,
+            xyz,
+            rng,
+            self.k_pull,
+            self.k_push,
+            self.lambda_pull,
+            self.lambda_push,
+            self.sample_size,
+            self.max_points,
         )

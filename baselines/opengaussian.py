@@ -122,7 +122,9 @@ def opengaussian_loss(
 class OpenGaussianObjective(Objective):
     """OpenGaussian stage 1: inter-mask separation + 0.1 * intra-mask cohesion."""
 
-    def __init__(self, alpha_threshold: float = ALPHA_THRESHOLD, intra_weight: float = INTRA_WEIGHT):
+    def __init__(
+        self, alpha_threshold: float = ALPHA_THRESHOLD, intra_weight: float = INTRA_WEIGHT
+    ):
         super().__init__()
         if not 0.0 <= alpha_threshold < 1.0:
             raise ObjectiveInputError(f"alpha_threshold must be in [0, 1), got {alpha_threshold}")

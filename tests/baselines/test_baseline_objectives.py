@@ -6,8 +6,8 @@ import pytest
 import torch
 from baseline_helpers import NAMES, make_sample, random_case
 
-from trase.objectives import Objective, ObjectiveInputError, get_objective, pair_stats
 from baselines.cgc import cgc_labels
+from trase.objectives import Objective, ObjectiveInputError, get_objective, pair_stats
 
 
 @pytest.mark.parametrize("name", NAMES)
@@ -43,13 +43,21 @@ def test_integer_features_are_a_clear_error(name):
 
 def _degenerate_cases():
     n = 6
-    yield "zero features", torch.zeros(n, 4), make_sample([[1, 0], [1, 0], [0, 1], [0, 1], [1, 1], [0, 0]])
+    yield (
+        "zero features",
+        torch.zeros(n, 4),
+        make_sample([[1, 0], [1, 0], [0, 1], [0, 1], [1, 1], [0, 0]]),
+    )
     yield "one mask", torch.randn(n, 4), make_sample([[1]] * n)
     yield "no masks", torch.randn(n, 4), make_sample(torch.zeros(n, 0))
     yield "no pixel in a mask", torch.randn(n, 4), make_sample([[0, 0]] * n)
     yield "single pixel", torch.randn(1, 4), make_sample([[1, 1]])
     yield "no pixels", torch.randn(0, 4), make_sample(torch.zeros(0, 2))
-    yield "empty silhouette", torch.randn(n, 4), make_sample([[1, 0]] * 3 + [[0, 1]] * 3, alpha=[0.0] * n)
+    yield (
+        "empty silhouette",
+        torch.randn(n, 4),
+        make_sample([[1, 0]] * 3 + [[0, 1]] * 3, alpha=[0.0] * n),
+    )
     yield "identical features", torch.ones(n, 4), make_sample([[1, 0]] * 3 + [[0, 1]] * 3)
 
 
@@ -71,7 +79,11 @@ def _margins_ok(name, f, s) -> bool:
     off = ~torch.eye(ps.CF.shape[0], dtype=torch.bool)
     cf = ps.CF[off]
     if name in ("trase-hard", "trase-all"):
-        return bool(((cf - 0.75).abs() > 1e-3).all() and ((cf - 0.5).abs() > 1e-3).all() and (cf.abs() > 1e-3).all())
+        return bool(
+            ((cf - 0.75).abs() > 1e-3).all()
+            and ((cf - 0.5).abs() > 1e-3).all()
+            and (cf.abs() > 1e-3).all()
+        )
     if name == "cgc":
         labels = cgc_labels(s.membership, s.mask_area)
         fn = torch.nn.functional.normalize(f, dim=1)
