@@ -4,6 +4,8 @@ caller's dtype; projection and SH stay in torch (see projection.py)."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import torch
 
@@ -12,6 +14,14 @@ from trase.render import numba_kernels as nk
 
 def _np32(t: torch.Tensor) -> np.ndarray:
     return np.ascontiguousarray(t.detach().to("cpu", torch.float32).numpy())
+
+
+def _power_min(op: np.ndarray) -> float:
+    """Smallest exponent that can still give alpha >= 1/255 (with a margin for rounding)."""
+    top = float(op.max()) if op.size else 0.0
+    if top <= 0.0:
+        return 0.0  # nothing can contribute
+    return math.log(nk.ALPHA_MIN / top) - 1e-3
 
 
 class _Composite(torch.autograd.Function):
@@ -27,7 +37,7 @@ class _Composite(torch.autograd.Function):
         out = np.zeros((height * width, C), np.float32)
         t_final = np.ones(height * width, np.float64)
         n_done = np.zeros(height * width, np.int64)
-        nk.forward(m2, co, op, ch, tile_off, entries, width, height, ts, gx, gy, out, t_final, n_done)
+        nk.forward(m2, co, op, ch, tile_off, entries, width, height, ts, gx, gy, _power_min(op), out, t_final, n_done)
         ctx.state = (m2, co, op, ch, tile_off, entries, g_ptr, g_pos, t_final, n_done, width, height, ts, gx, gy)
         ctx.dtype = chans.dtype
         alpha = (1.0 - t_final).astype(np.float32)
@@ -46,7 +56,7 @@ class _Composite(torch.autograd.Function):
         ga = np.ascontiguousarray(g_alpha.detach().to(torch.float64).reshape(height * width).numpy())
         buf_geo = np.zeros((E, 6), np.float64)
         buf_chan = np.zeros((E, C), np.float32)
-        nk.backward(m2, co, op, ch, tile_off, entries, width, height, ts, gx, gy,
+        nk.backward(m2, co, op, ch, tile_off, entries, width, height, ts, gx, gy, _power_min(op),
                     t_final, n_done, go, ga, buf_geo, buf_chan)
         grad_geo = np.zeros((n, 6), np.float64)
         grad_chan = np.zeros((n, C), np.float32)
@@ -72,10 +82,10 @@ def pixel_weights_numba(means2d, conics, opac, depths, rects, width, height, til
     )
     pix = np.ascontiguousarray(pixels.numpy())
     counts = np.zeros(pix.shape[0], np.int64)
-    nk.pixel_weight_counts(pix, width, ts, gx, m2, co, op, tile_off, entries, min_weight, counts)
+    nk.pixel_weight_counts(pix, width, ts, gx, m2, co, op, tile_off, entries, _power_min(op), min_weight, counts)
     indptr = np.zeros(pix.shape[0] + 1, np.int64)
     np.cumsum(counts, out=indptr[1:])
     idx = np.empty(indptr[-1], np.int64)
     w = np.empty(indptr[-1], np.float32)
-    nk.pixel_weight_fill(pix, width, ts, gx, m2, co, op, tile_off, entries, min_weight, indptr, idx, w)
+    nk.pixel_weight_fill(pix, width, ts, gx, m2, co, op, tile_off, entries, _power_min(op), min_weight, indptr, idx, w)
     return torch.from_numpy(indptr), torch.from_numpy(idx), torch.from_numpy(w)

@@ -62,20 +62,22 @@ def bin_gaussians(rects, depths, gx, gy):
 
 
 @njit(inline="always")
-def _alpha_at(fx, fy, means2d, conics, opac, g):
-    """-> (power, G = exp(power), raw alpha o*G, dx, dy); power > 0 means skip."""
+def _alpha_at(fx, fy, means2d, conics, opac, g, p_min):
+    """-> (power, G = exp(power), raw alpha o*G, dx, dy); power > 0 means skip. ``p_min`` =
+    log(ALPHA_MIN / max opacity): below it alpha < 1/255 for sure, so exp is not evaluated
+    and power is reported as +1 (skip)."""
     dx = fx - means2d[g, 0]
     dy = fy - means2d[g, 1]
     a, b, c = conics[g, 0], conics[g, 1], conics[g, 2]
     power = -0.5 * (a * dx * dx + c * dy * dy) - b * dx * dy
-    if power > 0.0:
-        return power, 0.0, 0.0, dx, dy
+    if power > 0.0 or power < p_min:
+        return 1.0, 0.0, 0.0, dx, dy
     G = math.exp(power)
     return power, G, opac[g] * G, dx, dy
 
 
 @njit(parallel=True, cache=True)
-def forward(means2d, conics, opac, chans, tile_off, entries, width, height, ts, gx, gy, out, t_final, n_done):
+def forward(means2d, conics, opac, chans, tile_off, entries, width, height, ts, gx, gy, p_min, out, t_final, n_done):
     """out [H*W, C] += sum_i w_i chans_i; t_final [H*W] float64; n_done [H*W] = entry index
     one past the last gaussian used (where the backward starts)."""
     C = chans.shape[1]
@@ -93,7 +95,7 @@ def forward(means2d, conics, opac, chans, tile_off, entries, width, height, ts, 
                 last = start
                 for e in range(start, end):
                     g = entries[e]
-                    power, G, a, dx, dy = _alpha_at(fx, fy, means2d, conics, opac, g)
+                    power, G, a, dx, dy = _alpha_at(fx, fy, means2d, conics, opac, g, p_min)
                     if power > 0.0:
                         continue
                     if a > ALPHA_MAX:
@@ -114,7 +116,7 @@ def forward(means2d, conics, opac, chans, tile_off, entries, width, height, ts, 
 
 @njit(parallel=True, cache=True)
 def backward(
-    means2d, conics, opac, chans, tile_off, entries, width, height, ts, gx, gy,
+    means2d, conics, opac, chans, tile_off, entries, width, height, ts, gx, gy, p_min,
     t_final, n_done, g_out, g_alpha, buf_geo, buf_chan,
 ):
     """Back to front per pixel. g_out [H*W, C], g_alpha [H*W] (alpha = 1 - T_final).
@@ -136,7 +138,7 @@ def backward(
                 ga = g_alpha[pix]
                 for e in range(n_done[pix] - 1, start - 1, -1):
                     g = entries[e]
-                    power, G, a_raw, dx, dy = _alpha_at(fx, fy, means2d, conics, opac, g)
+                    power, G, a_raw, dx, dy = _alpha_at(fx, fy, means2d, conics, opac, g, p_min)
                     if power > 0.0:
                         continue
                     a = a_raw if a_raw <= ALPHA_MAX else ALPHA_MAX
@@ -179,7 +181,7 @@ def reduce_grads(g_ptr, g_pos, buf_geo, buf_chan, grad_geo, grad_chan):
 
 
 @njit(inline="always")
-def _replay(pix, width, ts, gx, means2d, conics, opac, tile_off, entries, min_weight, idx_out, w_out, base):
+def _replay(pix, width, ts, gx, means2d, conics, opac, tile_off, entries, p_min, min_weight, idx_out, w_out, base):
     """Run the forward rule at one pixel; store (gaussian, weight) from ``base`` if idx_out has
     room (count pass passes empty arrays). -> number of stored contributors."""
     py = pix // width
@@ -192,7 +194,7 @@ def _replay(pix, width, ts, gx, means2d, conics, opac, tile_off, entries, min_we
     store = idx_out.shape[0] > 0
     for e in range(tile_off[t], tile_off[t + 1]):
         g = entries[e]
-        power, G, a, dx, dy = _alpha_at(fx, fy, means2d, conics, opac, g)
+        power, G, a, dx, dy = _alpha_at(fx, fy, means2d, conics, opac, g, p_min)
         if power > 0.0:
             continue
         if a > ALPHA_MAX:
@@ -213,16 +215,16 @@ def _replay(pix, width, ts, gx, means2d, conics, opac, tile_off, entries, min_we
 
 
 @njit(parallel=True, cache=True)
-def pixel_weight_counts(pixels, width, ts, gx, means2d, conics, opac, tile_off, entries, min_weight, counts):
+def pixel_weight_counts(pixels, width, ts, gx, means2d, conics, opac, tile_off, entries, p_min, min_weight, counts):
     empty_i = np.empty(0, np.int64)
     empty_w = np.empty(0, np.float32)
     for i in prange(pixels.shape[0]):
-        counts[i] = _replay(pixels[i], width, ts, gx, means2d, conics, opac, tile_off, entries,
+        counts[i] = _replay(pixels[i], width, ts, gx, means2d, conics, opac, tile_off, entries, p_min,
                             min_weight, empty_i, empty_w, 0)
 
 
 @njit(parallel=True, cache=True)
-def pixel_weight_fill(pixels, width, ts, gx, means2d, conics, opac, tile_off, entries, min_weight, indptr, idx_out, w_out):
+def pixel_weight_fill(pixels, width, ts, gx, means2d, conics, opac, tile_off, entries, p_min, min_weight, indptr, idx_out, w_out):
     for i in prange(pixels.shape[0]):
-        _replay(pixels[i], width, ts, gx, means2d, conics, opac, tile_off, entries,
+        _replay(pixels[i], width, ts, gx, means2d, conics, opac, tile_off, entries, p_min,
                 min_weight, idx_out, w_out, indptr[i])
