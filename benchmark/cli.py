@@ -17,6 +17,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "datasets": ("benchmark.commands.datasets:datasets", "List the five *-Mask benchmarks (--json for data)."),
     "leaderboard": ("benchmark.commands.leaderboard:leaderboard",
                     "Leaderboards (markdown/latex/csv/html) from results files."),
+    "masks": ("benchmark.commands.masks:masks", "Per-image anything-masks for a sequence's training views."),
+    "perf": ("benchmark.commands.perf:perf", "Measured performance suites (rasterizer numba vs torch ...)."),
     "prepare": ("benchmark.commands.prepare:prepare", "Raw multi-view downloads -> training frames."),
     "report": ("benchmark.commands.report:report", "Per-sequence HTML report of a run."),
     "score": ("benchmark.commands.score:score", "Score predicted masks against ground truth."),

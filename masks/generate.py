@@ -96,7 +96,7 @@ def generate_scene_masks(
         from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn,
                                    TimeElapsedColumn, TimeRemainingColumn)
 
-        bar = Progress(TextColumn("masks [{task.fields[gen]}]"), BarColumn(), MofNCompleteColumn(),
+        bar = Progress(TextColumn("masks ({task.fields[gen]})"), BarColumn(), MofNCompleteColumn(),
                        TimeElapsedColumn(), TimeRemainingColumn(), TextColumn("{task.fields[last]}"))
         task = bar.add_task("masks", total=len(todo), gen=generator.name, last="")
         bar.start()

@@ -3,13 +3,15 @@
 Why: SAM needs a checkpoint and, realistically, a GPU; the benchmark must still run anywhere.
 Felzenszwalb-Huttenlocher graph segmentation (``cv2.ximgproc.segmentation``) at a few values
 of its scale ``k`` gives nested-ish partitions from parts to whole objects; pooled together they
-are overlapping, multi-granularity masks like SAM's. Optionally SLIC superpixels add a
+are overlapping, multi-granularity masks like SAM's. Two more passes run on a strongly
+blurred image (``blur_sigma``), which averages texture out so that whole textured objects
+(bricks, checkerboards) can come out as one segment. Optionally SLIC superpixels add a
 part-level layer.
 
 Per candidate segment:
   * area = pixel count;
-  * score = a stability-like number in [0, 1]: the mean, over the neighbouring scales, of the
-    best IoU of this segment with any segment of that scale (a region that survives a change
+  * score = a stability-like number in [0, 1]: the mean, over the neighbouring scales of the
+    same pass type, of the best IoU of this segment with any segment of that scale (a region that survives a change
     of scale is "stable", in the spirit of SAM's stability score);
 Then, as SAM does: segments smaller than ``min_area`` (SAM's 100 px scaled to the image size,
 ``min_area_for``) and whole-image segments are dropped, and near-duplicates across scales are
@@ -45,13 +47,16 @@ class ClassicalGenerator:
     scales: tuple[float, ...] = (150.0, 500.0, 1500.0, 5000.0)  # FH k at 536x960
     k_exponent: float = 0.3  # k scales with (pixels / 536*960) ** k_exponent (see docstring)
     sigma: float = 0.8  # Gaussian pre-smoothing of the FH segmentation
+    blur_scales: tuple[float, ...] = (500.0, 1500.0)  # extra FH passes on a blurred image ...
+    blur_sigma: float = 12.0  # ... with this sigma at 536x960 (scaled with the image's size):
+    # averaging out texture (bricks, checkerboards) lets whole textured objects come out
     slic: bool = False  # add SLIC superpixels as a finest layer
     slic_region: int = 48  # SLIC region size in pixels at 536x960 (scaled by sqrt of size)
     dedup_iou: float = 0.9  # drop a mask whose IoU with a better-scored kept one exceeds this
     min_area: int | None = None  # None: SAM's 100 px scaled to the image size
     min_segment_px: int = 20  # FH merges smaller components into neighbours: an absolute floor
     # against pixel noise on small images, where the scaled min_area is only a few pixels
-    max_masks: int = 256  # keep at most this many, best score first
+    max_masks: int = 512  # keep at most this many, best score first (textured images hit it)
     name: str = dataclasses.field(default="classical", init=False)
     needs_instance_map: bool = dataclasses.field(default=False, init=False)
 
@@ -64,20 +69,28 @@ class ClassicalGenerator:
     def settings(self) -> dict:
         d = dataclasses.asdict(self)
         d["scales"] = list(self.scales)
+        d["blur_scales"] = list(self.blur_scales)
         return d
 
     # ------------------------------------------------------------------ layers
-    def _layers(self, img: np.ndarray, min_area: int) -> list[np.ndarray]:
-        """[H, W] int32 label maps, one per scale (+ SLIC), labels 0..L-1."""
+    def _layers(self, img: np.ndarray, min_area: int) -> tuple[list[np.ndarray], list[int]]:
+        """[H, W] int32 label maps (labels 0..L-1) and each one's group: 0 sharp FH scales,
+        1 blurred FH scales, 2 SLIC. Stability compares a layer with its neighbours in its
+        group (or with every other layer when it is alone in its group)."""
         import cv2
 
         h, w = img.shape[:2]
         ratio = h * w / REFERENCE_PIXELS
-        layers = []
-        for k in self.scales:
+        min_size = int(max(min_area, self.min_segment_px))
+        layers, groups = [], []
+        passes = [(self.sigma, k, 0) for k in self.scales]
+        blur = max(self.sigma, self.blur_sigma * np.sqrt(ratio))  # sigma is a length
+        passes += [(blur, k, 1) for k in self.blur_scales]
+        for sigma, k, group in passes:
             seg = cv2.ximgproc.segmentation.createGraphSegmentation(
-                sigma=self.sigma, k=float(k) * ratio ** self.k_exponent, min_size=int(max(min_area, self.min_segment_px)))
+                sigma=float(sigma), k=float(k) * ratio ** self.k_exponent, min_size=min_size)
             layers.append(seg.processImage(img).astype(np.int32))
+            groups.append(group)
         if self.slic:
             region = max(4, int(round(self.slic_region * np.sqrt(ratio))))
             lab = cv2.cvtColor(img, cv2.COLOR_RGB2LAB)
@@ -88,7 +101,8 @@ class ClassicalGenerator:
             labels = sp.getLabels().astype(np.int32)
             _, labels = np.unique(labels, return_inverse=True)  # compact label ids
             layers.append(labels.reshape(h, w).astype(np.int32))
-        return layers
+            groups.append(2)
+        return layers, groups
 
     # ---------------------------------------------------------------- generate
     def generate(self, image: np.ndarray | None, key: str = "",
@@ -96,11 +110,11 @@ class ClassicalGenerator:
         img = check_image(image, "classical generator")
         h, w = img.shape[:2]
         min_area = self.min_area if self.min_area is not None else min_area_for(h, w)
-        layers = [lm.reshape(-1) for lm in self._layers(img, min_area)]
+        maps, groups = self._layers(img, min_area)
+        layers = [lm.reshape(-1) for lm in maps]
         areas = [np.bincount(lm).astype(np.int64) for lm in layers]
-        n_graph = len(self.scales)
 
-        # stability: mean best IoU with the neighbouring graph scales (SLIC: with any scale)
+        # stability: mean best IoU with the neighbouring layers of the same group
         best = {}
         pair_cache = {}
 
@@ -110,10 +124,11 @@ class ClassicalGenerator:
             return pair_cache[(i, j)]
 
         for i in range(len(layers)):
-            if i < n_graph:
-                neigh = [j for j in (i - 1, i + 1) if 0 <= j < n_graph]
-            else:
-                neigh = list(range(n_graph))
+            same = [j for j in range(len(layers)) if groups[j] == groups[i]]
+            pos = same.index(i)
+            neigh = [same[q] for q in (pos - 1, pos + 1) if 0 <= q < len(same)]
+            if not neigh:
+                neigh = [j for j in range(len(layers)) if j != i]
             acc = np.zeros(areas[i].shape[0])
             if not neigh:  # a single scale: nothing to compare with
                 best[i] = np.ones_like(acc)
