@@ -1,0 +1,99 @@
+"""The embedded default: real data when it is there, else a cached synthetic scene.
+
+Cache layout: ``<cache>/<dataset>/<sequence>/`` with ``<cache>`` = ``$TRASE_CACHE/synthetic``
+or ``~/.cache/trase-bench/synthetic``. A scene is generated into a temporary sibling directory
+and renamed into place when complete, so an interrupted run never leaves a half scene that a
+later run would trust; concurrent generators race harmlessly (the loser's copy is removed).
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+
+from .generate import SEQUENCE_NAMES, SyntheticError, _check_args, generate
+
+SYNTHETIC_SEQUENCES = {name: size for size, name in SEQUENCE_NAMES.items()}
+
+
+def default_cache_dir() -> Path:
+    env = os.environ.get("TRASE_CACHE")
+    if env:
+        return Path(env).expanduser() / "synthetic"
+    return Path.home() / ".cache" / "trase-bench" / "synthetic"
+
+
+def _is_complete(scene_dir: Path) -> bool:
+    return (scene_dir / "synthetic" / "manifest.json").is_file()
+
+
+def ensure_synthetic(dataset: str, size: str = "small", seed: int = 0,
+                     cache_dir: Path | str | None = None, progress=None) -> Path:
+    """The cached synthetic scene of ``dataset`` (generated on first use, with a notice).
+
+    Seed 0 lives at ``<cache>/<dataset>/<sequence>``; another seed at ``<sequence>-seed<N>``.
+    """
+    _check_args(dataset, size)
+    cache = Path(cache_dir) if cache_dir is not None else default_cache_dir()
+    name = SEQUENCE_NAMES[size] + (f"-seed{seed}" if seed != 0 else "")
+    final = cache / dataset / name
+    if _is_complete(final):
+        return final
+    if final.exists():
+        raise SyntheticError(f"{final}: incomplete synthetic scene (no synthetic/manifest.json); delete it to regenerate")
+    final.parent.mkdir(parents=True, exist_ok=True)
+    print(f"trase-bench: no real {dataset} data found; generating the synthetic scene "
+          f"(size {size}, seed {seed}) into {final}", file=sys.stderr)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{name}.tmp-", dir=final.parent))
+    try:
+        scene_tmp = tmp / name  # the scene folder's name is its sequence name
+        generate(dataset, scene_tmp, seed=seed, size=size, progress=progress)
+        try:
+            os.rename(scene_tmp, final)
+        except OSError:
+            if not _is_complete(final):
+                raise
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return final
+
+
+def find_or_generate(dataset: str, sequence: str | None = None,
+                     data_root: Path | str | None = None,
+                     cache_dir: Path | str | None = None) -> tuple[Path, str]:
+    """(scene_dir, variant) for ``dataset``/``sequence``: real data wins, else synthetic.
+
+    Real data is looked up at ``<root>/<dataset>/<sequence>/`` (and the publishers' other
+    layouts, see ``benchmark.datasets.find_scene_dir``) under ``data_root`` or ``$TRASE_DATA``.
+    ``sequence`` None or a synthetic name ("synthetic", "synthetic-medium") uses the synthetic
+    default when no real scene of that name exists; a real sequence name that is missing is
+    an error listing where it looked.
+    """
+    from benchmark.datasets import find_scene_dir, get_dataset
+
+    spec = get_dataset(dataset)
+    roots = []
+    if data_root is not None:
+        roots.append(Path(data_root))
+    elif os.environ.get("TRASE_DATA"):
+        roots.append(Path(os.environ["TRASE_DATA"]))
+    seq = sequence if sequence is not None else SEQUENCE_NAMES["small"]
+    if seq not in SYNTHETIC_SEQUENCES:
+        seq = spec.resolve_sequence(seq)
+        for root in roots:
+            found = find_scene_dir(spec.key, seq, root)
+            if found is not None:
+                return found, "real"
+        where = ", ".join(str(r / spec.key / seq) for r in roots) or "no data root given"
+        raise SyntheticError(
+            f"{spec.key}: real sequence {seq!r} not found (looked in: {where}); pass --data-root "
+            f"or set TRASE_DATA, or use the synthetic default (sequence 'synthetic')"
+        )
+    for root in roots:  # a real copy of a synthetic scene under the data root is used as is
+        d = root / spec.key / seq
+        if _is_complete(d):
+            return d, "synthetic"
+    return ensure_synthetic(spec.key, size=SYNTHETIC_SEQUENCES[seq], cache_dir=cache_dir), "synthetic"
