@@ -80,9 +80,9 @@ def generate(dataset: str, out_dir: Path | str, seed: int = 0, size: str = "smal
     if dataset in ("nerfds", "hypernerf"):
         expected = _write_nerfies(dataset, out, world, rs, rng, report)
     else:
-        expected = _write_multiview(dataset, out, world, rs, rng, report)
+        expected = _write_multiview(dataset, out, world, rs, rng, report, sequence_name(size))
 
-    scene = _load(dataset, out)
+    scene = _load(dataset, out, sequence_name(size))
     _check_loader(scene, expected)
     _write_truth(scene, out, world, seed, size, rs.gaussians, report)
     return out
@@ -113,7 +113,7 @@ def _write_nerfies(dataset, out, world, rs, rng, report) -> dict:
     return expected
 
 
-def _write_multiview(dataset, out, world, rs, rng, report) -> dict:
+def _write_multiview(dataset, out, world, rs, rng, report, sequence) -> dict:
     """Raw multi-view scene (+ prepared frames); returns {view name: (native camera, time)}."""
     cams = {"neu3d": neu3d_rig, "immersive": immersive_rig, "technicolor": technicolor_rig}[dataset](rs, rng)
     n = rs.frames
@@ -152,11 +152,11 @@ def _write_multiview(dataset, out, world, rs, rng, report) -> dict:
     else:
         formats.write_technicolor_params(out, cams)
     frames = [first + i for i in range(n)]
-    _prepare(dataset, out, frames, report)
+    _prepare(dataset, out, frames, report, sequence)
     return expected
 
 
-def _prepare(dataset: str, out: Path, frames: list[int], report) -> None:
+def _prepare(dataset: str, out: Path, frames: list[int], report, sequence: str) -> None:
     from benchmark.datasets.prepare import prepare_sequence
 
     state = {"total": 0, "done": 0}
@@ -168,11 +168,11 @@ def _prepare(dataset: str, out: Path, frames: list[int], report) -> None:
         state["done"] += 1
         report("prepare", state["done"], state["total"])
 
-    prepare_sequence(dataset, out, out / "prepared", sequence=out.name, frames=frames,
+    prepare_sequence(dataset, out, out / "prepared", sequence=sequence, frames=frames,
                      on_start=on_start, on_image=on_image)
 
 
-def _load(dataset: str, out: Path):
+def _load(dataset: str, out: Path, sequence: str):
     """The views as the loader builds them. The format readers are used directly because
     the ground truth ``load_scene`` would align does not exist yet."""
     from benchmark.datasets.registry import get_dataset
@@ -181,10 +181,10 @@ def _load(dataset: str, out: Path):
     if spec.format == "nerfies":
         from benchmark.datasets.nerfies import load_nerfies
 
-        return load_nerfies(spec, out, out.name)
+        return load_nerfies(spec, out, sequence)
     from benchmark.datasets.prepared import load_prepared
 
-    return load_prepared(spec, out / "prepared", out.name)
+    return load_prepared(spec, out / "prepared", sequence)
 
 
 def _check_loader(scene, expected: dict) -> None:
@@ -242,7 +242,7 @@ def _write_truth(scene, out: Path, world: World, seed: int, size: str, budget: i
     manifest = {
         "generator_version": GENERATOR_VERSION,
         "dataset": scene.dataset,
-        "sequence": out.name,
+        "sequence": scene.sequence,
         "seed": int(seed),
         "size": size,
         "n_gaussians": int(len(geom["means"])),
