@@ -1,0 +1,63 @@
+import numpy as np
+import torch
+
+from trase.clustering import cluster
+from trase.features import FeatureConfig, build_sample, train_features
+
+from tests.trase.helpers import exact_masks, tiny_scene
+
+
+def _train(tmp_path, iterations=120, **kw):
+    gm, deform, ids, views = tiny_scene()
+    masks = {v.name: exact_masks(gm, deform, ids, v) for v in views}
+    cfg = FeatureConfig(dim=8, iterations=iterations, n_pixels=300, n_masks=3, knn=4, knn_keep=2, lr=0.02, **kw)
+    res = train_features(gm, deform, views, lambda v: masks[v.name], cfg, cache_dir=tmp_path, progress=False)
+    return res, ids
+
+
+def test_features_separate_objects(tmp_path):
+    res, ids = _train(tmp_path)
+    f = torch.nn.functional.normalize(res.features, dim=1)
+    a, b = f[ids == 0], f[ids == 1]
+    assert (a @ b.T).mean() < 0.3 < (a @ a.T).mean()
+    c = cluster(res.features.numpy(), method="kmeans", n_clusters=2)
+    agree = (c.labels == ids).mean()
+    assert max(agree, 1 - agree) > 0.95
+    assert res.timings["per_step"] > 0 and res.path_stats["bytes_per_view_max"] > 0
+    assert np.isfinite(res.features.numpy()).all()
+
+
+def test_deterministic_and_fastpath_matches_rasterizer(tmp_path):
+    r1, _ = _train(tmp_path / "a", iterations=30)
+    r2, _ = _train(tmp_path / "b", iterations=30)
+    assert torch.equal(r1.features, r2.features)
+    r3, _ = _train(tmp_path / "c", iterations=30, fastpath=False, render_backend="numba")
+    assert (r1.history[0]["loss"] - r3.history[0]["loss"]) < 1e-5
+    assert (r1.features - r3.features).abs().max() < 1e-2
+
+
+def test_degenerate_views_and_single_gaussian(tmp_path):
+    from masks.maskset import MaskSet
+
+    gm, deform, ids, views = tiny_scene(n_per=1)
+    empty = MaskSet.empty(views[0].camera.height, views[0].camera.width)
+    cfg = FeatureConfig(dim=4, iterations=5, n_pixels=50, knn=16)
+    res = train_features(gm, deform, views, lambda v: empty, cfg, progress=False)  # no masks at all
+    assert res.features.shape == (2, 4) and torch.isfinite(res.features).all()
+    full = MaskSet.from_masks(np.ones((1, views[0].camera.height, views[0].camera.width), bool))
+    res = train_features(gm, deform, views, lambda v: full, cfg, progress=False)  # one mask covers all
+    assert torch.isfinite(res.features).all() and len(res.history) > 0
+
+
+def test_build_sample_membership():
+    from masks.maskset import MaskSet
+
+    m = np.zeros((2, 4, 5), bool)
+    m[0, :2] = True
+    m[1, :, :2] = True
+    ms = MaskSet.from_masks(m)
+    s = build_sample(ms, "area", 2, 1e9, np.random.default_rng(0))
+    pix = s.pixels.numpy()
+    assert (ms.covered.reshape(-1)[pix]).all()
+    assert np.array_equal(s.membership.numpy(), m.reshape(2, -1)[:, pix].T)
+    np.testing.assert_allclose(s.pixel_mean_area.numpy(), ms.pixel_mean_area.reshape(-1)[pix])

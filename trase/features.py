@@ -1,0 +1,239 @@
+"""Per-gaussian feature learning on frozen geometry (TRASE Sec. 3.2).
+
+Each step: one random training view; masks sampled by a rule from ``masks.sampling`` (M');
+pixels sampled with probability Np/(H*W) among pixels inside any mask (at mask resolution);
+the (smoothed) gaussian features rendered at those pixels, by the frozen-geometry fast path
+or by the rasterizer; the objective's loss; one Adam step on the features only.
+
+Settings follow the public code: 32-d features initialised RGB2SH(U[0,1)), Adam lr 0.0025,
+eps 1e-15, K=16 smoothing neighbours with 8 random slots per step. Deterministic for a seed
+(numpy Generator for view/mask/pixel sampling, torch Generator for init and slot dropout).
+Masks whose resolution differs from the camera are used at their own resolution with the
+camera scaled to them (same aspect ratio required).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+import torch
+
+from masks.sampling import sample_masks, sample_pixels
+from trase.camera import Camera
+from trase.fastpath import RasterizerPath, ViewWeights
+from trase.gaussians import rgb_to_sh_dc
+from trase.objectives import PixelSample, get_objective
+from trase.smoothing import knn_indices, smooth_features
+
+
+class FeatureTrainingError(ValueError):
+    user_facing = True
+
+
+@dataclasses.dataclass
+class FeatureConfig:
+    dim: int = 32
+    iterations: int = 10000
+    lr: float = 0.0025
+    eps: float = 1e-15
+    n_pixels: int = 5000  # Np (5000 monocular, 10000 multi-view in the paper)
+    n_masks: float = 25  # M' (25 monocular, 50 multi-view)
+    mask_rule: str = "random"  # masks.sampling rule
+    knn: int = 16  # smoothing neighbours, 0 = no smoothing
+    knn_keep: int = 8  # neighbour slots averaged per step
+    objective: str = "trase"
+    objective_params: dict = dataclasses.field(default_factory=dict)
+    seed: int = 0
+    fastpath: bool = True
+    min_weight: float = 0.0  # fast path: drop contributors below this weight
+    max_cache_bytes: int = 1 << 30  # fast path RAM budget
+    render_backend: str = "auto"  # rasterizer backend when fastpath=False
+    mask_cache: int = 8  # MaskSets kept in RAM
+
+    @classmethod
+    def preset(cls, name: str, **overrides) -> "FeatureConfig":
+        """``paper``: the public code's settings; ``cpu``: fewer iterations for 2-core CPUs."""
+        if name == "paper":
+            base = cls()
+        elif name == "cpu":
+            base = cls(iterations=1500)
+        else:
+            raise FeatureTrainingError(f"unknown feature preset {name!r} (use 'paper' or 'cpu')")
+        return dataclasses.replace(base, **overrides)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+@dataclasses.dataclass
+class TrainResult:
+    features: torch.Tensor  # [N, D] saved (smoothed over all K, as the public code saves)
+    raw_features: torch.Tensor  # [N, D] the trained parameters before smoothing
+    history: list[dict]  # per-step stats, sparsely (every log_every steps)
+    timings: dict  # seconds: prepare (fast-path weights), train, per_step
+    path_stats: dict  # fast path bytes per view etc.
+
+
+def _camera_at(camera: Camera, height: int, width: int, name: str) -> Camera:
+    if (camera.height, camera.width) == (height, width):
+        return camera
+    fx, fy = camera.width / width, camera.height / height
+    if abs(fx - fy) > 0.02 * max(fx, fy):
+        raise FeatureTrainingError(
+            f"view {name}: masks are {width}x{height} but the image is {camera.width}x{camera.height} "
+            "(different aspect ratio)"
+        )
+    K = camera.K.copy()
+    K[0] /= fx
+    K[1] /= fy
+    return dataclasses.replace(camera, K=K, width=width, height=height)
+
+
+def build_sample(maskset, rule: str, n_masks: float, n_pixels: float, rng: np.random.Generator,
+                 view: int = -1) -> PixelSample:
+    """Sample masks and pixels of one view -> PixelSample (pixels inside any mask only)."""
+    idx = sample_masks(maskset, rule, n_masks, rng)
+    pix = sample_pixels(maskset.covered, n_pixels, rng)  # [P] linear ids
+    flat = maskset.masks.reshape(maskset.n, -1)
+    member = flat[idx][:, pix].T if len(idx) else np.zeros((len(pix), 0), bool)  # [P, M]
+    return PixelSample(
+        pixels=torch.from_numpy(np.ascontiguousarray(pix, dtype=np.int64)),
+        membership=torch.from_numpy(np.ascontiguousarray(member, dtype=bool)),
+        mask_area=torch.from_numpy(maskset.area[idx].astype(np.float32)),
+        pixel_mean_area=torch.from_numpy(maskset.pixel_mean_area.reshape(-1)[pix].astype(np.float32)),
+        view=view,
+    )
+
+
+class _MaskCache:
+    def __init__(self, load: Callable, views: Sequence, size: int) -> None:
+        self.load, self.views, self.size = load, views, max(int(size), 1)
+        self.cache: dict[int, object] = {}
+        self.order: list[int] = []
+
+    def __call__(self, i: int):
+        if i in self.cache:
+            self.order.remove(i)
+            self.order.append(i)
+            return self.cache[i]
+        ms = self.load(self.views[i])
+        self.cache[i] = ms
+        self.order.append(i)
+        if len(self.order) > self.size:
+            del self.cache[self.order.pop(0)]
+        return ms
+
+
+def init_features(n: int, dim: int, generator: torch.Generator) -> torch.Tensor:
+    """RGB2SH(U[0,1)) as the public code initialises gaussian features."""
+    return rgb_to_sh_dc(torch.rand(n, dim, generator=generator))
+
+
+def train_features(
+    gaussians,
+    deformation,
+    views: Sequence,
+    load_masks: Callable,
+    config: FeatureConfig,
+    cache_dir: str | Path | None = None,
+    progress: bool = True,
+    log_every: int = 50,
+) -> TrainResult:
+    """Train per-gaussian features [N, D] with geometry frozen. ``views`` have ``.camera`` and
+    ``.name``; ``load_masks(view) -> MaskSet``. Returns the saved (smoothed) features."""
+    n = gaussians.num_gaussians
+    if config.dim < 1:
+        raise FeatureTrainingError(f"feature dim must be >= 1, got {config.dim}")
+    rng = np.random.default_rng(config.seed)
+    gen = torch.Generator().manual_seed(config.seed)
+    feats = torch.nn.Parameter(init_features(n, config.dim, gen))
+    objective = get_objective(config.objective, **config.objective_params)
+    knn = knn_indices(gaussians.means.detach(), config.knn)
+    xyz = gaussians.means.detach()
+    masks_of = _MaskCache(load_masks, views, config.mask_cache)
+
+    t0 = time.perf_counter()
+    if config.fastpath:
+        path = ViewWeights(gaussians, deformation, cache_dir, config.min_weight, config.max_cache_bytes)
+    else:
+        path = RasterizerPath(gaussians, deformation, config.render_backend)
+    usable = []
+    for i, v in enumerate(views):
+        ms = masks_of(i)
+        if ms.n == 0 or not ms.covered.any():
+            continue  # a view without masks teaches nothing
+        cam = _camera_at(v.camera, ms.height, ms.width, v.name)
+        path.register(i, v.name, cam, ms.covered)
+        usable.append(i)
+    if config.fastpath and config.iterations > 0:
+        path.prepare_all()  # weights of every view once, up front (cached on disk)
+    t_prepare = time.perf_counter() - t0
+    history: list[dict] = []
+    if not usable or config.iterations <= 0 or n == 0:
+        with torch.no_grad():
+            saved = smooth_features(feats.detach(), knn, None)
+        return TrainResult(saved, feats.detach().clone(), history,
+                           {"prepare": t_prepare, "train": 0.0, "per_step": 0.0, "n_usable_views": len(usable)},
+                           path.stats())
+
+    opt = torch.optim.Adam([feats], lr=config.lr, eps=config.eps)
+    bar = _progress(progress, config.iterations)
+    t1 = time.perf_counter()
+    try:
+        for step in range(config.iterations):
+            vi = usable[int(rng.integers(len(usable)))]
+            ms = masks_of(vi)
+            sample = build_sample(ms, config.mask_rule, config.n_masks, config.n_pixels, rng, view=vi)
+            f = smooth_features(feats, knn, config.knn_keep, gen)
+            rendered = path.render(vi, f, sample.pixels)  # [P, D]
+            loss, stats = objective(rendered, sample)
+            extra = objective.gaussian_loss(f, xyz, gen)
+            if extra is not None:
+                loss = loss + extra
+                stats["gaussian_loss"] = float(extra.detach())
+            opt.zero_grad(set_to_none=True)
+            if loss.requires_grad:
+                loss.backward()
+                opt.step()
+            if not torch.isfinite(loss):
+                raise FeatureTrainingError(f"feature loss became non-finite at step {step} (view {views[vi].name})")
+            if step % log_every == 0 or step == config.iterations - 1:
+                history.append({"step": step, "loss": float(loss.detach()), **stats})
+            if bar is not None:
+                bar.advance(float(loss.detach()))
+    finally:
+        if bar is not None:
+            bar.close()
+    t_train = time.perf_counter() - t1
+    with torch.no_grad():
+        saved = smooth_features(feats.detach(), knn, None)
+    timings = {"prepare": t_prepare, "train": t_train, "per_step": t_train / config.iterations,
+               "n_usable_views": len(usable)}
+    return TrainResult(saved, feats.detach().clone(), history, timings, path.stats())
+
+
+class _progress:
+    """A rich progress bar (or nothing when disabled)."""
+
+    def __new__(cls, enabled: bool, total: int):
+        if not enabled:
+            return None
+        return super().__new__(cls)
+
+    def __init__(self, enabled: bool, total: int) -> None:
+        from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+        self.p = Progress(TextColumn("features"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
+                          TextColumn("loss {task.fields[loss]:.4f}"), TimeRemainingColumn(), transient=True)
+        self.task = self.p.add_task("features", total=total, loss=0.0)
+        self.p.start()
+
+    def advance(self, loss: float) -> None:
+        self.p.update(self.task, advance=1, loss=loss)
+
+    def close(self) -> None:
+        self.p.stop()
