@@ -49,7 +49,7 @@ class MaskSet:
         score: np.ndarray | None = None,
         generator: str = "unknown",
         info: dict | None = None,
-    ) -> "MaskSet":
+    ) -> MaskSet:
         """Build from a [N, H, W] array, computing areas."""
         m = np.asarray(masks).astype(bool, copy=False)
         if m.ndim != 3:
@@ -107,7 +107,7 @@ class MaskSet:
         np.divide(total, cov, out=out, where=cov > 0)
         return out.astype(np.float32)
 
-    def subset(self, indices: np.ndarray) -> "MaskSet":
+    def subset(self, indices: np.ndarray) -> MaskSet:
         """The masks at ``indices`` (any integer index array or bool selector)."""
         idx = np.asarray(indices)
         return MaskSet(
@@ -118,7 +118,7 @@ class MaskSet:
             dict(self.info),
         )
 
-    def equals(self, other: "MaskSet", check_score: bool = True) -> bool:
+    def equals(self, other: MaskSet, check_score: bool = True) -> bool:
         """Bit-exact equality of masks (and areas, and scores when asked)."""
         if self.masks.shape != other.masks.shape:
             return False

@@ -108,7 +108,7 @@ def sample_masks(maskset: MaskSet, rule: str, n: float, rng: np.random.Generator
             raise MaskError(f"rule 'score' needs mask scores; generator {maskset.generator!r} gave none")
         return _top_k(maskset.score.astype(np.float64), _count(n, total), rng).astype(np.int64)
     if rule == "grid":
-        return sample_grid(maskset, int(round(n)))
+        return sample_grid(maskset, round(float(n)))
     raise MaskError(f"unknown mask sampling rule {rule!r}; choose one of {', '.join(RULES)}")
 
 

@@ -266,7 +266,7 @@ def _from_official(data: bytes, path) -> MaskSet:
             obj = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as exc:
         raise MaskFileError(path, f"unreadable or unsafe torch file ({_first_line(exc)})") from None
-    except Exception as exc:  # torch raises RuntimeError/EOFError/... for damaged archives
+    except Exception as exc:  # noqa: BLE001 - torch raises RuntimeError/EOFError/... for damaged archives
         raise MaskFileError(path, f"unreadable torch file, truncated or damaged ({_first_line(exc)})") from None
     info = {"source_format": "official"}
     if isinstance(obj, torch.Tensor):  # the paper's --save_to_tensor variant
@@ -312,7 +312,7 @@ def loads(data: bytes, path: os.PathLike | str = "<bytes>") -> MaskSet:
         return from_bytes(data, path)
     if MAGIC.startswith(data):
         raise MaskFileError(path, f"truncated: {len(data)} bytes, cut inside the magic bytes")
-    if data.startswith(_TORCH_ZIP_MAGIC) or data.startswith(_PICKLE_PROTO):
+    if data.startswith((_TORCH_ZIP_MAGIC, _PICKLE_PROTO)):
         return _from_official(data, path)
     raise MaskFileError(path, f"not a mask file (unknown leading bytes {data[:8]!r})")
 
@@ -442,8 +442,8 @@ def format_compression_table(reports: list[CompressionReport]) -> str:
         return "no images"
     fields = ["dense_bool", "packed_bits", "official", "ours_uncompressed", "ours", "coco_rle_json"]
     dense = float(np.mean([r.dense_bool for r in reports]))
-    lines = [f"{len(reports)} image(s), mean {np.mean([r.n for r in reports]):.1f} masks of "
-             f"{reports[0].height}x{reports[0].width}",
+    lines = [(f"{len(reports)} image(s), mean {np.mean([r.n for r in reports]):.1f} masks of "
+              f"{reports[0].height}x{reports[0].width}"),
              f"{'representation':<18} {'bytes/image':>12} {'x smaller than dense':>21}"]
     for f in fields:
         b = float(np.mean([getattr(r, f) for r in reports]))

@@ -9,6 +9,6 @@ Modules are imported on first use so OpenCV / segment-anything load only when ne
 
 from __future__ import annotations
 
-from masks.generators.base import MaskGenerator, min_area_for, make_generator
+from masks.generators.base import MaskGenerator, make_generator, min_area_for
 
 __all__ = ["MaskGenerator", "make_generator", "min_area_for"]

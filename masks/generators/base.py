@@ -16,7 +16,7 @@ REFERENCE_PIXELS = 536 * 960
 
 def min_area_for(height: int, width: int, base: float = SAM_MIN_AREA) -> int:
     """SAM's 100-pixel minimum mask area, scaled to this image's pixel count (at least 1)."""
-    return max(1, int(round(base * height * width / REFERENCE_PIXELS)))
+    return max(1, round(base * height * width / REFERENCE_PIXELS))
 
 
 def drop_degenerate(masks: np.ndarray, min_area: int) -> np.ndarray:

@@ -92,7 +92,7 @@ class ClassicalGenerator:
             layers.append(seg.processImage(img).astype(np.int32))
             groups.append(group)
         if self.slic:
-            region = max(4, int(round(self.slic_region * np.sqrt(ratio))))
+            region = max(4, round(self.slic_region * float(np.sqrt(ratio))))
             lab = cv2.cvtColor(img, cv2.COLOR_RGB2LAB)
             sp = cv2.ximgproc.createSuperpixelSLIC(lab, algorithm=cv2.ximgproc.SLICO,
                                                    region_size=region)
@@ -176,9 +176,16 @@ class ClassicalGenerator:
             if len(kept) >= self.max_masks:
                 break
 
-        masks = np.zeros((len(kept), h, w), bool)
-        for n, (i, lab, _) in enumerate(kept):
-            masks[n] = (layers[i] == lab).reshape(h, w)
+        masks = np.zeros((len(kept), h * w), bool)
+        for i in sorted({i for i, _, _ in kept}):  # one scatter per layer, not one pass per mask
+            row_of = np.full(areas[i].shape[0], -1, np.int64)
+            for n, (j, lab, _) in enumerate(kept):
+                if j == i:
+                    row_of[lab] = n
+            rows = row_of[layers[i]]
+            pix = np.flatnonzero(rows >= 0)
+            masks[rows[pix], pix] = True
+        masks = masks.reshape(len(kept), h, w)
         score = np.array([s for _, _, s in kept], np.float32)
         order = np.argsort(-masks.reshape(len(kept), h * w).sum(1), kind="stable")  # by area
         info = {"key": key, "min_area": int(min_area), "settings": self.settings()}

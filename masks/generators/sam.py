@@ -117,7 +117,7 @@ class SamGenerator:
                                 "pip install 'trase-bench[sam]'") from None
             try:
                 model = sa.sam_model_registry[self.model_type](checkpoint=str(self.checkpoint))
-            except Exception as exc:  # torch raises many types for a bad checkpoint
+            except Exception as exc:  # noqa: BLE001 - torch raises many types for a bad checkpoint
                 msg = str(exc).strip().splitlines()
                 raise MaskError(f"{self.checkpoint}: cannot load SAM {self.model_type} checkpoint "
                                 f"({type(exc).__name__}: {msg[0][:160] if msg else ''})") from None

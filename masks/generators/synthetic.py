@@ -55,7 +55,7 @@ class SyntheticNoise:
             raise MaskError("synthetic noise: jitter_px and score_noise must be >= 0")
 
     @classmethod
-    def clean(cls) -> "SyntheticNoise":
+    def clean(cls) -> SyntheticNoise:
         """No noise at all: one exact mask per instance (plus background components)."""
         return cls(p_drop=0, p_split=0, p_parts_only=0, p_merge=0, jitter_px=0, score_noise=0)
 

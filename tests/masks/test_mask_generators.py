@@ -3,14 +3,14 @@ import types
 
 import numpy as np
 import pytest
+from mask_testutils import best_iou, shapes_image
 
 import masks
-from masks import MaskError, MaskSet
+from masks import MaskError
 from masks.generators import make_generator, min_area_for
 from masks.generators.classical import ClassicalGenerator
 from masks.generators.sam import PAPER_SETTINGS, SamGenerator, maskset_from_sam_records
 from masks.generators.synthetic import SyntheticGenerator, SyntheticNoise
-from mask_testutils import best_iou, shapes_image
 
 
 def test_min_area_scales_with_image_size():

@@ -1,9 +1,9 @@
 import numpy as np
 import pytest
+from mask_testutils import blob_maskset
 
 from masks import MaskError, MaskSet
 from masks.sampling import grid_shape, mask_centroids, sample_masks, sample_pixels
-from mask_testutils import blob_maskset
 
 
 def test_random_rule_probability_and_determinism():

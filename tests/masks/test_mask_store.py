@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 import torch
 from bitarray import bitarray
+from mask_testutils import blob_maskset
 
 import masks
 from masks import MaskFileError, MaskSet
 from masks.store import MAGIC, official_to_bytes, to_bytes
-from mask_testutils import blob_maskset
 
 
 def paper_style_file(path, m: np.ndarray) -> None:

@@ -5,10 +5,10 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from mask_testutils import shapes_image
 
 import masks
 from benchmark.cli import main
-from mask_testutils import shapes_image
 
 
 class _View:
