@@ -1,0 +1,83 @@
+import json
+
+import numpy as np
+import pytest
+
+from trase.prompts import (
+    Click,
+    PromptError,
+    click_to_cluster,
+    interior_points,
+    lift_pixels,
+    load_or_make_prompts,
+    mask_to_clusters,
+    oracle_clusters,
+)
+from trase.segment import render_masks, select_gaussians
+
+from tests.trase.helpers import exact_masks, object_alpha, tiny_scene
+
+
+def test_interior_points_deterministic():
+    gt = np.zeros((20, 30), bool)
+    gt[2:9, 3:10] = True  # 7x7 square, centre (6, 5)
+    gt[12:18, 15:29] = True  # bigger region first
+    gt[0, 29] = True  # tiny region ignored
+    pts = interior_points(gt, min_area=5)
+    assert pts == [(17.5, 14.5), (6.5, 5.5)]  # larger region first; ties: first row-major
+    assert len(pts) == 2 and pts == interior_points(gt, min_area=5)
+    for u, v in pts:
+        assert gt[int(v), int(u)]
+    assert interior_points(np.zeros((4, 4), bool)) == []
+
+
+def test_click_and_mask_prompt_find_object():
+    gm, deform, ids, views = tiny_scene()
+    cam = views[1].camera
+    ms = exact_masks(gm, deform, ids, views[1])
+    for k in range(2):
+        obj = ms.masks[k]
+        labels = ids  # perfect clustering: cluster = object id
+        (u, v), = interior_points(obj, 1)[:1]
+        assert click_to_cluster(gm, deform, cam, Click(u, v), labels) == k
+        assert mask_to_clusters(gm, deform, cam, obj, labels) == [k]
+    # a click on empty background hits nothing
+    alpha = object_alpha(gm, deform, ids, cam, 0) + object_alpha(gm, deform, ids, cam, 1)
+    r, c = np.argwhere(alpha < 0.01)[0]
+    assert lift_pixels(gm, deform, cam, np.array([[c + 0.5, r + 0.5]]))[0] == -1
+    with pytest.raises(PromptError, match="mask prompt is"):
+        mask_to_clusters(gm, deform, cam, np.ones((2, 2), bool), ids)
+
+
+def test_render_masks_and_oracle():
+    gm, deform, ids, views = tiny_scene()
+    cams = [v.camera for v in views]
+    gts = [exact_masks(gm, deform, ids, v).masks[0] for v in views]
+    sel = select_gaussians(ids, [0])
+    preds = render_masks(gm, deform, sel, cams)
+    for p, g in zip(preds, gts):
+        iou = (p & g).sum() / max((p | g).sum(), 1)
+        assert iou > 0.8
+    assert oracle_clusters(gm, deform, cams, gts, ids) == [0]
+    none = render_masks(gm, deform, select_gaussians(ids, []), cams[:1])
+    assert not none[0].any()
+    keep = np.zeros(len(ids), bool)
+    assert not select_gaussians(ids, [0, 1], keep).any()
+
+
+def test_prompts_json_roundtrip(tmp_path):
+    gm, deform, ids, views = tiny_scene()
+    gts = [np.zeros((views[0].camera.height, views[0].camera.width), bool)] + [
+        exact_masks(gm, deform, ids, v).masks[0] for v in views[1:]
+    ]
+    p = tmp_path / "prompts.json"
+    a = load_or_make_prompts(p, views, lambda i: gts[i])
+    assert a.view_index == 1 and len(a.clicks) >= 1  # first frame with non-empty GT
+    b = load_or_make_prompts(p, views, lambda i: 1 / 0)  # reused, GT not read
+    assert a.to_dict() == b.to_dict()
+    p.write_text("{bad")
+    with pytest.raises(PromptError, match="prompts.json: not valid JSON"):
+        load_or_make_prompts(p, views, lambda i: gts[i])
+    p.write_text(json.dumps({"version": 1}))
+    with pytest.raises(PromptError, match="malformed"):
+        load_or_make_prompts(p, views, lambda i: gts[i])

@@ -1,0 +1,248 @@
+"""Prompts: from a click or a 2D mask in a (novel) view to gaussian clusters.
+
+* Click (paper, supplementary "Testing implementation details"): render depth at the click's
+  camera and time, unproject the pixel with K^-1 and c2w, take the nearest *deformed*
+  gaussian at that time (KD-tree), return its cluster. A click on a pixel with rendered alpha
+  below ``min_alpha`` hits nothing (-1): there is no surface to lift it to.
+* 2D mask prompt (the public code's text-prompt path): every mask pixel with a rendered surface
+  is lifted the same way; a cluster is chosen when at least ``min_share`` of the lifted pixels
+  land on its gaussians.
+* Benchmark prompts: deterministic clicks from the ground truth of the first test frame whose
+  ground truth is not empty: one click per connected object region of at least
+  ``min_area`` pixels, at the region's distance-transform maximum (the most interior pixel;
+  ties broken by row-major order). Saved to prompts.json and reused.
+* Oracle selection: the clusters whose visible rendered pixels (cluster weight >= 0.5 in the
+  full render) lie mostly (> ``min_inside``) inside the ground truth over all test frames:
+  an upper bound on what clicking can achieve, reported separately, never as the score.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+import torch
+from scipy.spatial import cKDTree
+
+from trase.camera import Camera
+from trase.deformation import deformed
+from trase.render import rasterize
+
+PROMPTS_VERSION = 1
+
+
+class PromptError(ValueError):
+    user_facing = True
+
+
+@dataclasses.dataclass(frozen=True)
+class Click:
+    u: float  # pixel x (continuous; pixel centre of column c is c + 0.5)
+    v: float  # pixel y
+    view: str = ""  # name of the view the click was made in
+    time: float | None = None  # None: the camera's time
+
+
+@torch.no_grad()
+def geometry_at(gaussians, deformation, t: float):
+    """(means, quats, scales, opacities) of the deformed gaussians at time t (detached)."""
+    m, q, s = deformed(gaussians, deformation, t)
+    return m.detach(), q.detach(), s.detach(), gaussians.opacities.detach()
+
+
+@torch.no_grad()
+def render_depth(gaussians, deformation, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """-> (depth [H, W], alpha [H, W]) of the full scene at camera.time."""
+    m, q, s, o = geometry_at(gaussians, deformation, camera.time)
+    if m.shape[0] == 0:
+        z = np.zeros((camera.height, camera.width), np.float32)
+        return z, z.copy()
+    out = rasterize(m, q, s, o, camera, features=torch.zeros(m.shape[0], 1, dtype=m.dtype))
+    return out.depth.cpu().numpy(), out.alpha.cpu().numpy()
+
+
+def lift_pixels(
+    gaussians, deformation, camera: Camera, uv: np.ndarray, min_alpha: float = 0.5,
+    depth_alpha: tuple[np.ndarray, np.ndarray] | None = None,
+) -> np.ndarray:
+    """Pixels uv [P, 2] -> [P] int64 id of the nearest deformed gaussian to the unprojected
+    surface point at camera.time; -1 where the rendered alpha is below min_alpha."""
+    uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+    out = np.full(uv.shape[0], -1, np.int64)
+    if uv.shape[0] == 0 or gaussians.num_gaussians == 0:
+        return out
+    depth, alpha = depth_alpha if depth_alpha is not None else render_depth(gaussians, deformation, camera)
+    H, W = depth.shape
+    col = np.clip(np.floor(uv[:, 0]).astype(np.int64), 0, W - 1)
+    row = np.clip(np.floor(uv[:, 1]).astype(np.int64), 0, H - 1)
+    inside = (uv[:, 0] >= 0) & (uv[:, 0] < W) & (uv[:, 1] >= 0) & (uv[:, 1] < H)
+    ok = inside & (alpha[row, col] >= min_alpha) & (depth[row, col] > 0)
+    if not ok.any():
+        return out
+    pts = camera.unproject(uv[ok], depth[row[ok], col[ok]])
+    means = geometry_at(gaussians, deformation, camera.time)[0].cpu().numpy().astype(np.float64)
+    _, idx = cKDTree(means).query(pts, k=1)
+    out[ok] = np.asarray(idx, dtype=np.int64)
+    return out
+
+
+def click_to_cluster(gaussians, deformation, camera: Camera, click: Click, labels: np.ndarray,
+                     min_alpha: float = 0.5) -> int:
+    """One click -> cluster id (-1 when the click hits no surface)."""
+    cam = camera if click.time is None else camera.with_time(click.time)
+    gid = int(lift_pixels(gaussians, deformation, cam, np.array([[click.u, click.v]]), min_alpha)[0])
+    return -1 if gid < 0 else int(labels[gid])
+
+
+def mask_to_clusters(gaussians, deformation, camera: Camera, mask: np.ndarray, labels: np.ndarray,
+                     min_share: float = 0.05, max_points: int = 4000, min_alpha: float = 0.5) -> list[int]:
+    """2D mask [H, W] -> sorted cluster ids hit by >= min_share of the lifted mask pixels.
+
+    At most ``max_points`` pixels are lifted (an evenly strided, deterministic subset)."""
+    mask = np.asarray(mask, dtype=bool)
+    if mask.shape != (camera.height, camera.width):
+        raise PromptError(f"mask prompt is {mask.shape[1]}x{mask.shape[0]} but the camera is "
+                          f"{camera.width}x{camera.height}")
+    rows, cols = np.nonzero(mask)
+    if rows.size == 0:
+        return []
+    step = max(1, int(np.ceil(rows.size / max_points)))
+    rows, cols = rows[::step], cols[::step]
+    uv = np.stack([cols + 0.5, rows + 0.5], axis=1)
+    gids = lift_pixels(gaussians, deformation, camera, uv, min_alpha)
+    hit = gids[gids >= 0]
+    if hit.size == 0:
+        return []
+    lab = np.asarray(labels)[hit]
+    values, counts = np.unique(lab, return_counts=True)
+    share = counts / hit.size
+    return sorted(int(v) for v, s in zip(values, share) if s >= min_share)
+
+
+# ---------------------------------------------------------------- benchmark prompts
+def interior_points(gt: np.ndarray, min_area: int = 20) -> list[tuple[float, float]]:
+    """One (u, v) per connected region of gt [H, W] with >= min_area pixels: the pixel centre
+    of the region's distance-transform maximum (ties: first in row-major order), largest
+    region first."""
+    import cv2
+
+    gt = np.asarray(gt, dtype=bool)
+    if not gt.any():
+        return []
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(gt.astype(np.uint8), connectivity=8)
+    padded = np.pad(gt, 1).astype(np.uint8)  # image border counts as background
+    dist = cv2.distanceTransform(padded, cv2.DIST_L2, 5)[1:-1, 1:-1]
+    regions = []
+    for k in range(1, n):
+        area = int(stats[k, cv2.CC_STAT_AREA])
+        if area < min_area:
+            continue
+        d = np.where(lab == k, dist, -1.0)
+        flat = int(np.argmax(d))  # first maximum in row-major order
+        r, c = divmod(flat, gt.shape[1])
+        regions.append((area, float(c) + 0.5, float(r) + 0.5))
+    if not regions:  # only tiny regions: keep the largest one anyway
+        areas = stats[1:, cv2.CC_STAT_AREA]
+        k = int(np.argmax(areas)) + 1
+        d = np.where(lab == k, dist, -1.0)
+        r, c = divmod(int(np.argmax(d)), gt.shape[1])
+        regions.append((int(areas[k - 1]), float(c) + 0.5, float(r) + 0.5))
+    regions.sort(key=lambda x: (-x[0], x[2], x[1]))
+    return [(u, v) for _, u, v in regions]
+
+
+@dataclasses.dataclass
+class BenchmarkPrompts:
+    view_index: int  # index into the scene's test views
+    view: str  # its name
+    time: float
+    clicks: list[Click]
+    source: str = "gt_first_nonempty_test_frame"
+
+    def to_dict(self) -> dict:
+        return {
+            "version": PROMPTS_VERSION, "source": self.source, "view_index": self.view_index,
+            "view": self.view, "time": self.time,
+            "points": [[c.u, c.v] for c in self.clicks],
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict, path: str = "prompts.json") -> "BenchmarkPrompts":
+        try:
+            if int(d["version"]) != PROMPTS_VERSION:
+                raise PromptError(f"{path}: prompts version {d['version']} (expected {PROMPTS_VERSION})")
+            clicks = [Click(float(u), float(v), str(d["view"]), float(d["time"])) for u, v in d["points"]]
+            return cls(int(d["view_index"]), str(d["view"]), float(d["time"]), clicks, str(d.get("source", "")))
+        except (KeyError, TypeError, ValueError) as exc:
+            if isinstance(exc, PromptError):
+                raise
+            raise PromptError(f"{path}: malformed prompts file ({type(exc).__name__}: {exc})") from None
+
+
+def make_benchmark_prompts(test_views: Sequence, gt_masks: Sequence[np.ndarray], min_area: int = 20) -> BenchmarkPrompts:
+    """Clicks from the first test frame whose ground truth is non-empty."""
+    for i, (view, gt) in enumerate(zip(test_views, gt_masks)):
+        pts = interior_points(gt, min_area)
+        if pts:
+            clicks = [Click(u, v, view.name, view.camera.time) for u, v in pts]
+            return BenchmarkPrompts(i, view.name, float(view.camera.time), clicks)
+    raise PromptError("every test frame's ground truth is empty: no object to prompt")
+
+
+def load_or_make_prompts(path: str | Path, test_views: Sequence, load_gt, min_area: int = 20) -> BenchmarkPrompts:
+    """Reuse ``path`` (prompts.json) when it exists, else derive and save it atomically.
+
+    load_gt(i) -> bool [H, W] ground truth of test view i (read lazily, first non-empty wins)."""
+    path = Path(path)
+    if path.is_file():
+        try:
+            d = json.loads(path.read_text())
+        except json.JSONDecodeError as exc:
+            raise PromptError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
+        return BenchmarkPrompts.from_dict(d, str(path))
+
+    class _Lazy:
+        def __iter__(self):
+            for i in range(len(test_views)):
+                yield load_gt(i)
+
+    bp = make_benchmark_prompts(test_views, _Lazy(), min_area)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
+    with os.fdopen(fd, "w") as fh:
+        json.dump(bp.to_dict(), fh, indent=1)
+    os.replace(tmp, path)
+    return bp
+
+
+# ---------------------------------------------------------------- oracle
+@torch.no_grad()
+def cluster_visibility(gaussians, deformation, camera: Camera, labels: np.ndarray, n_clusters: int) -> np.ndarray:
+    """[H, W, C] rendered weight of each cluster in the full scene (occlusion-aware)."""
+    m, q, s, o = geometry_at(gaussians, deformation, camera.time)
+    onehot = torch.nn.functional.one_hot(torch.as_tensor(labels, dtype=torch.long), n_clusters).to(m.dtype)
+    return rasterize(m, q, s, o, camera, features=onehot).features.cpu().numpy()
+
+
+def oracle_clusters(gaussians, deformation, cameras: Sequence[Camera], gts: Sequence[np.ndarray],
+                    labels: np.ndarray, min_inside: float = 0.5) -> list[int]:
+    """Clusters whose visible pixels (weight >= 0.5) are > min_inside inside the ground truth,
+    pooled over the given frames."""
+    labels = np.asarray(labels, dtype=np.int64)
+    if labels.size == 0:
+        return []
+    C = int(labels.max()) + 1
+    inside = np.zeros(C)
+    total = np.zeros(C)
+    for cam, gt in zip(cameras, gts):
+        vis = cluster_visibility(gaussians, deformation, cam, labels, C) >= 0.5  # [H, W, C]
+        g = np.asarray(gt, bool)[..., None]
+        inside += (vis & g).sum(axis=(0, 1))
+        total += vis.sum(axis=(0, 1))
+    frac = np.divide(inside, total, out=np.zeros(C), where=total > 0)
+    return [int(c) for c in range(C) if total[c] > 0 and frac[c] > min_inside]
