@@ -133,18 +133,62 @@ def cgc_2d_loss(features: torch.Tensor, labels: torch.Tensor) -> tuple[torch.Ten
     return loss, stats
 
 
-def _nearest_farthest(
+def nearest_farthest(
     sample_xyz: torch.Tensor, xyz: torch.Tensor, k_near: int, k_far: int, chunk: int = 64
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Indices [S, k_near] of the nearest and [S, k_far] of the farthest points of xyz [N, 3]
-    for each of sample_xyz [S, 3]; chunked over S so memory stays O(chunk * N)."""
+    for each of sample_xyz [S, 3]; chunked over S so memory stays O(chunk * N). Distances are
+    computed directly (not via |a|^2 + |b|^2 - 2ab), so close neighbours rank exactly."""
     near, far = [], []
     with torch.no_grad():
         for s in range(0, sample_xyz.shape[0], chunk):
-            d = torch.cdist(sample_xyz[s : s + chunk], xyz)  # [c, N]
+            d = torch.cdist(
+                sample_xyz[s : s + chunk], xyz, compute_mode="donot_use_mm_for_euclid_dist"
+            )  # [c, N]
             near.append(d.topk(k_near, dim=1, largest=False).indices)
             far.append(d.topk(k_far, dim=1, largest=True).indices)
+    if not near:
+        empty = torch.zeros(0, dtype=torch.long, device=xyz.device)
+        return empty.reshape(0, k_near), empty.reshape(0, k_far)
     return torch.cat(near), torch.cat(far)
+
+
+def _fingerprint(xyz: torch.Tensor) -> tuple:
+    """Cheap O(N) identity of a point set (shape, device and two weighted sums)."""
+    x = xyz.detach().to(torch.float64)
+    w = torch.arange(1, x.shape[0] + 1, dtype=torch.float64, device=x.device)[:, None]
+    return (tuple(x.shape), str(xyz.device), float(x.sum()), float((x * w).sum()))
+
+
+class NeighbourTable:
+    """Memoised nearest / farthest neighbour indices of a fixed point set.
+
+    Geometry is frozen during feature learning, so a gaussian's neighbours never change: each
+    is computed the first time the gaussian is sampled and reused after (the public code
+    recomputes 1000 x N distances every call). Results equal ``nearest_farthest``."""
+
+    def __init__(self, xyz: torch.Tensor, k_near: int, k_far: int) -> None:
+        n = xyz.shape[0]
+        self.xyz = xyz.detach()
+        self.k_near, self.k_far = int(k_near), int(k_far)
+        self.near = torch.zeros(n, self.k_near, dtype=torch.long, device=xyz.device)
+        self.far = torch.zeros(n, self.k_far, dtype=torch.long, device=xyz.device)
+        self.known = torch.zeros(n, dtype=torch.bool, device=xyz.device)
+        self.fingerprint = _fingerprint(xyz)
+
+    def matches(self, xyz: torch.Tensor, k_near: int, k_far: int) -> bool:
+        return (self.k_near, self.k_far) == (k_near, k_far) and self.fingerprint == _fingerprint(
+            xyz
+        )
+
+    def lookup(self, pick: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """pick [S] indices -> (near [S, k_near], far [S, k_far])."""
+        missing = torch.unique(pick[~self.known[pick]])
+        if missing.numel():
+            near, far = nearest_farthest(self.xyz[missing], self.xyz, self.k_near, self.k_far)
+            self.near[missing], self.far[missing] = near, far
+            self.known[missing] = True
+        return self.near[pick], self.far[pick]
 
 
 def cgc_spatial_loss(
@@ -157,11 +201,14 @@ def cgc_spatial_loss(
     lambda_push: float = 0.15,
     sample_size: int = 1000,
     max_points: int = 300_000,
+    table: NeighbourTable | None = None,
 ) -> torch.Tensor:
     """features [N, D] per gaussian, canonical xyz [N, 3] (not differentiated) -> scalar.
 
-    L = lambda_pull * sigmoid(1 - mean cos(f_s, f_near)) + lambda_push * sigmoid(mean cos(f_s, f_far)).
-    k is capped at N; N = 0 gives a zero loss."""
+    L = lambda_pull * sigmoid(1 - mean cos(f_s, f_near))
+        + lambda_push * sigmoid(mean cos(f_s, f_far)).
+    k is capped at N; N = 0 gives a zero loss. ``table`` (for this xyz, used only when no
+    random cap applies) memoises the neighbour search."""
     if (
         features.ndim != 2
         or xyz.ndim != 2
@@ -178,19 +225,22 @@ def cgc_spatial_loss(
     if n == 0:
         return features.sum() * 0.0
     xyz = xyz.detach().to(features.device)
-    if n > max_points:  # random cap, as the public code (on GPU it bounds the cdist)
+    capped = n > max_points
+    if capped:  # random cap, as the public code (on GPU it bounds the cdist)
         idx = torch.randperm(n, generator=rng)[:max_points].to(features.device)
         xyz, features = xyz[idx], features[idx]
         n = max_points
     pick = torch.randperm(n, generator=rng)[:sample_size].to(features.device)  # [S]
     kn, kf = min(k_pull, n), min(k_push, n)
-    near, far = _nearest_farthest(xyz[pick], xyz, kn, kf)
+    if table is not None and not capped:
+        near, far = table.lookup(pick)
+    else:
+        near, far = nearest_farthest(xyz[pick], xyz, kn, kf)
     fs = features[pick]  # [S, D]
     cos_near = F.cosine_similarity(fs[:, None, :], features[near], dim=-1, eps=1e-10)  # [S, kn]
     cos_far = F.cosine_similarity(fs[:, None, :], features[far], dim=-1, eps=1e-10)  # [S, kf]
-    return lambda_pull * torch.sigmoid(1.0 - cos_near.mean()) + lambda_push * torch.sigmoid(
-        cos_far.mean()
-    )
+    pull = lambda_pull * torch.sigmoid(1.0 - cos_near.mean())
+    return pull + lambda_push * torch.sigmoid(cos_far.mean())
 
 
 def cgc_loss(
@@ -231,6 +281,7 @@ class ContrastiveGaussianClustering(Objective):
         self.k_pull, self.k_push = int(k_pull), int(k_push)
         self.lambda_pull, self.lambda_push = float(lambda_pull), float(lambda_push)
         self.sample_size, self.max_points = int(sample_size), int(max_points)
+        self._table: NeighbourTable | None = None  # neighbours of the frozen gaussians
 
     def forward(self, features: torch.Tensor, sample: PixelSample) -> tuple[torch.Tensor, dict]:
         loss, stats = cgc_loss(features, sample, self.min_mask_pixels)
@@ -242,6 +293,13 @@ class ContrastiveGaussianClustering(Objective):
     ) -> torch.Tensor | None:
         if self.weight_3d == 0.0:
             return None
+        table = None
+        n = xyz.shape[0] if xyz.ndim == 2 else 0
+        if 0 < n <= self.max_points and xyz.shape[1] == 3 and features.shape[:1] == (n,):
+            kn, kf = min(self.k_pull, n), min(self.k_push, n)
+            if self._table is None or not self._table.matches(xyz, kn, kf):
+                self._table = NeighbourTable(xyz.detach().to(features.device), kn, kf)
+            table = self._table
         return self.weight_3d * cgc_spatial_loss(
             features,
             xyz,
@@ -252,4 +310,5 @@ class ContrastiveGaussianClustering(Objective):
             self.lambda_push,
             self.sample_size,
             self.max_points,
+            table,
         )

@@ -15,6 +15,7 @@ from baselines.cgc import (
     cgc_loss,
     cgc_spatial_loss,
     min_mask_pixels_for,
+    nearest_farthest,
 )
 from trase.objectives import ObjectiveInputError
 
@@ -192,3 +193,24 @@ def test_spatial_loss_caps_points():
     f = torch.randn(50, 4, dtype=torch.float64)
     loss = cgc_spatial_loss(f, xyz, torch.Generator().manual_seed(0), sample_size=5, max_points=20)
     assert torch.isfinite(loss)
+
+
+def test_neighbour_table_equals_direct_search_and_is_reused():
+    g = torch.Generator().manual_seed(4)
+    xyz = torch.rand(60, 3, generator=g, dtype=torch.float64)
+    f = torch.randn(60, 4, generator=g, dtype=torch.float64)
+    obj = ContrastiveGaussianClustering(sample_size=20)
+    for seed in range(3):
+        cached = obj.gaussian_loss(f, xyz, torch.Generator().manual_seed(seed))
+        direct = cgc_spatial_loss(f, xyz, torch.Generator().manual_seed(seed), sample_size=20)
+        torch.testing.assert_close(cached, direct)
+    table = obj._table
+    assert table is not None and 20 <= int(table.known.sum()) <= 60
+    obj.gaussian_loss(f, xyz, torch.Generator().manual_seed(9))
+    assert obj._table is table  # same geometry: table kept
+    obj.gaussian_loss(f, xyz + 1.0, torch.Generator().manual_seed(9))
+    assert obj._table is not table  # new geometry: table rebuilt
+    near, far = nearest_farthest(xyz[:5], xyz, 2, 5)
+    assert near[:, 0].tolist() == list(range(5))  # the nearest is the point itself
+    d = torch.cdist(xyz[:5], xyz)
+    assert torch.equal(far.sort(dim=1).values, d.topk(5, dim=1).indices.sort(dim=1).values)
