@@ -76,6 +76,35 @@ def _alpha_at(fx, fy, means2d, conics, opac, g, p_min):
     return power, G, opac[g] * G, dx, dy
 
 
+@njit(inline="always")
+def _pack_tile(start, end, entries, means2d, conics, opac):
+    """Gather a tile's gaussians into one contiguous [K, 6] float64 block (u, v, a, b, c, o):
+    the per-pixel loops then stream through it instead of gathering."""
+    k = end - start
+    pk = np.empty((k, 6), np.float64)
+    for i in range(k):
+        g = entries[start + i]
+        pk[i, 0] = means2d[g, 0]
+        pk[i, 1] = means2d[g, 1]
+        pk[i, 2] = conics[g, 0]
+        pk[i, 3] = conics[g, 1]
+        pk[i, 4] = conics[g, 2]
+        pk[i, 5] = opac[g]
+    return pk
+
+
+@njit(inline="always")
+def _alpha_packed(fx, fy, pk, i, p_min):
+    """As _alpha_at, from a packed tile block row."""
+    dx = fx - pk[i, 0]
+    dy = fy - pk[i, 1]
+    power = -0.5 * (pk[i, 2] * dx * dx + pk[i, 4] * dy * dy) - pk[i, 3] * dx * dy
+    if power > 0.0 or power < p_min:
+        return 1.0, 0.0, 0.0, dx, dy
+    G = math.exp(power)
+    return power, G, pk[i, 5] * G, dx, dy
+
+
 @njit(parallel=True, cache=True)
 def forward(means2d, conics, opac, chans, tile_off, entries, width, height, ts, gx, gy, p_min, out, t_final, n_done):
     """out [H*W, C] += sum_i w_i chans_i; t_final [H*W] float64; n_done [H*W] = entry index
@@ -86,6 +115,7 @@ def forward(means2d, conics, opac, chans, tile_off, entries, width, height, ts, 
         ty = t // gx
         start = tile_off[t]
         end = tile_off[t + 1]
+        pk = _pack_tile(start, end, entries, means2d, conics, opac)
         for py in range(ty * ts, min((ty + 1) * ts, height)):
             for px in range(tx * ts, min((tx + 1) * ts, width)):
                 pix = py * width + px
@@ -94,8 +124,7 @@ def forward(means2d, conics, opac, chans, tile_off, entries, width, height, ts, 
                 T = 1.0
                 last = start
                 for e in range(start, end):
-                    g = entries[e]
-                    power, G, a, dx, dy = _alpha_at(fx, fy, means2d, conics, opac, g, p_min)
+                    power, G, a, dx, dy = _alpha_packed(fx, fy, pk, e - start, p_min)
                     if power > 0.0:
                         continue
                     if a > ALPHA_MAX:
@@ -106,6 +135,7 @@ def forward(means2d, conics, opac, chans, tile_off, entries, width, height, ts, 
                     if test_t < T_MIN:
                         break
                     w = a * T
+                    g = entries[e]
                     for c in range(C):
                         out[pix, c] += w * chans[g, c]
                     T = test_t
@@ -127,6 +157,7 @@ def backward(
         tx = t % gx
         ty = t // gx
         start = tile_off[t]
+        pk = _pack_tile(start, tile_off[t + 1], entries, means2d, conics, opac)
         for py in range(ty * ts, min((ty + 1) * ts, height)):
             for px in range(tx * ts, min((tx + 1) * ts, width)):
                 pix = py * width + px
@@ -137,13 +168,13 @@ def backward(
                 acc = 0.0  # sum over gaussians behind of w_j (chans_j . g_out)
                 ga = g_alpha[pix]
                 for e in range(n_done[pix] - 1, start - 1, -1):
-                    g = entries[e]
-                    power, G, a_raw, dx, dy = _alpha_at(fx, fy, means2d, conics, opac, g, p_min)
+                    power, G, a_raw, dx, dy = _alpha_packed(fx, fy, pk, e - start, p_min)
                     if power > 0.0:
                         continue
                     a = a_raw if a_raw <= ALPHA_MAX else ALPHA_MAX
                     if a < ALPHA_MIN:
                         continue
+                    g = entries[e]
                     one_m = 1.0 - a
                     T = T / one_m  # transmittance in front of this gaussian
                     w = a * T
@@ -156,8 +187,9 @@ def backward(
                     acc += w * fg
                     if a_raw > ALPHA_MAX:
                         continue  # clamped alpha: no gradient to opacity or geometry
-                    d_power = opac[g] * d_a * G
-                    ca, cb, cc = conics[g, 0], conics[g, 1], conics[g, 2]
+                    i = e - start
+                    d_power = pk[i, 5] * d_a * G
+                    ca, cb, cc = pk[i, 2], pk[i, 3], pk[i, 4]
                     buf_geo[e, 0] += d_power * (ca * dx + cb * dy)
                     buf_geo[e, 1] += d_power * (cc * dy + cb * dx)
                     buf_geo[e, 2] += d_power * (-0.5 * dx * dx)

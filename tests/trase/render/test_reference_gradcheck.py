@@ -16,7 +16,7 @@ def _gradcheck(sc, cam, names):
         return loss_of(rasterize(camera=cam, backend="torch", **kw))
 
     inputs = tuple(sc[k].detach().clone().requires_grad_(True) for k in names)
-    assert torch.autograd.gradcheck(f, inputs, eps=1e-6, atol=1e-5, rtol=1e-3)
+    assert torch.autograd.gradcheck(f, inputs, eps=1e-6, atol=1e-5, rtol=1e-3, fast_mode=True)
 
 
 def test_reference_gradients_match_finite_differences():

@@ -1,0 +1,30 @@
+"""``trase-bench perf SUITE... [--quick] [--json OUT]``: measured performance suites."""
+
+from __future__ import annotations
+
+import json
+import time
+
+import click
+
+from benchmark.perf import SUITES, get_suite, machine_info
+
+
+@click.command(context_settings={"help_option_names": ["-h", "--help"]})
+@click.argument("suites", nargs=-1, type=click.Choice(sorted(SUITES)))
+@click.option("--quick", is_flag=True, help="Small settings only (seconds, for smoke tests).")
+@click.option("--json", "json_out", type=click.Path(dir_okay=False), help="Also write all figures to this JSON file.")
+def perf(suites: tuple[str, ...], quick: bool, json_out: str | None) -> None:
+    """Run performance SUITES (default: all) and print their figures."""
+    names = suites or tuple(sorted(SUITES))
+    result = {"machine": machine_info(), "started": time.strftime("%Y-%m-%dT%H:%M:%S"), "suites": {}}
+    for name in names:
+        click.echo(f"== {name} ==")
+        result["suites"][name] = get_suite(name)(quick=quick, echo=click.echo)
+    if json_out:
+        with open(json_out, "w") as f:
+            json.dump(result, f, indent=2)
+        click.echo(f"wrote {json_out}")
+
+
+perf.help = (perf.help or "") + "\n\n\b\nSuites:\n" + "\n".join(f"  {k}: {v[1]}" for k, v in SUITES.items())

@@ -1,0 +1,51 @@
+"""Performance suites for ``trase-bench perf SUITE``. A suite is a module with
+``run(quick: bool, echo) -> dict`` (JSON-ready, figures measured in this run); register it with
+one line in ``SUITES``: name -> ("module:function", one-line description)."""
+
+from __future__ import annotations
+
+import importlib
+import os
+import platform
+import sys
+from typing import Callable
+
+SUITES: dict[str, tuple[str, str]] = {
+    "raster": ("benchmark.perf.raster:run", "Gaussian rasterizer: numba vs torch reference, forward/backward."),
+    "knn": ("benchmark.perf.knn:run", "K=16 smoothing neighbours: cKDTree (as trase) vs all-core, chunked, sklearn; + smoothing step."),
+    "cluster": ("benchmark.perf.cluster:run", "Feature clustering: HDBSCAN 2/10/25% vs DBSCAN, KMeans, PCA and fixed-sample variants (ARI)."),
+}
+
+
+def get_suite(name: str) -> Callable:
+    module, attr = SUITES[name][0].split(":")
+    return getattr(importlib.import_module(module), attr)
+
+
+def machine_info() -> dict:
+    """Where the figures were measured (CPU, cores, load, library versions)."""
+    import numba
+    import numpy
+    import torch
+
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    cpu = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    return {
+        "cpu": cpu,
+        "cpu_count": os.cpu_count(),
+        "platform": platform.platform(),
+        "python": sys.version.split()[0],
+        "torch": torch.__version__,
+        "torch_threads": torch.get_num_threads(),
+        "numba": numba.__version__,
+        "numba_threads": numba.config.NUMBA_NUM_THREADS,
+        "numpy": numpy.__version__,
+        "load_average_start": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
+    }

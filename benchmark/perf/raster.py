@@ -1,0 +1,130 @@
+"""Rasterizer speed and agreement: the same random scene rendered by the numba backend and
+the torch reference, forward and backward, side by side.
+
+Each setting renders colour (3) + features (D) + depth + alpha and back-propagates a fixed
+random linear functional of all outputs, so every gradient path runs. Times are wall-clock
+medians over repeats (numba after one untimed warm-up that loads/compiles its kernels);
+"spread" is max - min over the repeats. Differences: max |output_numba - output_torch| over
+colour, features, depth and alpha; gradient difference per input is
+max |g_numba - g_torch| / max |g_torch|, the worst input reported.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import statistics
+import time
+from typing import Callable
+
+import torch
+
+from trase.camera import Camera, intrinsics, look_at
+from trase.render import rasterize
+
+# (gaussians, width, height, feature channels D (total channels = 3 + D), run torch?)
+QUICK = [(5_000, 128, 96, 32, True)]
+DEFAULT = [
+    (5_000, 128, 96, 32, True),
+    (20_000, 256, 192, 32, True),
+    (100_000, 960, 536, 32, False),  # the torch reference would take minutes per pass here
+]
+INPUTS = ("means", "quats", "scales", "opacities", "colors", "features")
+
+
+def make_scene(n: int, width: int, height: int, d: int, seed: int = 0) -> tuple[dict, Camera]:
+    """Gaussians in a unit ball seen from distance 3 with a ~60 degree horizontal FOV; sizes
+    shrink with n (as densified reconstructions do) so a few pixels of radius is typical."""
+    g = torch.Generator().manual_seed(seed)
+    f = 0.87 * width
+    cam = Camera(K=intrinsics(f, f, width / 2, height / 2), w2c=look_at([0.0, -3.0, 0.4], [0.0, 0.0, 0.0]),
+                 width=width, height=height)
+    dirs = torch.randn(n, 3, generator=g)
+    means = dirs / dirs.norm(dim=1, keepdim=True) * torch.rand(n, 1, generator=g) ** (1 / 3)
+    log_s = -3.6 - math.log(n / 5_000) / 3
+    scene = {
+        "means": means,
+        "quats": torch.randn(n, 4, generator=g),
+        "scales": torch.exp(torch.randn(n, 3, generator=g) * 0.5 + log_s),
+        "opacities": torch.sigmoid(torch.randn(n, generator=g)),
+        "colors": torch.rand(n, 3, generator=g),
+        "features": torch.randn(n, d, generator=g),
+    }
+    return scene, cam
+
+
+def _once(backend: str, scene: dict, cam: Camera) -> tuple[float, float, dict, dict]:
+    leaves = {k: v.clone().requires_grad_(True) for k, v in scene.items()}
+    t0 = time.perf_counter()
+    out = rasterize(camera=cam, backend=backend, **leaves)
+    t1 = time.perf_counter()
+    g = torch.Generator().manual_seed(1)
+    loss = 0.0
+    for t in (out.color, out.features, out.depth, out.alpha):
+        loss = loss + (t * torch.rand(t.shape, generator=g)).sum()
+    loss.backward()
+    t2 = time.perf_counter()
+    outs = {"color": out.color.detach(), "features": out.features.detach(),
+            "depth": out.depth.detach(), "alpha": out.alpha.detach()}
+    return t1 - t0, t2 - t1, outs, {k: leaves[k].grad for k in INPUTS}
+
+
+def _stats(xs: list[float]) -> dict:
+    return {"median": statistics.median(xs), "spread": max(xs) - min(xs), "all": xs}
+
+
+def _time_backend(backend, scene, cam, repeats, warmup):
+    if warmup:
+        _once(backend, scene, cam)
+    fw, bw = [], []
+    for _ in range(repeats):
+        f, b, outs, grads = _once(backend, scene, cam)
+        fw.append(f)
+        bw.append(b)
+    tot = [f + b for f, b in zip(fw, bw)]
+    return {"forward_s": _stats(fw), "backward_s": _stats(bw), "total_s": _stats(tot)}, outs, grads
+
+
+def run(quick: bool = False, echo: Callable[[str], None] = print) -> dict:
+    settings = QUICK if quick else DEFAULT
+    reps_numba, reps_torch = (3, 2) if quick else (5, 3)
+    rows = []
+    echo(f"rasterizer: numba vs torch reference ({torch.get_num_threads()} torch threads, "
+         f"{os.cpu_count()} cores); medians of {reps_numba} numba / {reps_torch} torch repeats, spread = max - min")
+    for n, w, h, d, with_torch in settings:
+        scene, cam = make_scene(n, w, h, d)
+        label = f"{n // 1000}k gaussians {w}x{h} {3 + d}ch"
+        row = {"gaussians": n, "width": w, "height": h, "channels": 3 + d, "feature_dim": d}
+        num, out_n, g_n = _time_backend("numba", scene, cam, reps_numba, warmup=True)
+        row["numba"] = num
+        row["mean_alpha"] = float(out_n["alpha"].mean())
+        echo(f"{label}: numba  forward {_fmt(num['forward_s'])}  backward {_fmt(num['backward_s'])}  "
+             f"total {_fmt(num['total_s'])}")
+        if with_torch:
+            ref, out_t, g_t = _time_backend("torch", scene, cam, reps_torch, warmup=False)
+            row["torch"] = ref
+            row["speedup"] = {k: ref[k]["median"] / num[k]["median"] for k in ("forward_s", "backward_s", "total_s")}
+            row["max_abs_output_diff"] = max(float((out_n[k] - out_t[k]).abs().max()) for k in out_n)
+            rel = {k: float((g_n[k] - g_t[k]).abs().max() / g_t[k].abs().max().clamp_min(1e-30)) for k in INPUTS}
+            row["grad_rel_diff"] = rel
+            row["max_grad_rel_diff"] = max(rel.values())
+            s = row["speedup"]
+            echo(f"{label}: torch  forward {_fmt(ref['forward_s'])}  backward {_fmt(ref['backward_s'])}  "
+                 f"total {_fmt(ref['total_s'])}")
+            echo(f"{label}: speed-up numba/torch forward {s['forward_s']:.1f}x  backward {s['backward_s']:.1f}x  "
+                 f"forward+backward {s['total_s']:.1f}x;  max |output diff| {row['max_abs_output_diff']:.2e}  "
+                 f"max gradient rel diff {row['max_grad_rel_diff']:.2e} ({max(rel, key=rel.get)})")
+        else:
+            echo(f"{label}: torch reference not run at this size (too slow: minutes per pass)")
+        rows.append(row)
+    return {
+        "description": __doc__.strip().splitlines()[0],
+        "quick": quick,
+        "repeats": {"numba": reps_numba, "torch": reps_torch},
+        "settings": rows,
+        "load_average_end": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
+    }
+
+
+def _fmt(s: dict) -> str:
+    return f"{s['median']:.3f}s (+-{s['spread'] / 2:.3f})"
