@@ -6,6 +6,9 @@ Importing this package registers them with ``trase.objectives`` (``get_objective
 ``trase-all``     TRASE's pair loss with every pixel an anchor (all_mining)
 ``cgc``           Contrastive Gaussian Clustering, Silva et al. 2024 (cgc)
 ``opengaussian``  OpenGaussian's stage-1 instance-feature loss, Wu et al. 2024 (opengaussian)
+
+``cgc_inference`` holds CGC's own selection (similarity threshold to a clicked query feature,
+no clustering); it renders, so it is imported on use, not here.
 """
 
 from baselines.all_mining import AllMining, all_mining_loss
