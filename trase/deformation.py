@@ -39,12 +39,12 @@ def positional_encoding(x: torch.Tensor, num_freqs: int) -> torch.Tensor:
     x [..., d] -> [..., d * (1 + 2 * num_freqs)]; frequencies 2^0 .. 2^(num_freqs-1), the
     same order as Deformable-3DGS's embedder so trained weights stay meaningful.
     """
-    parts = [x]
-    for k in range(num_freqs):
-        f = float(2.0**k)
-        parts.append(torch.sin(x * f))
-        parts.append(torch.cos(x * f))
-    return torch.cat(parts, dim=-1)
+    if num_freqs == 0:
+        return x
+    freqs = 2.0 ** torch.arange(num_freqs, dtype=x.dtype, device=x.device)  # [F]
+    xf = x[..., None, :] * freqs[:, None]  # [..., F, d]
+    sc = torch.stack([torch.sin(xf), torch.cos(xf)], dim=-2)  # [..., F, 2, d]
+    return torch.cat([x, sc.flatten(-3)], dim=-1)
 
 
 class DeformMLP(nn.Module):
@@ -86,6 +86,19 @@ class DeformMLP(nn.Module):
         self.gaussian_warp = nn.Linear(W, 3)
         self.gaussian_rotation = nn.Linear(W, 4)
         self.gaussian_scaling = nn.Linear(W, 3)
+
+    @torch.no_grad()
+    def zero_heads(self) -> "DeformMLP":
+        """Zero the three output layers so the network starts as the identity deformation.
+
+        The public code keeps PyTorch's default init, whose random offsets (~0.1-0.5 scene
+        units) scramble the geometry when the deformation switches on after warm-up; it
+        recovers over thousands of iterations, which a short CPU run cannot afford.
+        """
+        for head in (self.gaussian_warp, self.gaussian_rotation, self.gaussian_scaling):
+            head.weight.zero_()
+            head.bias.zero_()
+        return self
 
     @classmethod
     def preset(cls, name: str) -> "DeformMLP":

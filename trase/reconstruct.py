@@ -87,6 +87,7 @@ class ReconstructionConfig:
     white_background: bool = False
     # deformation
     deform_preset: str = "paper"  # "paper" (D=8, W=256) or "small" (D=4, W=64)
+    deform_zero_init: bool = False  # start as the identity (see DeformMLP.zero_heads)
     time_noise: float = 0.1
     time_noise_steps: int = 20_000
     # data and bookkeeping
@@ -124,6 +125,7 @@ class ReconstructionConfig:
             sh_degree=1,
             sh_interval=1000,
             deform_preset="small",
+            deform_zero_init=True,
             time_noise_steps=2000,
             checkpoint_interval=1000,
         )
@@ -271,10 +273,10 @@ def _make_optimizers(g: GaussianModel, deform: DeformMLP, cfg: ReconstructionCon
         {"params": [g.log_scales], "lr": cfg.scaling_lr, "name": "log_scales"},
         {"params": [g.quats], "lr": cfg.rotation_lr, "name": "quats"},
     ]
-    opt_g = torch.optim.Adam(groups, lr=0.0, eps=1e-15)
+    opt_g = torch.optim.Adam(groups, lr=0.0, eps=1e-15, fused=True)
     opt_d = torch.optim.Adam(
         [{"params": list(deform.parameters()), "lr": cfg.position_lr_init * cfg.spatial_lr_scale, "name": "deform"}],
-        lr=0.0, eps=1e-15,
+        lr=0.0, eps=1e-15, fused=True,
     )
     return opt_g, opt_d
 
@@ -317,6 +319,7 @@ def reconstruct(
     progress: bool = True,
     backend: str = "auto",
     max_seconds: float | None = None,
+    torch_threads: int | None = 1,
 ) -> tuple[GaussianModel, DeformMLP]:
     """Train canonical gaussians and a deformation MLP on ``views`` (objects with .camera, a
     pinhole Camera whose .time is the frame time, and .image_path).
@@ -324,9 +327,21 @@ def reconstruct(
     Checkpoints go to out_dir in the public layout every ``checkpoint_interval`` iterations
     and at the end; with ``resume`` the latest one (with its sidecar state) is continued.
     ``max_seconds`` stops early (and checkpoints) once that much wall time has been spent.
+    ``torch_threads`` sets torch's intra-op threads for the run (restored afterwards): the
+    tensors here are small, and on a shared 2-core machine extra torch threads spin against
+    the rasterizer's own numba threads (measured ~10x slower MLP steps), so 1 is the default.
     """
+    old_threads = torch.get_num_threads()
+    if torch_threads is not None:
+        torch.set_num_threads(max(1, int(torch_threads)))
+    try:
+        return _reconstruct(views, points, point_colors, config, Path(out_dir), resume, progress, backend, max_seconds)
+    finally:
+        torch.set_num_threads(old_threads)
+
+
+def _reconstruct(views, points, point_colors, config, out_dir, resume, progress, backend, max_seconds):
     cfg = config
-    out_dir = Path(out_dir)
     if not views:
         raise ValueError("reconstruct: no training views")
     bg_np = np.ones(3, np.float32) if cfg.white_background else np.zeros(3, np.float32)
@@ -363,6 +378,8 @@ def reconstruct(
     else:
         gaussians = GaussianModel.from_points(points, point_colors, sh_degree=cfg.sh_degree)
         deform = DeformMLP.preset(cfg.deform_preset)
+        if cfg.deform_zero_init:
+            deform.zero_heads()
         opt_g, opt_d = _make_optimizers(gaussians, deform, cfg)
         n = gaussians.num_gaussians
         grad_accum, denom = torch.zeros(n), torch.zeros(n)

@@ -1,0 +1,104 @@
+import numpy as np
+import pytest
+import torch
+
+from trase.deformation import DeformMLP, TabulatedDeformation, deformed, infer_mlp_config, positional_encoding
+from trase.gaussians import GaussianModel
+
+
+def test_positional_encoding_order_matches_nerf_embedder():
+    x = torch.randn(7, 3)
+    ref = [x]
+    for k in range(10):
+        ref += [torch.sin(x * 2.0**k), torch.cos(x * 2.0**k)]
+    assert torch.equal(positional_encoding(x, 10), torch.cat(ref, -1))
+    assert positional_encoding(x, 10).shape == (7, 63)
+
+
+def test_paper_mlp_state_dict_names_and_shapes():
+    net = DeformMLP.preset("paper")
+    sd = net.state_dict()
+    # Deformable-3DGS DeformNetwork(D=8, W=256), real-scene variant: xyz 63 + t 21 = 84 inputs
+    assert sorted(k for k in sd if k.startswith("linear.")) == sorted(
+        f"linear.{i}.{p}" for i in range(8) for p in ("weight", "bias")
+    )
+    assert sd["linear.0.weight"].shape == (256, 84)
+    assert sd["linear.5.weight"].shape == (256, 256 + 84)  # skip concat after layer 4
+    for i in (1, 2, 3, 4, 6, 7):
+        assert sd[f"linear.{i}.weight"].shape == (256, 256)
+    assert sd["gaussian_warp.weight"].shape == (3, 256)
+    assert sd["gaussian_rotation.weight"].shape == (4, 256)
+    assert sd["gaussian_scaling.weight"].shape == (3, 256)
+    assert len(sd) == 16 + 6
+
+
+def test_blender_variant_has_timenet():
+    net = DeformMLP(blender=True)
+    sd = net.state_dict()
+    assert sd["timenet.0.weight"].shape == (256, 13)  # 6 time frequencies
+    assert sd["timenet.2.weight"].shape == (30, 256)
+    assert sd["linear.0.weight"].shape == (256, 63 + 30)
+    assert infer_mlp_config(sd) == net.config()
+
+
+@pytest.mark.parametrize("preset", ["paper", "small"])
+def test_forward_shapes_and_config_roundtrip(preset):
+    net = DeformMLP.preset(preset)
+    x = torch.randn(11, 3)
+    dx, dr, ds = net(x, 0.3)
+    assert dx.shape == (11, 3) and dr.shape == (11, 4) and ds.shape == (11, 3)
+    # per-gaussian times give the same result as a float
+    dx2, _, _ = net(x, torch.full((11, 1), 0.3))
+    assert torch.allclose(dx, dx2)
+    cfg = infer_mlp_config(net.state_dict())
+    assert cfg == net.config()
+    again = DeformMLP(**cfg)
+    again.load_state_dict(net.state_dict())
+    assert torch.equal(again(x, 0.3)[0], dx)
+
+
+def test_infer_config_rejects_other_dicts():
+    with pytest.raises(ValueError):
+        infer_mlp_config({"foo.weight": torch.zeros(1)})
+
+
+def test_tabulated_exact_at_knots_and_linear_between():
+    T, N = 4, 5
+    times = np.array([0.0, 0.25, 0.5, 1.0])
+    rng = np.random.default_rng(0)
+    dx, dr, ds = rng.normal(size=(T, N, 3)), rng.normal(size=(T, N, 4)), rng.normal(size=(T, N, 3))
+    tab = TabulatedDeformation(times, dx, dr, ds)
+    xyz = torch.zeros(N, 3)
+    for i, t in enumerate(times):
+        a, b, c = tab(xyz, float(t))
+        assert torch.equal(a, torch.as_tensor(dx[i], dtype=torch.float32))
+        assert torch.equal(b, torch.as_tensor(dr[i], dtype=torch.float32))
+        assert torch.equal(c, torch.as_tensor(ds[i], dtype=torch.float32))
+    a, _, _ = tab(xyz, 0.75)  # halfway between 0.5 and 1.0
+    assert torch.allclose(a, torch.as_tensor(0.5 * (dx[2] + dx[3]), dtype=torch.float32), atol=1e-6)
+    # clamped outside the table
+    assert torch.equal(tab(xyz, -1.0)[0], tab(xyz, 0.0)[0])
+    assert torch.equal(tab(xyz, 2.0)[0], tab(xyz, 1.0)[0])
+
+
+def test_tabulated_validates_shapes():
+    with pytest.raises(ValueError):
+        TabulatedDeformation([0.0, 1.0], np.zeros((2, 3, 3)), np.zeros((2, 3, 3)), np.zeros((2, 3, 3)))
+    with pytest.raises(ValueError):
+        TabulatedDeformation([1.0, 0.0], np.zeros((2, 3, 3)), np.zeros((2, 3, 4)), np.zeros((2, 3, 3)))
+
+
+def test_deformed_semantics_and_scale_clamp():
+    n = 3
+    g = GaussianModel(torch.zeros(n, 3), torch.zeros(n, 3), torch.tensor([[2.0, 0, 0, 0]] * n),
+                      torch.zeros(n), torch.zeros(n, 1, 3))
+    dx = np.ones((1, n, 3))
+    dr = np.full((1, n, 4), 0.5)
+    ds = np.full((1, n, 3), -5.0)  # exp(0) - 5 < 0: must clamp, stay finite and positive
+    tab = TabulatedDeformation([0.0], dx, dr, ds)
+    m, q, s = deformed(g, tab, 0.0)
+    assert torch.allclose(m, torch.ones(n, 3))
+    assert torch.allclose(q, torch.tensor([[1.5, 0.5, 0.5, 0.5]] * n))  # normalize(q) + d_rot
+    assert (s > 0).all() and torch.isfinite(s).all()
+    m0, q0, s0 = deformed(g, None, 0.0)
+    assert torch.allclose(s0, torch.ones(n, 3))
