@@ -16,8 +16,9 @@ gaussians at 2% on a desktop; the cheaper variants here ask what accuracy costs 
 
 from __future__ import annotations
 
+import functools
 import math
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
@@ -116,10 +117,10 @@ def configurations(n: int, cfg: dict, ref_clusters: int | None) -> list[tuple[st
     out: list[tuple[str, int, Callable | None]] = []
     cap = cfg["max_hdbscan_sample"]
     for fr in sorted(cfg["fractions"], reverse=True):  # largest first: it is the reference
-        s = int(math.ceil(fr * n))
+        s = math.ceil(fr * n)
         fn = (lambda x, fr=fr: cluster(x, "hdbscan", fr, seed=0, **HDB).labels) if s <= cap else None
         out.append((f"hdbscan {fr:.0%} (trase.clustering)", s, fn))
-    s2 = int(math.ceil(0.02 * n))
+    s2 = math.ceil(0.02 * n)
     fs = min(cfg["fixed_sample"], n)
     out += [
         (f"hdbscan fixed sample {fs}", fs,
@@ -145,9 +146,9 @@ def assignment_cost(fn: np.ndarray, labels: np.ndarray, repeats: int) -> dict:
     out = {}
     many = np.random.default_rng(0).integers(0, 500, fn.shape[0])  # a scene with many clusters
     for key, lab in (("reference_labels", labels), ("500_labels", many)):
-        loop, (_, a) = time_repeats(lambda: clustering._centres(fn, lab), repeats)
-        vec, b = time_repeats(lambda: centres_of(fn, lab), repeats)
-        out[key] = {"clusters": int(len(np.unique(lab))), "per_label_loop_s": loop, "sparse_onehot_s": vec,
+        loop, (_, a) = time_repeats(functools.partial(clustering._centres, fn, lab), repeats)
+        vec, b = time_repeats(functools.partial(centres_of, fn, lab), repeats)
+        out[key] = {"clusters": len(np.unique(lab)), "per_label_loop_s": loop, "sparse_onehot_s": vec,
                     "speedup": ratio(loop, vec), "max_abs_diff": float(np.abs(a - b).max()) if len(b) else 0.0}
     return out
 
@@ -168,27 +169,27 @@ def run(quick: bool = False, echo: Callable[[str], None] = print) -> dict:
             if fn is None:
                 entry["configs"][name] = {"sample": s, "skipped": f"sample {s} > max_hdbscan_sample {cfg['max_hdbscan_sample']}"}
                 continue
-            t, labels = time_repeats(lambda: fn(x), cfg["repeats"], budget_s=cfg["budget_s"])
+            t, labels = time_repeats(functools.partial(fn, x), cfg["repeats"], budget_s=cfg["budget_s"])
             if ref_labels is None:
                 ref_name, ref_labels, ref_time = name, labels, t
             entry["configs"][name] = {"sample": s, "seconds": t, "labels": labels}
-        ref_k = int(len(np.unique(ref_labels))) if ref_labels is not None else None
+        ref_k = len(np.unique(ref_labels)) if ref_labels is not None else None
         for name, s, fn in configurations(n, cfg, ref_k)[len(cfg["fractions"]):]:
-            t, labels = time_repeats(lambda: fn(x), cfg["repeats"], budget_s=cfg["budget_s"])
+            t, labels = time_repeats(functools.partial(fn, x), cfg["repeats"], budget_s=cfg["budget_s"])
             entry["configs"][name] = {"sample": s, "seconds": t, "labels": labels}
         for name, c in entry["configs"].items():
             if "skipped" in c:
                 rows.append([f"{n // 1000}k  {name}", f"skipped ({c['sample']} pts)", "", "", "", ""])
                 continue
             labels = c.pop("labels")
-            c["clusters"] = int(len(np.unique(labels)))
+            c["clusters"] = len(np.unique(labels))
             c["ari_vs_reference"] = _ari(ref_labels, labels) if ref_labels is not None else None
             c["ari_vs_known"] = _ari(known[keep], labels[keep])
             c["time_ratio_to_reference"] = ratio(c["seconds"], ref_time) if ref_time else None
             rows.append([f"{n // 1000}k  {name}", fmt(c["seconds"]), f"{c['time_ratio_to_reference']:.3f}x",
                          str(c["clusters"]), f"{c['ari_vs_reference']:.4f}", f"{c['ari_vs_known']:.4f}"])
         entry["reference"] = ref_name
-        entry["known_clusters"] = int(len(np.unique(known[keep])))
+        entry["known_clusters"] = len(np.unique(known[keep]))
         entry["assignment"] = assignment_cost(x, ref_labels, min(cfg["repeats"], 2))
         for a in entry["assignment"].values():
             rows.append([f"{n // 1000}k  centres of all N, {a['clusters']} labels: per-label loop -> sparse one-hot",

@@ -11,7 +11,7 @@ import importlib
 import os
 import statistics
 import time
-from typing import Callable
+from collections.abc import Callable
 
 
 def stats(xs: list[float]) -> dict:

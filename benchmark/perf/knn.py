@@ -15,7 +15,8 @@ anisotropic blobs), float32 as trained gaussians are.
 
 from __future__ import annotations
 
-from typing import Callable
+import functools
+from collections.abc import Callable
 
 import numpy as np
 import torch
@@ -153,7 +154,7 @@ def run(quick: bool = False, echo: Callable[[str], None] = print) -> dict:
         entry = {"n": n, "methods": {}}
         got_ref = None
         for name, fn in METHODS.items():
-            t, got = time_repeats(lambda: fn(pts), reps)
+            t, got = time_repeats(functools.partial(fn, pts), reps)
             m = {"seconds": t, **agreement(pts, got, rows, ex_ids, ex_d2)}
             if name == REFERENCE:
                 got_ref = got
