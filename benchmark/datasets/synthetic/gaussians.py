@@ -94,8 +94,8 @@ def _room_samples(obj, n: int):
     for (axis, sign, w), area in zip(faces, areas):
         a, b = [x for x in range(3) if x != axis]
         step = math.sqrt(1.0 / (density * w))  # metres between samples on this face
-        ka = max(2, int(round(2 * S[a] / step)))
-        kb = max(2, int(round(2 * S[b] / step)))
+        ka = max(2, round(2 * S[a] / step))
+        kb = max(2, round(2 * S[b] / step))
         ga = (np.arange(ka) + 0.5) / ka * 2 - 1
         gb = (np.arange(kb) + 0.5) / kb * 2 - 1
         A, B = np.meshgrid(ga, gb, indexing="ij")
@@ -134,7 +134,7 @@ def build_geometry(world: World, times: np.ndarray, budget: int) -> dict[str, np
         scales0 = np.stack([sig, sig, np.maximum(0.08 * sig, 1e-4)], axis=1)
         q0 = rotmat_to_quat(frame0)
         d_xyz, d_rot, d_scale = [], [], []
-        for t in times:
+        for t in times if obj.motion != "static" else []:
             pts, nrm, A = _place(obj.pose(float(t)), p_l, n_l)
             tan = t_local @ A.T
             fr = _frames(nrm, tan)
@@ -147,11 +147,15 @@ def build_geometry(world: World, times: np.ndarray, budget: int) -> dict[str, np
             d_xyz.append(pts - pts0)
             d_rot.append(q - q0)
             d_scale.append(sc - scales0)
-        chunks.append(dict(
-            means=pts0, log_scales=np.log(scales0), quats=q0,
-            opacity_logits=np.full(len(p_l), 4.0), colors=colors, object_ids=ids,
-            d_xyz=np.stack(d_xyz), d_rot=np.stack(d_rot), d_scale=np.stack(d_scale),
-        ))
+        if obj.motion == "static":  # exactly zero offsets
+            d_xyz = [np.zeros_like(pts0)] * len(times)
+            d_rot = [np.zeros_like(q0)] * len(times)
+            d_scale = [np.zeros_like(scales0)] * len(times)
+        chunks.append({
+            "means": pts0, "log_scales": np.log(scales0), "quats": q0,
+            "opacity_logits": np.full(len(p_l), 4.0), "colors": colors, "object_ids": ids,
+            "d_xyz": np.stack(d_xyz), "d_rot": np.stack(d_rot), "d_scale": np.stack(d_scale),
+        })
     out = {}
     for key in ("means", "log_scales", "quats", "opacity_logits", "colors"):
         out[key] = np.concatenate([c[key] for c in chunks]).astype(np.float32)

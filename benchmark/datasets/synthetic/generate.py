@@ -13,6 +13,7 @@ times) and ``synthetic/manifest.json``.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import re
 from collections.abc import Callable
@@ -21,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmark.errors import UserError
+from trase.camera import Camera
 
 from . import formats
 from .gaussians import build_geometry
@@ -74,86 +76,100 @@ def generate(dataset: str, out_dir: Path | str, seed: int = 0, size: str = "smal
     out.mkdir(parents=True, exist_ok=True)
     report = progress or (lambda stage, done, total: None)
     world = build_world(seed)
-    rng = np.random.default_rng([seed, DATASET_KEYS.index(dataset)])
     rs = SIZES[dataset][size]
-
+    views = rig_views(dataset, size, seed)
     if dataset in ("nerfds", "hypernerf"):
-        expected = _write_nerfies(dataset, out, world, rs, rng, report)
+        _write_nerfies(dataset, out, world, views, report)
     else:
-        expected = _write_multiview(dataset, out, world, rs, rng, report, sequence_name(size))
+        _write_multiview(dataset, out, world, views, report, sequence_name(size))
 
     scene = _load(dataset, out, sequence_name(size))
-    _check_loader(scene, expected)
+    _check_loader(scene, {v.view: (v.camera, v.time) for v in views})
     _write_truth(scene, out, world, seed, size, rs.gaussians, report)
     return out
 
 
+@dataclasses.dataclass(frozen=True)
+class RigView:
+    """One raw image the generator writes."""
+
+    view: str  # the loader's View.name: nerfies item id / "<camera>/<frame:05d>"
+    camera: Camera  # native camera (full lens model) in the generator's world
+    time: float  # the dataset's time rule
+    frame: int  # nerfies time_id / publisher frame number
+    cam_index: int  # index of the fixed camera in the rig (multi-view), 0 or 1 (nerfds)
+
+
+def rig_views(dataset: str, size: str = "small", seed: int = 0) -> list[RigView]:
+    """Every image of the dataset's rig with its native camera and time, in writing order."""
+    _check_args(dataset, size)
+    rs = SIZES[dataset][size]
+    rng = np.random.default_rng([seed, DATASET_KEYS.index(dataset)])
+    if dataset in ("nerfds", "hypernerf"):
+        rig = nerfds_rig(rs, rng) if dataset == "nerfds" else hypernerf_rig(rs, rng)
+        max_tid = max(rc.frame for rc in rig)
+        return [RigView(rc.name, rc.camera, rc.frame / max_tid if max_tid > 0 else 0.0,  # time_id / max
+                        rc.frame, 1 if rc.name.startswith("right") else 0) for rc in rig]
+    cams = {"neu3d": neu3d_rig, "immersive": immersive_rig, "technicolor": technicolor_rig}[dataset](rs, rng)
+    first = TECHNICOLOR_FIRST_FRAME if dataset == "technicolor" else 0
+    n = rs.frames
+    return [RigView(f"{cam.name}/{first + i:05d}", cam, i / n, first + i, k)  # t = i / n
+            for k, cam in enumerate(cams) for i in range(n)]
+
+
 # -- raw formats --------------------------------------------------------------------------
-def _write_nerfies(dataset, out, world, rs, rng, report) -> dict:
-    """Raw nerfies scene; returns {item: (native camera in world coords, time)}."""
-    rig = nerfds_rig(rs, rng) if dataset == "nerfds" else hypernerf_rig(rs, rng)
-    max_tid = max(rc.frame for rc in rig)
-    expected = {}
-    for k, rc in enumerate(rig):
-        t = rc.frame / max_tid if max_tid > 0 else 0.0  # nerfies time rule
-        rgb, _, _ = render(world, rc.camera, t)
-        formats.write_nerfies_image(out, rc.name, rgb, rc.camera)
-        expected[rc.name] = (rc.camera, t)
-        report("render", k + 1, len(rig))
+def _write_nerfies(dataset, out, world, views: list[RigView], report) -> None:
+    for k, v in enumerate(views):
+        rgb, _, _ = render(world, v.camera, v.time)
+        formats.write_nerfies_image(out, v.view, rgb, v.camera)
+        report("render", k + 1, len(views))
     if dataset == "nerfds":
-        items = [(rc.name, rc.frame, 0 if rc.name.startswith("left") else 1) for rc in rig]
-        train = [rc.name for rc in rig if rc.name.startswith("left")]
-        val = [rc.name for rc in rig if rc.name.startswith("right")]
+        items = [(v.view, v.frame, v.cam_index) for v in views]
+        train = [v.view for v in views if v.cam_index == 0]  # left camera
+        val = [v.view for v in views if v.cam_index == 1]  # right camera
     else:
-        items = [(rc.name, rc.frame, 0) for rc in rig]
-        ids = [rc.name for rc in rig]
+        items = [(v.view, v.frame, 0) for v in views]
+        ids = [v.view for v in views]
         train, val = ids[0::4], ids[2::4]  # as the publisher's interp dataset.json
     points = build_geometry(world, np.zeros(1), 4000)["means"].astype(np.float64)
     formats.write_nerfies_meta(out, items, train, val, points, near=0.3, far=12.0)
-    return expected
 
 
-def _write_multiview(dataset, out, world, rs, rng, report, sequence) -> dict:
-    """Raw multi-view scene (+ prepared frames); returns {view name: (native camera, time)}."""
-    cams = {"neu3d": neu3d_rig, "immersive": immersive_rig, "technicolor": technicolor_rig}[dataset](rs, rng)
-    n = rs.frames
-    total = len(cams) * n
-    done = 0
-    writers = {}
-    bounds = []
-    expected = {}
-    first = TECHNICOLOR_FIRST_FRAME if dataset == "technicolor" else 0
-    for k, cam in enumerate(cams):
+def _write_multiview(dataset, out, world, views: list[RigView], report, sequence) -> None:
+    """Raw multi-view scene, then the toolkit's own ``prepare`` into ``<out>/prepared``."""
+    cams: dict[int, Camera] = {}
+    for v in views:
+        cams.setdefault(v.cam_index, v.camera)
+    by_cam: dict[int, list[RigView]] = {}
+    for v in views:
+        by_cam.setdefault(v.cam_index, []).append(v)
+    done, bounds = 0, []
+    for k, cam in cams.items():
         rays = camera_rays(cam)
-        if dataset == "neu3d":
-            writers[cam.name] = formats.VideoWriter(out / f"{cam.name}.mp4", cam.width, cam.height)
-        elif dataset == "immersive":
-            writers[cam.name] = formats.VideoWriter(out / f"{cam.name}.mp4", cam.width, cam.height)
-        depths = []
-        for i in range(n):
-            t = i / n  # multi-view time rule
-            rgb, depth, _ = render(world, cam, t, rays)
-            if dataset == "technicolor":
-                formats.write_png(out / formats.technicolor_image_name(first + i, k), rgb)
+        writer = formats.VideoWriter(out / f"{cam.name}.mp4", cam.width, cam.height) if dataset != "technicolor" else None
+        depths = None
+        for v in by_cam[k]:
+            rgb, depth, _ = render(world, cam, v.time, rays)
+            if writer is None:
+                formats.write_png(out / formats.technicolor_image_name(v.frame, k), rgb)
             else:
-                writers[cam.name].write(rgb)
-            if i == 0:
+                writer.write(rgb)
+            if depths is None:
                 depths = depth[depth > 0]
-            expected[f"{cam.name}/{first + i:05d}"] = (cam, t)
             done += 1
-            report("render", done, total)
-        if cam.name in writers:
-            writers[cam.name].close()
+            report("render", done, len(views))
+        if writer is not None:
+            writer.close()
         bounds.append((float(np.percentile(depths, 0.1)) * 0.9, float(np.percentile(depths, 99.9)) * 1.1))
+    cam_list = [cams[k] for k in sorted(cams)]
     if dataset == "neu3d":
-        formats.write_poses_bounds(out, cams, bounds)
+        formats.write_poses_bounds(out, cam_list, bounds)
     elif dataset == "immersive":
-        formats.write_models_json(out, cams)
+        formats.write_models_json(out, cam_list)
     else:
-        formats.write_technicolor_params(out, cams)
-    frames = [first + i for i in range(n)]
+        formats.write_technicolor_params(out, cam_list)
+    frames = sorted({v.frame for v in views})
     _prepare(dataset, out, frames, report, sequence)
-    return expected
 
 
 def _prepare(dataset: str, out: Path, frames: list[int], report, sequence: str) -> None:
@@ -245,7 +261,7 @@ def _write_truth(scene, out: Path, world: World, seed: int, size: str, budget: i
         "sequence": scene.sequence,
         "seed": int(seed),
         "size": size,
-        "n_gaussians": int(len(geom["means"])),
+        "n_gaussians": len(geom["means"]),
         "times": [float(t) for t in scene.times],
         "objects": world.object_table(),
         "objects_of_interest": [o.name for o in interest],

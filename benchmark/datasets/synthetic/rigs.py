@@ -35,27 +35,27 @@ class RigSize:
 
 SIZES: dict[str, dict[str, RigSize]] = {
     "nerfds": {
-        "tiny": RigSize(64, 48, 6, 2, 4000),
+        "tiny": RigSize(128, 96, 6, 2, 4000),
         "small": RigSize(320, 240, 24, 2, 24000),
         "medium": RigSize(640, 480, 80, 2, 60000),
     },
     "hypernerf": {
-        "tiny": RigSize(64, 48, 12, 1, 4000),
+        "tiny": RigSize(128, 96, 12, 1, 4000),
         "small": RigSize(320, 240, 60, 1, 24000),
         "medium": RigSize(640, 480, 160, 1, 60000),
     },
     "neu3d": {
-        "tiny": RigSize(48, 36, 3, 18, 4000),
+        "tiny": RigSize(96, 72, 3, 18, 4000),
         "small": RigSize(256, 192, 12, 18, 24000),
         "medium": RigSize(512, 384, 30, 18, 60000),
     },
     "immersive": {
-        "tiny": RigSize(48, 36, 3, 10, 4000),
+        "tiny": RigSize(96, 72, 3, 10, 4000),
         "small": RigSize(256, 192, 12, 10, 24000),
         "medium": RigSize(512, 384, 30, 12, 60000),
     },
     "technicolor": {
-        "tiny": RigSize(64, 34, 3, 16, 4000),
+        "tiny": RigSize(128, 68, 3, 16, 4000),
         "small": RigSize(320, 176, 10, 16, 24000),
         "medium": RigSize(640, 352, 25, 16, 60000),
     },
@@ -75,10 +75,10 @@ class RigCamera:
 
 def _nerfies_lens(rng: np.random.Generator) -> dict:
     # small, like the publishers' phones: the loader drops it (< ~0.5 px at 2x)
-    return dict(
-        radial=(-0.010 + rng.uniform(-0.002, 0.002), 0.002, 0.0),
-        tangential=(2e-4, -1e-4),
-    )
+    return {
+        "radial": (-0.010 + rng.uniform(-0.002, 0.002), 0.002, 0.0),
+        "tangential": (2e-4, -1e-4),
+    }
 
 
 def nerfds_rig(size: RigSize, rng: np.random.Generator) -> list[RigCamera]:

@@ -88,7 +88,7 @@ class Box:
 
     def sample(self, n: int) -> tuple[np.ndarray, np.ndarray, float]:
         per_face = max(1, n // 6)
-        k = max(1, int(round(math.sqrt(per_face))))
+        k = max(1, round(math.sqrt(per_face)))
         g = (np.arange(k) + 0.5) / k * 2.0 - 1.0
         u, v = np.meshgrid(g, g, indexing="ij")
         u, v = u.ravel(), v.ravel()
@@ -150,7 +150,7 @@ class Cylinder:
     def sample(self, n: int) -> tuple[np.ndarray, np.ndarray, float]:
         area_side, area_cap = 4.0 * math.pi, math.pi
         n_side = max(8, int(n * area_side / (area_side + 2 * area_cap)))
-        k_h = max(2, int(round(math.sqrt(n_side / (2 * math.pi) * 2))))
+        k_h = max(2, round(math.sqrt(n_side / (2 * math.pi) * 2)))
         k_a = max(4, n_side // k_h)
         ang = (np.arange(k_a) + 0.5) / k_a * 2 * math.pi
         hz = (np.arange(k_h) + 0.5) / k_h * 2.0 - 1.0
@@ -243,7 +243,7 @@ class Torus:
 
     def sample(self, n: int) -> tuple[np.ndarray, np.ndarray, float]:
         r = self.minor
-        k_v = max(4, int(round(math.sqrt(n * r))))
+        k_v = max(4, round(math.sqrt(n * r)))
         k_u = max(8, n // k_v)
         u = (np.arange(k_u) + 0.5) / k_u * 2 * math.pi
         v = (np.arange(k_v) + 0.5) / k_v * 2 * math.pi

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
@@ -52,6 +52,12 @@ class SceneObject:
         """[M, 3] shaded colour in [0, 1] of local surface points with local normals."""
         lam = np.clip(n_local @ self.light, 0.0, 1.0)
         return np.clip(self.albedo(p_local) * (0.55 + 0.45 * lam)[:, None], 0.0, 1.0)
+
+    def inside_point(self, t: float) -> np.ndarray:
+        """[3] a world point inside the solid at time t (its centre; the tube for a torus)."""
+        R, c, S = self.pose(t)
+        local = np.array([1.0, 0.0, 0.0]) if isinstance(self.shape, Torus) else np.zeros(3)
+        return R @ (S * local) + c
 
     def ids_of(self, p_local: np.ndarray) -> np.ndarray:
         if isinstance(self.shape, Room):
@@ -128,10 +134,10 @@ class World:
         rows = []
         for o in self.objects:
             if isinstance(o.shape, Room):
-                rows.append(dict(id=o.id, name="floor", kind="room-floor", motion="static", of_interest=False))
-                rows.append(dict(id=o.id + 1, name="walls", kind="room-walls", motion="static", of_interest=False))
+                rows.append({"id": o.id, "name": "floor", "kind": "room-floor", "motion": "static", "of_interest": False})
+                rows.append({"id": o.id + 1, "name": "walls", "kind": "room-walls", "motion": "static", "of_interest": False})
             else:
-                rows.append(dict(id=o.id, name=o.name, kind=o.shape.kind, motion=o.motion, of_interest=o.of_interest))
+                rows.append({"id": o.id, "name": o.name, "kind": o.shape.kind, "motion": o.motion, "of_interest": o.of_interest})
         return rows
 
     def of_interest(self) -> list[SceneObject]:

@@ -1,0 +1,329 @@
+"""Synthetic scenes: generator -> raw files -> the toolkit's loaders -> the same cameras and truth.
+
+Scenes are generated once per module at the ``tiny`` size (about a second each).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from benchmark.datasets import load_scene
+from benchmark.datasets.synthetic import (
+    DATASET_KEYS,
+    SyntheticError,
+    build_world,
+    ensure_synthetic,
+    find_or_generate,
+    generate,
+    render,
+)
+from benchmark.datasets.synthetic.generate import rig_views
+from benchmark.datasets.synthetic.world import rot
+
+SIZE = "tiny"
+SEQ = "synthetic-tiny"
+
+
+@pytest.fixture(scope="module")
+def scenes(tmp_path_factory) -> dict[str, Path]:
+    root = tmp_path_factory.mktemp("synthetic")
+    return {d: generate(d, root / d / SEQ, seed=0, size=SIZE) for d in DATASET_KEYS}
+
+
+@pytest.fixture(scope="module")
+def world():
+    return build_world(0)
+
+
+def _read_ids(scene_dir: Path, view_name: str) -> np.ndarray:
+    man = json.loads((scene_dir / "synthetic" / "manifest.json").read_text())
+    ids = cv2.imread(str(scene_dir / "synthetic" / man["instances"][view_name]), cv2.IMREAD_UNCHANGED)
+    assert ids is not None and ids.dtype == np.uint16
+    return ids
+
+
+# -- cameras ------------------------------------------------------------------------------
+@pytest.mark.parametrize("dataset", DATASET_KEYS)
+def test_loader_cameras_equal_generator(scenes, dataset):
+    scene = load_scene(dataset, scenes[dataset])
+    assert scene.variant == "synthetic"
+    rig = {v.view: v for v in rig_views(dataset, SIZE, 0)}
+    views = scene.train + scene.test
+    assert len(views) >= 6
+    for v in views:
+        r = rig[v.name]
+        nat = v.native_camera
+        assert nat is not None
+        np.testing.assert_allclose(nat.w2c, r.camera.w2c, atol=1e-6, rtol=0)
+        np.testing.assert_allclose(nat.K, r.camera.K, atol=1e-6, rtol=0)
+        np.testing.assert_allclose(nat.radial, r.camera.radial, atol=1e-9)
+        np.testing.assert_allclose(nat.tangential, r.camera.tangential, atol=1e-9)
+        assert (nat.width, nat.height, nat.fisheye) == (r.camera.width, r.camera.height, r.camera.fisheye)
+        # the training camera: same pose, pinhole, half resolution
+        np.testing.assert_allclose(v.camera.w2c, r.camera.w2c, atol=1e-6, rtol=0)
+        assert v.camera.is_pinhole and v.camera.width == r.camera.width // 2
+        assert v.time == pytest.approx(r.time, abs=1e-9)
+
+
+def test_time_rules(scenes):
+    nerf = load_scene("hypernerf", scenes["hypernerf"])
+    n_items = len(rig_views("hypernerf", SIZE))
+    for v in nerf.train + nerf.test:
+        assert v.time == pytest.approx(int(v.name) / (n_items - 1))
+    mv = load_scene("neu3d", scenes["neu3d"])
+    n = len({v.frame for v in mv.test})
+    assert sorted({v.time for v in mv.train}) == pytest.approx([i / n for i in range(n)])
+
+
+def test_splits_and_test_cameras(scenes):
+    assert {v.name.split("_")[0] for v in load_scene("nerfds", scenes["nerfds"]).test} == {"right"}
+    s = load_scene("hypernerf", scenes["hypernerf"])
+    ids = [v.view for v in rig_views("hypernerf", SIZE)]
+    assert [v.name for v in s.train] == ids[0::4] and [v.name for v in s.test] == ids[2::4]
+    for d, cam in (("neu3d", "cam00"), ("immersive", "camera_0001"), ("technicolor", "cam00")):
+        s = load_scene(d, scenes[d])
+        assert {v.name.split("/")[0] for v in s.test} == {cam}
+        assert cam not in {v.name.split("/")[0] for v in s.train}
+    assert len({v.name.split("/")[0] for v in load_scene("neu3d", scenes["neu3d"]).train}) == 17
+    assert len({v.name.split("/")[0] for v in load_scene("technicolor", scenes["technicolor"]).train}) == 15
+
+
+# -- truth --------------------------------------------------------------------------------
+def _segment_clear(world, name: str, t: float, eye: np.ndarray) -> bool:
+    """No other object's bounding sphere crosses the segment eye -> centre of ``name``."""
+    target = world.by_name(name)
+    c = target.inside_point(t)
+    seg = c - eye
+    L = np.linalg.norm(seg)
+    d = seg / L
+    for o in world.objects:
+        if o is target or not np.isfinite(o.shape.bound):
+            continue
+        _, oc, S = o.pose(t)
+        rad = o.shape.bound * S.max()
+        s = np.clip((oc - eye) @ d, 0.0, L)
+        if np.linalg.norm(eye + s * d - oc) < rad:
+            return False
+    return True
+
+
+@pytest.mark.parametrize("dataset", DATASET_KEYS)
+def test_object_centre_projects_to_its_instance(scenes, world, dataset):
+    scene = load_scene(dataset, scenes[dataset])
+    checked = 0
+    for v in scene.train + scene.test:
+        ids = _read_ids(scenes[dataset], v.name)
+        assert ids.shape == (v.camera.height, v.camera.width)
+        for obj in world.objects[1:]:
+            centre = obj.inside_point(v.time)
+            (u, vv), z = (x[0] for x in v.camera.project(centre[None]))
+            col, row = int(np.floor(u)), int(np.floor(vv))
+            if z <= 0 or not (0 <= col < v.camera.width and 0 <= row < v.camera.height):
+                continue
+            if not _segment_clear(world, obj.name, v.time, v.camera.center):
+                continue
+            assert ids[row, col] == obj.id, f"{v.name}: centre of {obj.name} lands on id {ids[row, col]}"
+            checked += 1
+    assert checked >= 10
+
+
+@pytest.mark.parametrize("dataset", ["hypernerf", "immersive"])
+def test_native_lens_projection_hits_object(scenes, world, dataset):
+    """Through the full native lens (distortion / fisheye): a rendered native image has the
+    object at the pixel where Camera.project puts its centre."""
+    scene = load_scene(dataset, scenes[dataset])
+    checked = 0
+    for v in scene.test[:2]:
+        nat = v.native_camera
+        _, _, ids = render(world, nat, v.time)
+        for obj in world.objects[1:]:
+            centre = obj.inside_point(v.time)
+            (u, vv), z = (x[0] for x in nat.project(centre[None]))
+            col, row = int(np.floor(u)), int(np.floor(vv))
+            if z <= 0 or not (0 <= col < nat.width and 0 <= row < nat.height):
+                continue
+            if _segment_clear(world, obj.name, v.time, nat.center):
+                assert ids[row, col] == obj.id
+                checked += 1
+    assert checked >= 2
+
+
+@pytest.mark.parametrize("dataset", DATASET_KEYS)
+def test_loader_images_match_truth_renders(scenes, world, dataset):
+    """The images the loader serves look like the scene rendered at its camera (a rotated
+    camera does clearly worse), so raw writing, lens and preparation are consistent."""
+    scene = load_scene(dataset, scenes[dataset])
+    blur = lambda x: cv2.GaussianBlur(x.astype(np.float32), (0, 0), 1.5)
+    for v in (scene.test[0], scene.train[-1]):
+        img = cv2.imread(str(v.image_path))[:, :, ::-1]
+        errs = []
+        for cam in (v.camera, _rotated(v.camera, 0.1)):
+            ref, _, _ = render(world, cam.scaled(0.25), v.time)  # 4x4 supersampled
+            ref = cv2.resize(ref, (cam.width, cam.height), interpolation=cv2.INTER_AREA)
+            errs.append(float(np.abs(blur(img) - blur(ref)).mean(axis=2)[3:-3, 5:-5].mean()))
+        assert errs[0] < 5.0 and errs[0] < 0.7 * errs[1], (v.name, errs)
+
+
+def _rotated(cam, angle):
+    w2c = cam.w2c.copy()
+    R = rot("y", angle)
+    w2c[:3, :3] = R @ w2c[:3, :3]
+    w2c[:3, 3] = R @ w2c[:3, 3]
+    return dataclasses.replace(cam, w2c=w2c)
+
+
+@pytest.mark.parametrize("dataset", DATASET_KEYS)
+def test_gt_masks_and_manifest(scenes, world, dataset):
+    root = scenes[dataset]
+    scene = load_scene(dataset, root)
+    assert len(scene.gt_masks) == len(scene.test) > 0
+    man = json.loads((root / "synthetic" / "manifest.json").read_text())
+    assert set(man["instances"]) == {v.name for v in scene.train + scene.test}
+    assert {o["name"] for o in man["objects"] if o["of_interest"]} == {"ball", "ring", "blob"}
+    interest = [o for o in man["objects"] if o["of_interest"]]
+    any_fg = False
+    for idx, (v, gt_path) in enumerate(zip(scene.test, scene.gt_masks)):
+        assert gt_path.name == f"{idx:05d}.png"
+        gt = cv2.imread(str(gt_path), cv2.IMREAD_UNCHANGED)
+        assert gt.shape == (v.camera.height, v.camera.width) and set(np.unique(gt)) <= {0, 255}
+        ids = _read_ids(root, v.name)
+        np.testing.assert_array_equal(gt == 255, np.isin(ids, [o["id"] for o in interest]))
+        union = np.zeros_like(gt, dtype=bool)
+        for o in interest:
+            m = cv2.imread(str(root / "gt_masks" / o["name"] / f"{idx:05d}.png"), cv2.IMREAD_UNCHANGED)
+            np.testing.assert_array_equal(m == 255, ids == o["id"])
+            union |= m == 255
+        np.testing.assert_array_equal(union, gt == 255)
+        any_fg |= bool(gt.any())
+    assert any_fg
+
+
+def test_geometry_npz(scenes, world):
+    root = scenes["nerfds"]
+    scene = load_scene("nerfds", root)
+    g = np.load(root / "synthetic" / "geometry.npz")
+    N = len(g["means"])
+    T = len(g["times"])
+    assert 1000 < N <= 30000
+    np.testing.assert_array_equal(g["times"], scene.times.astype(np.float32))
+    for k, shape in (("means", (N, 3)), ("log_scales", (N, 3)), ("quats", (N, 4)), ("opacity_logits", (N,)),
+                     ("colors", (N, 3)), ("object_ids", (N,)), ("d_xyz", (T, N, 3)), ("d_rot", (T, N, 4)),
+                     ("d_scale", (T, N, 3))):
+        assert g[k].shape == shape, k
+        assert np.isfinite(g[k]).all(), k
+    assert g["object_ids"].dtype == np.int32 and g["means"].dtype == np.float32
+    assert set(np.unique(g["object_ids"])) == set(range(1, world.n_ids + 1))
+    assert g["colors"].min() >= 0 and g["colors"].max() <= 1
+    # deformed gaussians of the rolling ball sit on its surface at every tabulated time
+    ball = world.by_name("ball")
+    sel = g["object_ids"] == ball.id
+    for ti, t in enumerate(g["times"]):
+        _, c, S = ball.pose(float(t))
+        r = np.linalg.norm(g["means"][sel] + g["d_xyz"][ti][sel] - c, axis=1)
+        np.testing.assert_allclose(r, S[0], atol=1e-4)
+    # the deforming blob: points stay on the ellipsoid x^T (R S^2 R^T)^-1 x = 1
+    blob = world.by_name("blob")
+    sel = g["object_ids"] == blob.id
+    for ti, t in enumerate(g["times"]):
+        R, c, S = blob.pose(float(t))
+        local = ((g["means"][sel] + g["d_xyz"][ti][sel] - c) @ R) / S
+        np.testing.assert_allclose(np.linalg.norm(local, axis=1), 1.0, atol=1e-4)
+        # rot_t = normalize(q) + d_rot is a unit quaternion whose third axis is the normal
+        q = g["quats"][sel] / np.linalg.norm(g["quats"][sel], axis=1, keepdims=True) + g["d_rot"][ti][sel]
+        np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1.0, atol=1e-5)
+    static = g["object_ids"] == world.by_name("crate").id
+    assert np.abs(g["d_xyz"][:, static]).max() == 0 and np.abs(g["d_rot"][:, static]).max() == 0
+
+
+# -- determinism, cache, embedded default ---------------------------------------------------
+def _digest(root: Path, skip=("prepared.json",)) -> dict[str, str]:
+    out = {}
+    for p in sorted(root.rglob("*")):
+        if p.is_dir() or p.name in skip:
+            continue
+        if p.suffix == ".mp4":
+            cap = cv2.VideoCapture(str(p))
+            h = hashlib.sha256()
+            while True:
+                ok, frame = cap.read()
+                if not ok:
+                    break
+                h.update(frame.tobytes())
+            cap.release()
+            out[str(p.relative_to(root))] = "frames:" + h.hexdigest()
+        else:
+            out[str(p.relative_to(root))] = hashlib.sha256(p.read_bytes()).hexdigest()
+    return out
+
+
+@pytest.mark.parametrize("dataset", ["hypernerf", "neu3d"])
+def test_deterministic(scenes, tmp_path, dataset):
+    again = generate(dataset, tmp_path / SEQ, seed=0, size=SIZE)
+    assert _digest(again) == _digest(scenes[dataset])
+
+
+def test_seed_changes_scene(scenes, tmp_path):
+    other = generate("hypernerf", tmp_path / SEQ, seed=1, size=SIZE)
+    a, b = _digest(scenes["hypernerf"]), _digest(other)
+    assert a.keys() == b.keys()
+    assert a["rgb/2x/000000.png"] != b["rgb/2x/000000.png"]
+
+
+def test_generate_refuses_non_empty_dir_and_bad_args(tmp_path):
+    (tmp_path / "x").mkdir()
+    (tmp_path / "x" / "file").write_text("")
+    with pytest.raises(SyntheticError, match="not empty"):
+        generate("hypernerf", tmp_path / "x", size=SIZE)
+    with pytest.raises(SyntheticError, match="unknown dataset"):
+        generate("kitti", tmp_path / "y", size=SIZE)
+    with pytest.raises(SyntheticError, match="unknown size"):
+        generate("hypernerf", tmp_path / "y", size="huge")
+
+
+def test_ensure_synthetic_caches_atomically(tmp_path, capsys):
+    p = ensure_synthetic("hypernerf", size=SIZE, cache_dir=tmp_path)
+    assert p == tmp_path / "hypernerf" / SEQ
+    assert "generating" in capsys.readouterr().err
+    assert ensure_synthetic("hypernerf", size=SIZE, cache_dir=tmp_path) == p
+    assert capsys.readouterr().err == ""  # second call: cached, no notice
+    assert sorted(x.name for x in p.parent.iterdir()) == [SEQ]  # no temp dirs left behind
+
+
+def test_ensure_synthetic_uses_trase_cache(tmp_path, monkeypatch):
+    monkeypatch.setenv("TRASE_CACHE", str(tmp_path))
+    p = ensure_synthetic("hypernerf", size=SIZE)
+    assert p == tmp_path / "synthetic" / "hypernerf" / SEQ
+
+
+def test_find_or_generate(tmp_path, monkeypatch):
+    monkeypatch.setenv("TRASE_CACHE", str(tmp_path / "cache"))
+    monkeypatch.delenv("TRASE_DATA", raising=False)
+    # no real data: the synthetic default
+    d, variant = find_or_generate("hypernerf", "synthetic-tiny", tmp_path / "data")
+    assert variant == "synthetic" and d == tmp_path / "cache" / "synthetic" / "hypernerf" / SEQ
+    # a named real sequence that is missing: error naming where it looked
+    with pytest.raises(SyntheticError, match=r"americano.*data/hypernerf/americano"):
+        find_or_generate("hypernerf", "americano", tmp_path / "data")
+    # real data wins
+    real = tmp_path / "data" / "hypernerf" / "americano"
+    real.mkdir(parents=True)
+    assert find_or_generate("hypernerf", "americano", tmp_path / "data") == (real, "real")
+    monkeypatch.setenv("TRASE_DATA", str(tmp_path / "data"))
+    assert find_or_generate("hypernerf", "americano", None) == (real, "real")
+
+
+def test_cli_synth(tmp_path):
+    from benchmark.cli import main
+
+    out = tmp_path / "scene"
+    assert main(["synth", "--dataset", "hypernerf", "--out", str(out), "--size", "tiny", "--seed", "3"]) == 0
+    man = json.loads((out / "synthetic" / "manifest.json").read_text())
+    assert man["seed"] == 3 and man["size"] == "tiny"
+    assert main(["synth", "--dataset", "hypernerf", "--out", str(out), "--size", "tiny"]) == 1
