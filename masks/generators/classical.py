@@ -56,7 +56,7 @@ class ClassicalGenerator:
     min_area: int | None = None  # None: SAM's 100 px scaled to the image size
     min_segment_px: int = 20  # FH merges smaller components into neighbours: an absolute floor
     # against pixel noise on small images, where the scaled min_area is only a few pixels
-    max_masks: int = 512  # keep at most this many, best score first (textured images hit it)
+    max_masks: int = 512  # keep at most this many, the largest (textured images hit it)
     name: str = dataclasses.field(default="classical", init=False)
     needs_instance_map: bool = dataclasses.field(default=False, init=False)
 
@@ -173,8 +173,10 @@ class ClassicalGenerator:
                 if j != i:
                     for other in partners(i, j).get(lab, ()):
                         taken.add((j, other))
-            if len(kept) >= self.max_masks:
-                break
+        if len(kept) > self.max_masks:
+            # over the cap (textured images: one segment per brick or checker square): keep
+            # the largest, so whole objects survive and texture tiles go first
+            kept = sorted(kept, key=lambda t: -int(areas[t[0]][t[1]]))[: self.max_masks]
 
         masks = np.zeros((len(kept), h * w), bool)
         for i in sorted({i for i, _, _ in kept}):  # one scatter per layer, not one pass per mask
