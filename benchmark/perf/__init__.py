@@ -14,6 +14,7 @@ SUITES: dict[str, tuple[str, str]] = {
     "raster": ("benchmark.perf.raster:run", "Gaussian rasterizer: numba vs torch reference, forward/backward."),
     "knn": ("benchmark.perf.knn:run", "K=16 smoothing neighbours: cKDTree (as trase) vs all-core, chunked, sklearn; + smoothing step."),
     "cluster": ("benchmark.perf.cluster:run", "Feature clustering: HDBSCAN 2/10/25% vs DBSCAN, KMeans, PCA and fixed-sample variants (ARI)."),
+    "features": ("benchmark.perf.features:run", "One feature-learning step: frozen-geometry fast path vs rasterizer; bytes per view."),
 }
 
 
