@@ -102,7 +102,8 @@ def opengaussian_loss(
     check_features(features, sample)
     if sample.alpha is None:
         raise ObjectiveInputError(
-            "opengaussian needs the rendered alpha of the sampled pixels (PixelSample.alpha), got None"
+            "opengaussian needs the rendered alpha of the sampled pixels (PixelSample.alpha), got "
+            "None: the training loop must render it for objectives with needs_alpha = True"
         )
     silhouette = sample.alpha.to(features.device) > alpha_threshold  # [Np]
     means, kept = silhouette_means(features, sample.membership, silhouette)
@@ -121,6 +122,8 @@ def opengaussian_loss(
 @register_objective("opengaussian")
 class OpenGaussianObjective(Objective):
     """OpenGaussian stage 1: inter-mask separation + 0.1 * intra-mask cohesion."""
+
+    needs_alpha = True  # the training loop must fill PixelSample.alpha (rendered silhouette)
 
     def __init__(
         self, alpha_threshold: float = ALPHA_THRESHOLD, intra_weight: float = INTRA_WEIGHT
