@@ -151,7 +151,6 @@ class OpenGaussianMethod(TraseMethod):
 def _auto_min_mask_pixels(scene, masks_dir: Path) -> int:
     """CGC's 100-pixel small-segment threshold at the resolution of this scene's masks."""
     import masks as masklib
-
     from baselines.cgc import min_mask_pixels_for
 
     for view in scene.train:

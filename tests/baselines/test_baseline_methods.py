@@ -9,9 +9,8 @@ import pytest
 
 import masks as masklib
 from benchmark.methods import get_method
-from trase.prompts import BenchmarkPrompts, Click, interior_points
-
 from tests.trase.helpers import exact_masks, tiny_scene
+from trase.prompts import BenchmarkPrompts, Click, interior_points
 
 SPEC = types.SimpleNamespace(n_pixels=300, n_masks=3, filter_threshold=0.5)
 
