@@ -4,7 +4,8 @@ the torch reference, forward and backward, side by side.
 Each setting renders colour (3) + features (D) + depth + alpha and back-propagates a fixed
 random linear functional of all outputs, so every gradient path runs. Times are wall-clock
 medians over repeats (numba after one untimed warm-up that loads/compiles its kernels);
-"spread" is max - min over the repeats. Differences: max |output_numba - output_torch| over
+"spread" is max - min over the repeats. Process CPU time (all threads) is recorded beside the
+wall time: on a shared, loaded machine it is the steadier of the two. Differences: max |output_numba - output_torch| over
 colour, features, depth and alpha; gradient difference per input is
 max |g_numba - g_torch| / max |g_torch|, the worst input reported.
 """
@@ -53,20 +54,21 @@ def make_scene(n: int, width: int, height: int, d: int, seed: int = 0) -> tuple[
     return scene, cam
 
 
-def _once(backend: str, scene: dict, cam: Camera) -> tuple[float, float, dict, dict]:
+def _once(backend: str, scene: dict, cam: Camera) -> tuple[float, float, float, float, dict, dict]:
+    """-> (forward wall s, backward wall s, forward cpu s, backward cpu s, outputs, grads)."""
     leaves = {k: v.clone().requires_grad_(True) for k, v in scene.items()}
-    t0 = time.perf_counter()
-    out = rasterize(camera=cam, backend=backend, **leaves)
-    t1 = time.perf_counter()
     g = torch.Generator().manual_seed(1)
-    loss = 0.0
-    for t in (out.color, out.features, out.depth, out.alpha):
-        loss = loss + (t * torch.rand(t.shape, generator=g)).sum()
+    c0, t0 = time.process_time(), time.perf_counter()
+    out = rasterize(camera=cam, backend=backend, **leaves)
+    c1, t1 = time.process_time(), time.perf_counter()
+    weights = [torch.rand(t.shape, generator=g) for t in (out.color, out.features, out.depth, out.alpha)]
+    c1b, t1b = time.process_time(), time.perf_counter()
+    loss = sum((t * w).sum() for t, w in zip((out.color, out.features, out.depth, out.alpha), weights))
     loss.backward()
-    t2 = time.perf_counter()
+    c2, t2 = time.process_time(), time.perf_counter()
     outs = {"color": out.color.detach(), "features": out.features.detach(),
             "depth": out.depth.detach(), "alpha": out.alpha.detach()}
-    return t1 - t0, t2 - t1, outs, {k: leaves[k].grad for k in INPUTS}
+    return t1 - t0, t2 - t1b, c1 - c0, c2 - c1b, outs, {k: leaves[k].grad for k in INPUTS}
 
 
 def _stats(xs: list[float]) -> dict:
@@ -76,13 +78,21 @@ def _stats(xs: list[float]) -> dict:
 def _time_backend(backend, scene, cam, repeats, warmup):
     if warmup:
         _once(backend, scene, cam)
-    fw, bw = [], []
+    fw, bw, fc, bc = [], [], [], []
     for _ in range(repeats):
-        f, b, outs, grads = _once(backend, scene, cam)
+        f, b, cf, cb, outs, grads = _once(backend, scene, cam)
         fw.append(f)
         bw.append(b)
-    tot = [f + b for f, b in zip(fw, bw)]
-    return {"forward_s": _stats(fw), "backward_s": _stats(bw), "total_s": _stats(tot)}, outs, grads
+        fc.append(cf)
+        bc.append(cb)
+    return {
+        "forward_s": _stats(fw),
+        "backward_s": _stats(bw),
+        "total_s": _stats([f + b for f, b in zip(fw, bw)]),
+        "forward_cpu_s": _stats(fc),
+        "backward_cpu_s": _stats(bc),
+        "total_cpu_s": _stats([f + b for f, b in zip(fc, bc)]),
+    }, outs, grads
 
 
 def run(quick: bool = False, echo: Callable[[str], None] = print) -> dict:
@@ -99,20 +109,20 @@ def run(quick: bool = False, echo: Callable[[str], None] = print) -> dict:
         row["numba"] = num
         row["mean_alpha"] = float(out_n["alpha"].mean())
         echo(f"{label}: numba  forward {_fmt(num['forward_s'])}  backward {_fmt(num['backward_s'])}  "
-             f"total {_fmt(num['total_s'])}")
+             f"total {_fmt(num['total_s'])}  [cpu total {num['total_cpu_s']['median']:.3f}s]")
         if with_torch:
             ref, out_t, g_t = _time_backend("torch", scene, cam, reps_torch, warmup=False)
             row["torch"] = ref
-            row["speedup"] = {k: ref[k]["median"] / num[k]["median"] for k in ("forward_s", "backward_s", "total_s")}
+            row["speedup"] = {k: ref[k]["median"] / num[k]["median"] for k in num}
             row["max_abs_output_diff"] = max(float((out_n[k] - out_t[k]).abs().max()) for k in out_n)
             rel = {k: float((g_n[k] - g_t[k]).abs().max() / g_t[k].abs().max().clamp_min(1e-30)) for k in INPUTS}
             row["grad_rel_diff"] = rel
             row["max_grad_rel_diff"] = max(rel.values())
             s = row["speedup"]
             echo(f"{label}: torch  forward {_fmt(ref['forward_s'])}  backward {_fmt(ref['backward_s'])}  "
-                 f"total {_fmt(ref['total_s'])}")
+                 f"total {_fmt(ref['total_s'])}  [cpu total {ref['total_cpu_s']['median']:.3f}s]")
             echo(f"{label}: speed-up numba/torch forward {s['forward_s']:.1f}x  backward {s['backward_s']:.1f}x  "
-                 f"forward+backward {s['total_s']:.1f}x;  max |output diff| {row['max_abs_output_diff']:.2e}  "
+                 f"forward+backward {s['total_s']:.1f}x (cpu time {s['total_cpu_s']:.1f}x);  max |output diff| {row['max_abs_output_diff']:.2e}  "
                  f"max gradient rel diff {row['max_grad_rel_diff']:.2e} ({max(rel, key=rel.get)})")
         else:
             echo(f"{label}: torch reference not run at this size (too slow: minutes per pass)")

@@ -140,18 +140,17 @@ def rasterize(
 
 
 def _split(out, alpha, has_color, n_feat, background) -> RenderOutput:
-    """out [H, W, C] (colour | features | z) and alpha [H, W] -> RenderOutput."""
-    color = feats = None
-    c = 0
-    if has_color:
-        color = out[..., 0:3]
-        if background is not None:
-            color = color + (1.0 - alpha)[..., None] * background.to(out.dtype).reshape(3)
-        c = 3
-    if n_feat:
-        feats = out[..., c : c + n_feat]
+    """out [H, W, C] (colour | features | z) and alpha [H, W] -> RenderOutput. One split (its
+    backward is one concatenation, where separate slices would each scatter into zeros)."""
+    sizes = [3] * has_color + [n_feat] * (n_feat > 0) + [1]
+    parts = list(out.split(sizes, dim=-1))
+    color = parts.pop(0) if has_color else None
+    feats = parts.pop(0) if n_feat else None
+    z_sum = parts.pop(0)[..., 0]
+    if color is not None and background is not None:
+        color = color + (1.0 - alpha)[..., None] * background.to(out.dtype).reshape(3)
     has = alpha > ALPHA_EPS
-    depth = torch.where(has, out[..., -1] / torch.where(has, alpha, torch.ones_like(alpha)), torch.zeros_like(alpha))
+    depth = torch.where(has, z_sum / torch.where(has, alpha, torch.ones_like(alpha)), torch.zeros_like(alpha))
     return RenderOutput(color=color, features=feats, depth=depth, alpha=alpha)
 
 

@@ -71,4 +71,7 @@ def composite_torch(
         idx = torch.cat(idx_parts)
         out = out.index_copy(0, idx, torch.cat(out_parts))
         alpha = alpha.index_copy(0, idx, torch.cat(alpha_parts))
+    else:  # nothing visible: keep the outputs attached to the graph (zero gradients, not an error)
+        zero = 0.0 * (channels.sum() + opacities.sum() + means2d.sum() + conics.sum())
+        out, alpha = out + zero, alpha + zero
     return out.reshape(height, width, C), alpha.reshape(height, width)

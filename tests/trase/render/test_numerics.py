@@ -95,3 +95,17 @@ def test_off_centre_principal_point_and_depth():
         j, i = int(uv[0, 1]), int(uv[0, 0])
         assert math.isclose(out.depth[j, i].item(), z[0], rel_tol=1e-5)
         assert out.depth[0, 0] == 0  # empty pixels have depth 0
+
+
+@pytest.mark.parametrize("backend", ["torch", "numba"])
+def test_empty_and_fully_culled_scenes_still_backpropagate(backend):
+    for n, z in ((0, 0.0), (3, -4.0)):
+        sc = _gaussians([[0.0, z, 0.0]] * n, [[0.1] * 3] * n, [0.5] * n) if n else {
+            k: torch.zeros(shape, requires_grad=True)
+            for k, shape in (("means", (0, 3)), ("quats", (0, 4)), ("scales", (0, 3)), ("opacities", (0,)),
+                             ("colors", (0, 3)), ("features", (0, 4)))
+        }
+        out = rasterize(camera=camera(), backend=backend, **sc)
+        assert out.alpha.abs().max() == 0 and out.depth.abs().max() == 0
+        loss_of(out).backward()
+        assert all(torch.all(g == 0) for g in grads(sc).values())

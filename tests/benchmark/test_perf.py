@@ -1,0 +1,28 @@
+"""``trase-bench perf``: the suite registry, the command, and the JSON it writes (tiny settings)."""
+
+import json
+
+from benchmark.cli import main
+from benchmark.perf import SUITES, get_suite
+
+
+def test_raster_suite_runs_and_writes_json(tmp_path, monkeypatch, capsys):
+    import benchmark.perf.raster as raster
+
+    monkeypatch.setattr(raster, "QUICK", [(150, 32, 24, 4, True)])
+    out = tmp_path / "perf.json"
+    assert main(["perf", "raster", "--quick", "--json", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "speed-up numba/torch" in text and "max |output diff|" in text
+    d = json.loads(out.read_text())
+    assert d["machine"]["cpu_count"] >= 1 and d["machine"]["numba"]
+    row = d["suites"]["raster"]["settings"][0]
+    assert row["gaussians"] == 150 and row["channels"] == 7
+    assert row["max_abs_output_diff"] < 1e-4 and row["max_grad_rel_diff"] < 1e-3
+    for backend in ("numba", "torch"):
+        assert row[backend]["total_s"]["median"] > 0 and len(row[backend]["forward_s"]["all"]) >= 2
+
+
+def test_registry_entries_resolve():
+    for name in SUITES:
+        assert callable(get_suite(name))
