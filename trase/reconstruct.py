@@ -244,23 +244,26 @@ def evaluate_psnr(gaussians: GaussianModel, deformation, views: Sequence, backgr
 
 
 def _screen_grad_norm(grad_means: torch.Tensor, means: torch.Tensor, camera: Camera) -> torch.Tensor:
-    """|dL/d(mean2D)| in NDC units [N] from dL/d(mean3D) [N, 3] by least squares through the
-    projection Jacobian J [2, 3]: g2 = (J J^T)^-1 J g3."""
-    R = torch.as_tensor(camera.w2c[:3, :3], dtype=torch.float32)
-    t = torch.as_tensor(camera.w2c[:3, 3], dtype=torch.float32)
-    p = means.detach() @ R.T + t
-    g = grad_means @ R.T  # camera-space gradient
-    z = p[:, 2].clamp_min(1e-6)
-    fx, fy = camera.fx, camera.fy
-    J = torch.zeros(means.shape[0], 2, 3)
-    J[:, 0, 0] = fx / z
-    J[:, 0, 2] = -fx * p[:, 0] / (z * z)
-    J[:, 1, 1] = fy / z
-    J[:, 1, 2] = -fy * p[:, 1] / (z * z)
-    JJt = J @ J.transpose(1, 2) + 1e-12 * torch.eye(2)
-    g2 = torch.linalg.solve(JJt, (J @ g[:, :, None]))[:, :, 0]  # pixels
-    g2 = g2 * torch.tensor([0.5 * camera.width, 0.5 * camera.height])
-    return g2.norm(dim=1)
+    """|dL/d(mean2D)| in NDC units [N] from dL/d(mean3D) [N, 3], by least squares through the
+    projection Jacobian J = [[a, 0, -a u], [0, b, -b v]] (a = fx/z, b = fy/z, u = x/z, v = y/z):
+    g2 = (J J^T)^-1 J g3, in closed form (det = a^2 b^2 (1 + u^2 + v^2) never vanishes).
+    Gaussians at or behind the camera plane get 0."""
+    R = torch.as_tensor(camera.w2c[:3, :3], dtype=torch.float64)
+    t = torch.as_tensor(camera.w2c[:3, 3], dtype=torch.float64)
+    p = means.detach().double() @ R.T + t
+    g = grad_means.double() @ R.T  # camera-space gradient
+    z = p[:, 2]
+    front = z > 1e-6
+    zs = torch.where(front, z, torch.ones_like(z))
+    u, v = p[:, 0] / zs, p[:, 1] / zs
+    a, b = camera.fx / zs, camera.fy / zs
+    gp = g[:, 0] - u * g[:, 2]  # (J g)_0 / a
+    gq = g[:, 1] - v * g[:, 2]  # (J g)_1 / b
+    den = 1.0 + u * u + v * v
+    gu = ((1 + v * v) * gp - u * v * gq) / (a * den)  # pixels
+    gv = ((1 + u * u) * gq - u * v * gp) / (b * den)
+    n = torch.hypot(gu * (0.5 * camera.width), gv * (0.5 * camera.height))
+    return torch.where(front & torch.isfinite(n), n, torch.zeros_like(n)).float()
 
 
 # -- training --------------------------------------------------------------------------------
@@ -283,6 +286,32 @@ def _make_optimizers(g: GaussianModel, deform: DeformMLP, cfg: ReconstructionCon
 
 def _state_path(out_dir: Path, iteration: int) -> Path:
     return out_dir / "trainer_state" / f"iteration_{iteration}.pt"
+
+
+class _TrainLog:
+    """train_log.csv: iteration, smoothed loss and training PSNR, gaussian count, seconds
+    since this (possibly resumed) run started. Rows past a resumed checkpoint are dropped."""
+
+    HEADER = "iteration,loss,psnr,num_gaussians,seconds\n"
+
+    def __init__(self, path: Path, start: int) -> None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        rows = []
+        if start > 0 and path.is_file():
+            for line in path.read_text().splitlines()[1:]:
+                head = line.split(",", 1)[0]
+                if head.isdigit() and int(head) <= start:
+                    rows.append(line + "\n")
+        self.f = open(path, "w")
+        self.f.write(self.HEADER + "".join(rows))
+        self.f.flush()
+
+    def write(self, it: int, loss: float, psnr_db: float, n: int, seconds: float) -> None:
+        self.f.write(f"{it},{loss:.6f},{psnr_db:.4f},{n},{seconds:.2f}\n")
+        self.f.flush()
+
+    def close(self) -> None:
+        self.f.close()
 
 
 class _Progress:
@@ -402,6 +431,7 @@ def _reconstruct(views, points, point_colors, config, out_dir, resume, progress,
         atomic_torch_save(state, _state_path(out_dir, it))
         save_model(out_dir, gaussians, deform, it)  # the PLY, written last, marks it complete
 
+    log = _TrainLog(out_dir / "train_log.csv", start)
     bar = _Progress(progress, cfg.iterations, start)
     t0 = time.perf_counter()
     it = start
@@ -441,6 +471,7 @@ def _reconstruct(views, points, point_colors, config, out_dir, resume, progress,
                 ema_psnr = pv if it == 1 else 0.4 * pv + 0.6 * ema_psnr
                 if it % cfg.log_interval == 0 or it == cfg.iterations:
                     bar.update(it, f"loss {ema_loss:.4f}  psnr {ema_psnr:.2f} dB  N={gaussians.num_gaussians}")
+                    log.write(it, ema_loss, ema_psnr, gaussians.num_gaussians, time.perf_counter() - t0)
 
                 # densification statistics and steps
                 if it < cfg.densify_until:
@@ -473,6 +504,7 @@ def _reconstruct(views, points, point_colors, config, out_dir, resume, progress,
                 break
     finally:
         bar.close()
+        log.close()
     deform.eval()
     return gaussians, deform
 

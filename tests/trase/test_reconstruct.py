@@ -90,3 +90,23 @@ def test_presets_and_schedule():
     assert expon_lr(100, 1e-3, 1e-5, 100) == pytest.approx(1e-5)
     assert expon_lr(50, 1e-3, 1e-5, 100) == pytest.approx(1e-4)
     assert np.isfinite(expon_lr(10**9, 1e-3, 1e-5, 100))
+
+
+def test_screen_grad_norm_recovers_pixel_gradient():
+    from trase.camera import Camera, intrinsics, look_at
+    from trase.reconstruct import _screen_grad_norm
+
+    cam = Camera(K=intrinsics(100, 90, 50, 40), w2c=look_at(np.array([0.3, -3, 0.5]), np.zeros(3)), width=100, height=80)
+    g = torch.Generator().manual_seed(0)
+    m = torch.randn(6, 3, dtype=torch.float64, generator=g) * 0.5
+    m[5] = torch.as_tensor(cam.center) + torch.tensor([0.0, -1.0, 0.0], dtype=torch.float64)  # behind the camera
+    w = torch.randn(6, 2, dtype=torch.float64, generator=g)  # loss = sum w . uv  ->  dL/duv = w
+    mm = m.clone().requires_grad_()
+    R, t = torch.as_tensor(cam.w2c[:3, :3]), torch.as_tensor(cam.w2c[:3, 3])
+    p = mm @ R.T + t
+    uv = torch.stack([100 * p[:, 0] / p[:, 2] + 50, 90 * p[:, 1] / p[:, 2] + 40], 1)
+    (uv * w).sum().backward()
+    got = _screen_grad_norm(mm.grad, m, cam)
+    want = (w * torch.tensor([50.0, 40.0], dtype=torch.float64)).norm(dim=1).float()  # NDC units
+    assert torch.allclose(got[:5], want[:5], rtol=1e-4)
+    assert got[5] == 0
