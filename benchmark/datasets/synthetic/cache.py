@@ -87,7 +87,8 @@ def find_or_generate(dataset: str, sequence: str | None = None,
             found = find_scene_dir(spec.key, seq, root)
             if found is not None:
                 return found, "real"
-        where = ", ".join(str(r / spec.key / seq) for r in roots) or "no data root given"
+        where = ", ".join(f"{r / spec.key / seq} (and {r / spec.display_name}/, nested folders)" for r in roots) \
+            or "nowhere: no --data-root given and TRASE_DATA is not set"
         raise SyntheticError(
             f"{spec.key}: real sequence {seq!r} not found (looked in: {where}); pass --data-root "
             f"or set TRASE_DATA, or use the synthetic default (sequence 'synthetic')"
