@@ -134,14 +134,27 @@ def forward(means2d, conics, opac, chans, tile_off, entries, width, height, ts, 
                     test_t = T * (1.0 - a)
                     if test_t < T_MIN:
                         break
-                    w = a * T
+                    wf = np.float32(a * T)
                     g = entries[e]
                     for c in range(C):
-                        out[pix, c] += w * chans[g, c]
+                        out[pix, c] += wf * chans[g, c]
                     T = test_t
                     last = e + 1
                 t_final[pix] = T
                 n_done[pix] = last
+
+
+@njit(fastmath=True, cache=True)
+def _dot_axpy(chans, g, g_out, pix, w, buf_chan, e):
+    """-> sum_c chans[g, c] g_out[pix, c], and buf_chan[e] += w * g_out[pix] (float32 SIMD;
+    reassociating this float32 sum is the only fast-math freedom taken)."""
+    fg = np.float32(0.0)
+    wf = np.float32(w)
+    for c in range(chans.shape[1]):
+        go = g_out[pix, c]
+        fg += chans[g, c] * go
+        buf_chan[e, c] += wf * go
+    return fg
 
 
 @njit(parallel=True, cache=True)
@@ -178,11 +191,7 @@ def backward(
                     one_m = 1.0 - a
                     T = T / one_m  # transmittance in front of this gaussian
                     w = a * T
-                    fg = 0.0
-                    for c in range(C):
-                        go = g_out[pix, c]
-                        fg += chans[g, c] * go
-                        buf_chan[e, c] += w * go
+                    fg = float(_dot_axpy(chans, g, g_out, pix, w, buf_chan, e))
                     d_a = T * fg - acc / one_m + ga * tf / one_m
                     acc += w * fg
                     if a_raw > ALPHA_MAX:
