@@ -8,7 +8,7 @@ import importlib
 import os
 import platform
 import sys
-from typing import Callable
+from collections.abc import Callable
 
 SUITES: dict[str, tuple[str, str]] = {
     "raster": ("benchmark.perf.raster:run", "Gaussian rasterizer: numba vs torch reference, forward/backward."),

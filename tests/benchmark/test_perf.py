@@ -7,7 +7,7 @@ from benchmark.perf import SUITES, get_suite
 
 
 def test_raster_suite_runs_and_writes_json(tmp_path, monkeypatch, capsys):
-    import benchmark.perf.raster as raster
+    from benchmark.perf import raster
 
     monkeypatch.setattr(raster, "QUICK", [(150, 32, 24, 4, True)])
     out = tmp_path / "perf.json"

@@ -124,11 +124,10 @@ def forward(means2d, conics, opac, chans, tile_off, entries, width, height, ts, 
                 T = 1.0
                 last = start
                 for e in range(start, end):
-                    power, G, a, dx, dy = _alpha_packed(fx, fy, pk, e - start, p_min)
+                    power, _G, a, _dx, _dy = _alpha_packed(fx, fy, pk, e - start, p_min)
                     if power > 0.0:
                         continue
-                    if a > ALPHA_MAX:
-                        a = ALPHA_MAX
+                    a = min(a, ALPHA_MAX)
                     if a < ALPHA_MIN:
                         continue
                     test_t = T * (1.0 - a)
@@ -165,7 +164,6 @@ def backward(
     """Back to front per pixel. g_out [H*W, C], g_alpha [H*W] (alpha = 1 - T_final).
     Writes per entry: buf_geo [E, 6] (d mean_u, d mean_v, d conic a, b, c, d opacity),
     buf_chan [E, C]."""
-    C = chans.shape[1]
     for t in prange(gx * gy):
         tx = t % gx
         ty = t // gx
@@ -184,7 +182,7 @@ def backward(
                     power, G, a_raw, dx, dy = _alpha_packed(fx, fy, pk, e - start, p_min)
                     if power > 0.0:
                         continue
-                    a = a_raw if a_raw <= ALPHA_MAX else ALPHA_MAX
+                    a = min(a_raw, ALPHA_MAX)
                     if a < ALPHA_MIN:
                         continue
                     g = entries[e]
@@ -235,11 +233,10 @@ def _replay(pix, width, ts, gx, means2d, conics, opac, tile_off, entries, p_min,
     store = idx_out.shape[0] > 0
     for e in range(tile_off[t], tile_off[t + 1]):
         g = entries[e]
-        power, G, a, dx, dy = _alpha_at(fx, fy, means2d, conics, opac, g, p_min)
+        power, _G, a, _dx, _dy = _alpha_at(fx, fy, means2d, conics, opac, g, p_min)
         if power > 0.0:
             continue
-        if a > ALPHA_MAX:
-            a = ALPHA_MAX
+        a = min(a, ALPHA_MAX)
         if a < ALPHA_MIN:
             continue
         test_t = T * (1.0 - a)

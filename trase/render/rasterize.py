@@ -45,7 +45,7 @@ def _check_inputs(means, quats, scales, opacities, camera, colors, sh_degree, fe
             raise RenderError(f"rasterize: colors must be [N, 3] RGB or [N, K, 3] SH, got {list(colors.shape)}")
         if colors.ndim == 3:
             k = colors.shape[1]
-            deg = sh_degree if sh_degree is not None else int(round(math.sqrt(k))) - 1
+            deg = sh_degree if sh_degree is not None else round(math.sqrt(k)) - 1
             if not 0 <= deg <= 3 or (deg + 1) ** 2 > k or (sh_degree is None and (deg + 1) ** 2 != k):
                 raise RenderError(f"rasterize: {k} SH coefficients do not fit sh_degree={sh_degree} (0..3)")
         tensors.append(colors)
@@ -80,7 +80,7 @@ def gaussian_colors(colors, sh_degree, means, camera) -> torch.Tensor:
     """[N, 3] RGB as given, or SH [N, K, 3] evaluated toward the camera centre (3DGS)."""
     if colors.ndim == 2:
         return colors
-    deg = sh_degree if sh_degree is not None else int(round(math.sqrt(colors.shape[1]))) - 1
+    deg = sh_degree if sh_degree is not None else round(math.sqrt(colors.shape[1])) - 1
     center = torch.as_tensor(camera.center, dtype=means.dtype, device=means.device)
     return sh_to_rgb(deg, colors, means, center)
 

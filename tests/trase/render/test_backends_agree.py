@@ -18,9 +18,9 @@ def _run(backend, cam, **kw):
 @pytest.mark.parametrize(
     "kw, cam",
     [
-        (dict(n=300, d=5, seed=0), camera()),
-        (dict(n=200, d=3, sh_degree=3, seed=1), camera(width=45, height=29, cx=12.3, cy=20.9)),
-        (dict(n=400, d=0, sh_degree=1, seed=2, log_scale=-1.5), camera(width=33, height=40)),
+        ({"n": 300, "d": 5, "seed": 0}, camera()),
+        ({"n": 200, "d": 3, "sh_degree": 3, "seed": 1}, camera(width=45, height=29, cx=12.3, cy=20.9)),
+        ({"n": 400, "d": 0, "sh_degree": 1, "seed": 2, "log_scale": -1.5}, camera(width=33, height=40)),
     ],
 )
 def test_numba_matches_torch(kw, cam):
