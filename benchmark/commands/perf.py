@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import inspect
 import json
 import time
+from pathlib import Path
 
 import click
 
@@ -14,13 +16,19 @@ from benchmark.perf import SUITES, get_suite, machine_info
 @click.argument("suites", nargs=-1, type=click.Choice(sorted(SUITES)))
 @click.option("--quick", is_flag=True, help="Small settings only (seconds, for smoke tests).")
 @click.option("--json", "json_out", type=click.Path(dir_okay=False), help="Also write all figures to this JSON file.")
-def perf(suites: tuple[str, ...], quick: bool, json_out: str | None) -> None:
+@click.option("--out-dir", type=click.Path(file_okay=False), default=None,
+              help="Where suites write files (pareto.png). Default: the --json file's folder, else ./perf-out.")
+def perf(suites: tuple[str, ...], quick: bool, json_out: str | None, out_dir: str | None) -> None:
     """Run performance SUITES (default: all) and print their figures."""
     names = suites or tuple(sorted(SUITES))
     result = {"machine": machine_info(), "started": time.strftime("%Y-%m-%dT%H:%M:%S"), "suites": {}}
     for name in names:
         click.echo(f"== {name} ==")
-        result["suites"][name] = get_suite(name)(quick=quick, echo=click.echo)
+        fn = get_suite(name)
+        extra = {}
+        if "out_dir" in inspect.signature(fn).parameters:  # suites that write files (pareto)
+            extra["out_dir"] = Path(out_dir) if out_dir else (Path(json_out).parent if json_out else Path("perf-out"))
+        result["suites"][name] = fn(quick=quick, echo=click.echo, **extra)
     if json_out:
         with open(json_out, "w") as f:
             json.dump(result, f, indent=2)
