@@ -21,6 +21,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "perf": ("benchmark.commands.perf:perf", "Measured performance suites (rasterizer numba vs torch ...)."),
     "prepare": ("benchmark.commands.prepare:prepare", "Raw multi-view downloads -> training frames."),
     "report": ("benchmark.commands.report:report", "Per-sequence HTML report of a run."),
+    "run": ("benchmark.commands.run:run", "Run a method on a benchmark (synthetic default without data)."),
     "score": ("benchmark.commands.score:score", "Score predicted masks against ground truth."),
     "synth": ("benchmark.commands.synth:synth", "Generate a synthetic scene in a benchmark's raw format."),
 }

@@ -54,8 +54,10 @@ def find_gt_dir(
     roots = [Path(data_root)] if data_root is not None else []
     if scene_dir is not None and data_root is None:
         roots += [p for p in list(scene_dir.parents)[:3]]
+    names = spec.folder_names(sequence) if sequence in spec.sequences or any(
+        sequence in a for a in spec.aliases.values()) else (sequence,)  # e.g. a synthetic scene
     for root in roots:
-        for name in spec.folder_names(sequence):
+        for name in names:
             candidates.append(root / spec.display_name / name / "gt_masks")
     for c in candidates:
         if c.is_dir():

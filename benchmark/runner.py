@@ -1,0 +1,418 @@
+"""``trase-bench run``: masks -> geometry -> method fit -> prompts -> evaluation, per sequence.
+
+Every stage goes through the stage cache (benchmark.cache): its key hashes its own config
+section and its inputs' keys, so a rerun, or another method on the same scene, reuses the
+masks and the reconstruction and says so. Results land in
+``<out>/<method>/<dataset>/<sequence>/results.json`` with predictions beside them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import os
+import shutil
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from benchmark.cache import StageCache, StageRecord, config_hash
+from benchmark.config import ConfigError, merge, parse_overrides
+from benchmark.errors import UserError
+from benchmark.io import atomic_directory, atomic_write_json, sha256_files
+from benchmark.results import results_path, write_results
+from benchmark.scoring import read_mask, score_masks
+
+STAGES = ("masks", "geometry", "fit", "prompts", "evaluate")
+
+
+@dataclasses.dataclass
+class RunOptions:
+    method: str
+    dataset: str
+    sequences: list[str] | None = None  # None: every sequence (synthetic default if no data)
+    data_root: Path | None = None
+    out_dir: Path = Path("runs")
+    cache_dir: Path | None = None  # default <out>/.cache
+    overrides: list[str] = dataclasses.field(default_factory=list)  # --set key=value
+    jobs: int = 1
+    progress: bool = True
+
+    @property
+    def cache_root(self) -> Path:
+        return Path(self.cache_dir) if self.cache_dir else Path(self.out_dir) / ".cache"
+
+
+class Reporter:
+    """One line per stage on stderr: what ran, what was reused, how long; plus an ETA."""
+
+    def __init__(self, enabled: bool, n_sequences: int):
+        self.enabled = enabled
+        self.n_sequences = n_sequences
+        self.t0 = time.perf_counter()
+        self.done_sequences = 0
+
+    def stage(self, seq: str, rec: StageRecord) -> None:
+        if not self.enabled:
+            return
+        what = "reused (cached)" if rec.skipped else f"done in {rec.seconds:.1f}s"
+        print(f"  [{seq}] {rec.stage:<9} {what}  peak {rec.peak_rss_mb:.0f} MiB  key {rec.key}",
+              file=sys.stderr, flush=True)
+
+    def start(self, seq: str, index: int) -> None:
+        if not self.enabled:
+            return
+        elapsed = time.perf_counter() - self.t0
+        eta = ""
+        if self.done_sequences:
+            left = (self.n_sequences - self.done_sequences) * elapsed / self.done_sequences
+            eta = f", ETA {left / 60:.1f} min"
+        print(f"sequence {index + 1}/{self.n_sequences}: {seq}{eta}", file=sys.stderr, flush=True)
+
+    def finish(self) -> None:
+        self.done_sequences += 1
+
+
+# -- configuration ---------------------------------------------------------------------------
+def default_config(method, spec, variant: str, overrides: dict) -> dict:
+    """Full config of one run: defaults for the dataset and variant, then ``overrides``."""
+    import torch
+
+    from trase.reconstruct import ReconstructionConfig
+
+    geo_over = overrides.get("geometry", {})
+    preset = geo_over.get("preset", "auto")
+    if preset == "auto":
+        preset = "paper" if torch.cuda.is_available() else "cpu"
+    if preset not in ("paper", "cpu"):
+        raise ConfigError(f"--set geometry.preset={preset}: choose auto, paper or cpu")
+    sched = {"warm_up": spec.warm_up, "densify_until": spec.densify_until}
+    if preset == "paper":
+        train = ReconstructionConfig.paper(**sched)
+    else:
+        train = ReconstructionConfig.cpu()
+    base = {
+        "masks": {
+            "generator": "synthetic" if variant == "synthetic" else "classical",
+            "checkpoint": None,  # SAM checkpoint path (generator "sam")
+            "seed": 0,
+        },
+        "geometry": {
+            "source": "reconstruct",  # reconstruct | ground-truth (synthetic) | import
+            "preset": preset,
+            "model_dir": None,  # for source=import: a Deformable-3DGS/TRASE model directory
+            "train": train.to_dict(),
+        },
+        "method": method.default_config(spec),
+        "prompts": {"rule": "gt-first-frame"},
+    }
+    return merge(base, overrides)
+
+
+def scene_fingerprint(scene) -> str:
+    """Key of the input data: cameras, times and each image's name, size and mtime."""
+    h = hashlib.sha256()
+    for v in scene.train + scene.test:
+        st = os.stat(v.image_path)
+        h.update(json.dumps([v.name, v.camera.to_dict(), str(v.image_path), st.st_size,
+                             st.st_mtime_ns], sort_keys=True).encode())
+    h.update(np.ascontiguousarray(scene.points, dtype=np.float64).tobytes())
+    return h.hexdigest()[:16]
+
+
+# -- stages ----------------------------------------------------------------------------------
+def stage_masks(cache: StageCache, scene, cfg: dict, scene_key: str, progress: bool) -> StageRecord:
+    import masks as masklib
+
+    mcfg = cfg["masks"]
+    key = cache.key("masks", mcfg, {"scene": scene_key})
+
+    def work(d: Path) -> dict:
+        instance_maps = None
+        if mcfg["generator"] == "synthetic":
+            instance_maps = synthetic_instance_maps(scene)
+        gen = make_mask_generator(mcfg)
+        paths = masklib.generate_scene_masks(scene.train, gen, d, progress=progress,
+                                             instance_maps=instance_maps)
+        sizes = [p.stat().st_size for p in paths]
+        return {"n_views": len(paths), "bytes_per_view": int(np.mean(sizes)) if sizes else 0}
+
+    return cache.run("masks", key, work, mcfg)
+
+
+def make_mask_generator(mcfg: dict):
+    from masks.generators.base import make_generator
+
+    g = mcfg["generator"]
+    if g == "sam":
+        if not mcfg.get("checkpoint"):
+            raise ConfigError("masks.generator=sam needs --set masks.checkpoint=PATH (a SAM .pth file)")
+        return make_generator("sam", checkpoint=mcfg["checkpoint"])
+    if g == "synthetic":
+        return make_generator("synthetic", seed=mcfg["seed"])
+    return make_generator(g)
+
+
+def synthetic_manifest(scene) -> tuple[Path, dict]:
+    from benchmark.io import read_json
+
+    path = scene.extras.get("synthetic_manifest")
+    if not path:
+        raise ConfigError(f"{scene.root}: not a synthetic scene (no synthetic/manifest.json)")
+    return Path(path), read_json(path, "synthetic manifest")
+
+
+def synthetic_instance_maps(scene) -> dict[str, Path]:
+    path, manifest = synthetic_manifest(scene)
+    return {name: path.parent / rel for name, rel in manifest["instances"].items()}  # relative to manifest
+
+
+def stage_geometry(cache: StageCache, scene, cfg: dict, scene_key: str, progress: bool) -> StageRecord:
+    gcfg = cfg["geometry"]
+    key = cache.key("geometry", gcfg, {"scene": scene_key})
+
+    def work(d: Path) -> dict:
+        from trase.reconstruct import ReconstructionConfig, evaluate_psnr, reconstruct
+
+        src = gcfg["source"]
+        if src == "ground-truth":
+            npz = Path(synthetic_manifest(scene)[0]).parent / "geometry.npz"
+            shutil.copyfile(npz, d / "geometry.npz")
+        elif src == "import":
+            if not gcfg.get("model_dir"):
+                raise ConfigError("geometry.source=import needs --set geometry.model_dir=PATH")
+            shutil.copytree(gcfg["model_dir"], d / "model", dirs_exist_ok=True)
+        elif src == "reconstruct":
+            try:
+                rcfg = ReconstructionConfig(**gcfg["train"])
+            except TypeError as exc:
+                raise ConfigError(f"geometry.train: {exc}") from None
+            reconstruct(scene.train, scene.points, scene.point_colors, rcfg, d / "model",
+                        resume=True, progress=progress)
+        else:
+            raise ConfigError(f"--set geometry.source={src}: choose reconstruct, ground-truth or import")
+        gaussians, deformation = load_geometry(d)
+        psnr = evaluate_psnr(gaussians, deformation, scene.test) if scene.test else None
+        return {"source": src, "n_gaussians": int(gaussians.num_gaussians),
+                "test_psnr": None if psnr is None else round(float(psnr), 3)}
+
+    return cache.run("geometry", key, work, gcfg)
+
+
+def load_geometry(stage_dir: Path):
+    """(gaussians, deformation) from a geometry stage directory."""
+    from trase.checkpoint import load_model, load_synthetic_geometry
+
+    if (stage_dir / "geometry.npz").exists():
+        g, deform, _ = load_synthetic_geometry(stage_dir / "geometry.npz")
+        return g, deform
+    return load_model(stage_dir / "model")
+
+
+def dir_size(path: Path) -> int:
+    return sum(p.stat().st_size for p in Path(path).rglob("*") if p.is_file())
+
+
+def stage_fit(cache: StageCache, method, scene, cfg: dict, masks_rec: StageRecord,
+              geo_rec: StageRecord, progress: bool) -> StageRecord:
+    key = cache.key("fit", {"method": method.name, **cfg["method"]},
+                    {"masks": masks_rec.key, "geometry": geo_rec.key})
+
+    def work(d: Path) -> dict:
+        gaussians, deformation = load_geometry(geo_rec.path)
+        fitted = method.fit(scene, gaussians, deformation, masks_rec.path, cfg["method"], d / "work",
+                            progress=progress)
+        fitted.save(d)
+        shutil.rmtree(d / "work" / "pixel_weights", ignore_errors=True)  # cache, not a result
+        return {"timings": fitted.timings, "stats": _jsonable(fitted.stats)}
+
+    return cache.run("fit", key, work, {"method": method.name, **cfg["method"]})
+
+
+def stage_prompts(cache: StageCache, scene, cfg: dict, gt_key: str) -> StageRecord:
+    from trase.prompts import load_or_make_prompts
+
+    pcfg = cfg["prompts"]
+    if pcfg["rule"] != "gt-first-frame":
+        raise ConfigError(f"--set prompts.rule={pcfg['rule']}: only gt-first-frame is defined")
+    key = cache.key("prompts", pcfg, {"gt": gt_key})
+
+    def work(d: Path) -> dict:
+        bp = load_or_make_prompts(d / "prompts.json", scene.test, lambda i: read_mask(scene.gt_masks[i]))
+        return {"view": bp.view, "n_clicks": len(bp.clicks)}
+
+    return cache.run("prompts", key, work, pcfg)
+
+
+def _jsonable(obj):
+    return json.loads(json.dumps(obj, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
+
+
+def cluster_colours(labels: np.ndarray, seed: int = 0) -> np.ndarray:
+    """[N] cluster ids -> [N, 3] RGB in [0, 1], a fixed random colour per cluster."""
+    rng = np.random.default_rng(seed)
+    palette = rng.uniform(0.15, 1.0, size=(int(labels.max()) + 2 if labels.size else 1, 3))
+    return palette[np.asarray(labels, np.int64)]
+
+
+def render_clusters(fitted, camera) -> np.ndarray:
+    """Test view rendered with one colour per cluster -> uint8 [H, W, 3]."""
+    import torch
+
+    from trase.deformation import deformed
+    from trase.render import rasterize
+
+    g = fitted.gaussians
+    with torch.no_grad():
+        means, quats, scales = deformed(g, fitted.deformation, camera.time)
+        colours = torch.as_tensor(cluster_colours(fitted.labels), dtype=means.dtype)
+        out = rasterize(means, quats, scales, g.opacities.detach(), camera, colors=colours)
+    return (out.color.clamp(0, 1).numpy() * 255).astype(np.uint8)
+
+
+def evaluate(method, fitted, scene, prompts, run_dir: Path) -> dict:
+    """Predicted masks for every test view -> pred/*.png, scores (v1 and official), oracle."""
+    import cv2
+
+    preds = method.segment(fitted, scene, prompts)
+    if len(preds) != len(scene.test):
+        raise RuntimeError(f"{method.name}.segment returned {len(preds)} masks for {len(scene.test)} test views")
+    gts = [read_mask(p) for p in scene.gt_masks]
+    names = [f"{i:05d}" for i in range(len(scene.test))]
+    with atomic_directory(run_dir / "pred") as d:
+        for n, m in zip(names, preds):
+            cv2.imwrite(str(d / f"{n}.png"), m.astype(np.uint8) * 255)
+    shown = names[:: max(1, len(names) // 8)][:8]
+    with atomic_directory(run_dir / "clusters") as d:
+        for n in shown:
+            rgb = render_clusters(fitted, scene.test[names.index(n)].camera)
+            cv2.imwrite(str(d / f"{n}.png"), rgb[..., ::-1])
+    out = {
+        "v1": score_masks(dict(zip(names, preds)), dict(zip(names, gts)), "v1"),
+        "official": score_masks(dict(zip(names, preds)), dict(zip(names, gts)), "official"),
+        "selected": list(fitted.stats.get("selected_clusters", [])),
+    }
+    if hasattr(method, "segment_oracle"):
+        opreds, oclusters = method.segment_oracle(fitted, scene, gts)
+        out["oracle"] = score_masks(dict(zip(names, opreds)), dict(zip(names, gts)), "v1")
+        out["oracle_clusters"] = [int(c) for c in oclusters]
+    return out
+
+
+# -- one sequence ----------------------------------------------------------------------------
+def run_sequence(opts: RunOptions, sequence: str | None, reporter: Reporter, index: int) -> Path:
+    from benchmark.datasets import get_dataset, load_scene
+    from benchmark.datasets.synthetic import find_or_generate
+    from benchmark.methods import get_method
+
+    spec = get_dataset(opts.dataset)
+    scene_dir, variant = find_or_generate(spec.key, sequence, opts.data_root)
+    scene = load_scene(spec.key, scene_dir)
+    seq = scene.sequence
+    reporter.start(seq, index)
+    if not scene.gt_masks:
+        raise UserError(f"{scene_dir}: no ground-truth masks for {spec.key}/{seq}; cannot evaluate "
+                        f"(expected gt_masks/ in the scene or {spec.display_name}/{seq}/gt_masks under the data root)")
+    method = get_method(opts.method)
+    overrides = parse_overrides(opts.overrides)
+    cfg = default_config(method, spec, variant, overrides)
+    cache = StageCache(opts.cache_root)
+    scene_key = scene_fingerprint(scene)
+    gt_key = sha256_files(list(scene.gt_masks))[:16]
+
+    recs = {}
+    recs["masks"] = stage_masks(cache, scene, cfg, scene_key, opts.progress)
+    reporter.stage(seq, recs["masks"])
+    recs["geometry"] = stage_geometry(cache, scene, cfg, scene_key, opts.progress)
+    reporter.stage(seq, recs["geometry"])
+    recs["fit"] = stage_fit(cache, method, scene, cfg, recs["masks"], recs["geometry"], opts.progress)
+    reporter.stage(seq, recs["fit"])
+    recs["prompts"] = stage_prompts(cache, scene, cfg, gt_key)
+    reporter.stage(seq, recs["prompts"])
+
+    from benchmark.cache import PeakMemory
+    from benchmark.methods import FittedModel
+    from trase.prompts import BenchmarkPrompts
+
+    run_dir = results_path(opts.out_dir, opts.method, spec.key, seq).parent
+    run_dir.mkdir(parents=True, exist_ok=True)
+    with PeakMemory() as mem:
+        t0 = time.perf_counter()
+        gaussians, deformation = load_geometry(recs["geometry"].path)
+        fitted = FittedModel.load(recs["fit"].path, gaussians, deformation)
+        prompts_path = recs["prompts"].path / "prompts.json"
+        from benchmark.io import read_json
+
+        prompts = BenchmarkPrompts.from_dict(read_json(prompts_path, "prompts file"), str(prompts_path))
+        ev = evaluate(method, fitted, scene, prompts, run_dir)
+        seconds = time.perf_counter() - t0
+    recs["evaluate"] = StageRecord("evaluate", "-", run_dir, False, seconds, mem.peak_mb, {})
+    reporter.stage(seq, recs["evaluate"])
+
+    v1, official = ev["v1"].to_dict(), ev["official"].to_dict()
+    pred_files = sorted((run_dir / "pred").glob("*.png"))
+    record = {
+        "method": opts.method,
+        "dataset": spec.key,
+        "sequence": seq,
+        "variant": variant,
+        "metrics": {**{k: v1[k] for k in ("miou", "macc", "pooled_iou", "metric", "metric_version",
+                                          "n_frames", "both_empty", "missing")},
+                    "official": {k: official[k] for k in ("miou", "macc", "pooled_iou", "metric_version")}},
+        "per_frame": v1["per_frame"],
+        "oracle": ({k: ev["oracle"].to_dict()[k] for k in ("miou", "macc", "pooled_iou")}
+                   | {"clusters": ev["oracle_clusters"],
+                      "note": "upper bound: clusters chosen with the ground truth; not the method's score"})
+        if "oracle" in ev else None,
+        "stages": {name: r.to_dict() for name, r in recs.items()},
+        "n_gaussians": int(fitted.features.shape[0]),
+        "n_clusters": int(fitted.stats.get("n_clusters", 0)),
+        "selected_clusters": ev["selected"],
+        "feature_space": fitted.stats.get("feature_space"),
+        "model_size_bytes": dir_size(recs["geometry"].path) + dir_size(recs["fit"].path),
+        "config": cfg,
+        "config_hash": config_hash(cfg),
+        "seeds": {"masks": cfg["masks"]["seed"], "geometry": cfg["geometry"]["train"].get("seed"),
+                  "features": cfg["method"].get("features", {}).get("seed"),
+                  "clustering": cfg["method"].get("clustering", {}).get("seed")},
+        "checksums": {"gt": gt_key, "pred": sha256_files(pred_files)[:16]},
+        "prompts": read_json(prompts_path, "prompts file"),
+        "scene_dir": str(scene_dir),
+        "frames": [{"frame": f"{i:05d}", "view": v.name, "image": str(v.image_path),
+                    "gt": str(scene.gt_masks[i]), "pred": f"pred/{i:05d}.png"}
+                   for i, v in enumerate(scene.test)],
+    }
+    path = run_dir / "results.json"
+    write_results(path, _jsonable(record))
+    reporter.finish()
+    return path
+
+
+def run(opts: RunOptions) -> list[Path]:
+    """Run one method on the requested sequences; returns the results.json paths."""
+    from benchmark.datasets import get_dataset
+
+    spec = get_dataset(opts.dataset)
+    sequences = opts.sequences or default_sequences(spec, opts.data_root)
+    reporter = Reporter(opts.progress, len(sequences))
+    if opts.jobs > 1 and len(sequences) > 1:
+        from concurrent.futures import ProcessPoolExecutor
+
+        opts_one = dataclasses.replace(opts, jobs=1)
+        with ProcessPoolExecutor(max_workers=opts.jobs) as ex:
+            futs = [ex.submit(run_sequence, opts_one, s, Reporter(opts.progress, len(sequences)), i)
+                    for i, s in enumerate(sequences)]
+            return [f.result() for f in futs]
+    return [run_sequence(opts, s, reporter, i) for i, s in enumerate(sequences)]
+
+
+def default_sequences(spec, data_root: Path | None) -> list[str | None]:
+    """The paper's sequences present under the data root; if none, the synthetic default."""
+    from benchmark.datasets import find_scene_dir
+
+    root = data_root or (Path(os.environ["TRASE_DATA"]) if os.environ.get("TRASE_DATA") else None)
+    found = [s for s in spec.sequences if root and find_scene_dir(spec.key, s, root)]
+    return found or [None]
