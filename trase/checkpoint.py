@@ -74,9 +74,27 @@ def deform_path(model_dir: str | Path, iteration: int) -> Path:
     return Path(model_dir) / "deform" / f"iteration_{iteration}" / "deform.pth"
 
 
-def save_model(model_dir: str | Path, gaussians: GaussianModel, deformation, iteration: int) -> None:
+def write_cfg_args(model_dir: str | Path, sh_degree: int, blender: bool = False, source_path: str = "",
+                   white_background: bool = False) -> None:
+    """The ``cfg_args`` file the public scripts (render.py, TRASE's train/gui) read from a model
+    folder: a printed argparse Namespace. Its sh_degree must match the PLY's f_rest count
+    (their loader asserts it) and is_blender picks the deform network variant."""
+    model_dir = Path(model_dir)
+    ns = (
+        f"Namespace(sh_degree={int(sh_degree)}, source_path={source_path!r}, "
+        f"model_path={str(model_dir.resolve())!r}, images='images', resolution=-1, "
+        f"white_background={bool(white_background)}, data_device='cuda', eval=True, "
+        f"load2gpu_on_the_fly=False, is_blender={bool(blender)}, is_6dof=False)"
+    )
+    atomic_write_bytes(model_dir / "cfg_args", ns.encode())
+
+
+def save_model(model_dir: str | Path, gaussians: GaussianModel, deformation, iteration: int,
+               source_path: str = "", white_background: bool = False) -> None:
     """Write both files of ``iteration`` atomically; the deform file is written first so a
-    point cloud (which marks the iteration as present) never exists without it.
+    point cloud (which marks the iteration as present) never exists without it. A
+    ``cfg_args`` beside them lets the public scripts open the folder (they build the paper
+    size network, so only ``DeformMLP.preset("paper")`` models load there).
 
     ``deformation`` must be a DeformMLP (the public format has no tabulated deformation) or
     None for a static model (no deform file).
@@ -86,6 +104,8 @@ def save_model(model_dir: str | Path, gaussians: GaussianModel, deformation, ite
             raise TypeError(f"save_model: can only save a DeformMLP, got {type(deformation).__name__}")
         sd = {k: v.detach().cpu().clone() for k, v in deformation.state_dict().items()}
         atomic_torch_save(sd, deform_path(model_dir, iteration))
+    write_cfg_args(model_dir, gaussians.max_sh_degree, bool(getattr(deformation, "blender", False)),
+                   source_path, white_background)
     gaussians.save_ply(ply_path(model_dir, iteration))
 
 
@@ -95,7 +115,7 @@ def load_deformation(path: Path) -> DeformMLP:
         raise CheckpointError(f"{path}: deformation weights not found")
     try:
         sd = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:
+    except Exception as exc:  # noqa: BLE001 - torch raises many types for a damaged file
         raise CheckpointError(f"{path}: not a readable torch state dict ({type(exc).__name__}: {exc})") from None
     if not isinstance(sd, dict) or not all(torch.is_tensor(v) for v in sd.values()):
         raise CheckpointError(f"{path}: expected a state dict of tensors, got {type(sd).__name__}")
@@ -163,7 +183,7 @@ def load_synthetic_geometry(npz_path: str | Path) -> tuple[GaussianModel, Tabula
     for k in keys:
         if k != "object_ids" and not np.isfinite(d[k]).all():
             raise CheckpointError(f"{path}: array {k} has non-finite values")
-    f = lambda a: torch.as_tensor(np.asarray(a, dtype=np.float32))  # noqa: E731
+    f = lambda a: torch.as_tensor(np.asarray(a, dtype=np.float32))
     sh = rgb_to_sh_dc(np.clip(d["colors"].astype(np.float64), 0.0, 1.0))[:, None, :]
     g = GaussianModel(f(d["means"]), f(d["log_scales"]), f(d["quats"]), f(d["opacity_logits"]), f(sh))
     try:

@@ -88,7 +88,7 @@ class DeformMLP(nn.Module):
         self.gaussian_scaling = nn.Linear(W, 3)
 
     @torch.no_grad()
-    def zero_heads(self) -> "DeformMLP":
+    def zero_heads(self) -> DeformMLP:
         """Zero the three output layers so the network starts as the identity deformation.
 
         The public code keeps PyTorch's default init, whose random offsets (~0.1-0.5 scene
@@ -101,7 +101,7 @@ class DeformMLP(nn.Module):
         return self
 
     @classmethod
-    def preset(cls, name: str) -> "DeformMLP":
+    def preset(cls, name: str) -> DeformMLP:
         """``paper``: D=8, W=256 (Deformable-3DGS); ``small``: D=4, W=64 for CPU training."""
         if name == "paper":
             return cls(D=8, W=256)

@@ -80,7 +80,7 @@ class GaussianModel(nn.Module):
         if sh.dim() == 2:  # [N, 3] DC only
             sh = sh[:, None, :]
         k = sh.shape[1]
-        deg = int(round(math.sqrt(k))) - 1
+        deg = round(math.sqrt(k)) - 1
         if (deg + 1) ** 2 != k or sh.shape[2] != 3:
             raise ValueError(f"sh must be [N, (d+1)^2, 3], got {tuple(sh.shape)}")
         shapes = {
@@ -95,7 +95,7 @@ class GaussianModel(nn.Module):
                 raise ValueError(f"GaussianModel: {name} has shape {got}, expected {want}")
         if features is not None and (features.dim() != 2 or features.shape[0] != n):
             raise ValueError(f"GaussianModel: features must be [N={n}, D], got {tuple(features.shape)}")
-        f32 = lambda t: nn.Parameter(torch.as_tensor(t, dtype=torch.float32).detach().clone().contiguous())  # noqa: E731
+        f32 = lambda t: nn.Parameter(torch.as_tensor(t, dtype=torch.float32).detach().clone().contiguous())
         self.means = f32(means)
         self.log_scales = f32(log_scales)
         self.quats = f32(quats)
@@ -115,7 +115,7 @@ class GaussianModel(nn.Module):
         sh_degree: int = 3,
         feature_dim: int = 0,
         seed: int = 0,
-    ) -> "GaussianModel":
+    ) -> GaussianModel:
         """3DGS initialisation from a point cloud [N, 3] (colours [N, 3] in [0, 1] or grey).
 
         Isotropic scale = sqrt of the mean squared distance to the 3 nearest neighbours (as
@@ -148,7 +148,7 @@ class GaussianModel(nn.Module):
         if feature_dim > 0:
             g = torch.Generator().manual_seed(seed)
             feats = rgb_to_sh_dc(torch.rand(n, feature_dim, generator=g))
-        t = lambda a: torch.as_tensor(a, dtype=torch.float32)  # noqa: E731
+        t = lambda a: torch.as_tensor(a, dtype=torch.float32)
         return cls(t(pts), t(log_s), t(quats), t(logits), t(sh), feats, active_sh_degree=0)
 
     # -- activations ---------------------------------------------------------------------
@@ -241,7 +241,7 @@ class GaussianModel(nn.Module):
             raise
 
     @classmethod
-    def load_ply(cls, path: str | Path) -> "GaussianModel":
+    def load_ply(cls, path: str | Path) -> GaussianModel:
         """Read a 3DGS / Deformable-3DGS / TRASE PLY; SH degree from the f_rest count.
 
         Feature columns ``gaussian_feats_i`` (TRASE) or ``obj_dc_i`` (older TRASE) or
@@ -255,7 +255,7 @@ class GaussianModel(nn.Module):
         try:
             ply = PlyData.read(str(path))
             v = ply["vertex"]
-        except Exception as exc:  # plyfile raises many kinds on corrupt input
+        except Exception as exc:  # noqa: BLE001 - plyfile raises many kinds on corrupt input
             raise GaussianFileError(f"{path}: not a readable PLY file ({type(exc).__name__}: {exc})") from None
         names = [p.name for p in v.properties]
         required = ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1", "scale_2",
@@ -269,7 +269,7 @@ class GaussianModel(nn.Module):
             return sorted(sel, key=lambda a: int(a[len(prefix):]))
 
         try:
-            col = lambda a: np.asarray(v[a], dtype=np.float32)  # noqa: E731
+            col = lambda a: np.asarray(v[a], dtype=np.float32)
             n = len(col("x"))
             means = np.stack([col("x"), col("y"), col("z")], 1)
             dc = np.stack([col(f"f_dc_{i}") for i in range(3)], 1)
@@ -277,7 +277,7 @@ class GaussianModel(nn.Module):
             if len(rest_names) % 3:
                 raise GaussianFileError(f"{path}: {len(rest_names)} f_rest columns is not a multiple of 3")
             k = len(rest_names) // 3 + 1
-            if int(round(math.sqrt(k))) ** 2 != k:
+            if round(math.sqrt(k)) ** 2 != k:
                 raise GaussianFileError(f"{path}: {len(rest_names)} f_rest columns match no SH degree")
             rest = np.stack([col(a) for a in rest_names], 1) if rest_names else np.zeros((n, 0), np.float32)
             rest = rest.reshape(n, 3, k - 1).transpose(0, 2, 1)
@@ -292,7 +292,7 @@ class GaussianModel(nn.Module):
                     break
         except GaussianFileError:
             raise
-        except Exception as exc:
+        except Exception as exc:  # noqa: BLE001 - numpy/plyfile errors on malformed columns
             raise GaussianFileError(f"{path}: malformed gaussian attributes ({type(exc).__name__}: {exc})") from None
         for label, arr in (("x/y/z", means), ("opacity", opac), ("scale", scales), ("rot", rots)):
             if not np.isfinite(arr).all():
@@ -386,7 +386,7 @@ class GaussianModel(nn.Module):
             lambda name, m: torch.zeros_like(m) if name == "opacity_logits" else m,
         )
 
-    def copy(self) -> "GaussianModel":
+    def copy(self) -> GaussianModel:
         """A detached deep copy (no optimizer ties)."""
         with torch.no_grad():
             g = GaussianModel(

@@ -74,7 +74,7 @@ def ssim_reference(pred: torch.Tensor, target: torch.Tensor, window_size: int = 
     c = x.shape[1]
     g = _gauss_1d(window_size, sigma, x.dtype).to(x.device)
     w = (g[:, None] @ g[None, :]).expand(c, 1, window_size, window_size)
-    conv = lambda t: F.conv2d(t, w, padding=window_size // 2, groups=c)  # noqa: E731
+    conv = lambda t: F.conv2d(t, w, padding=window_size // 2, groups=c)
     mu_x, mu_y = conv(x), conv(y)
     s_x = conv(x * x) - mu_x**2
     s_y = conv(y * y) - mu_y**2

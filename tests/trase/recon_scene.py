@@ -31,7 +31,7 @@ def make_gt(n: int = 200, seed: int = 0, times=(0.0, 0.5, 1.0)):
     log_s = np.log(rng.uniform(0.05, 0.12, (n, 3)))
     q = rng.normal(size=(n, 4))
     logits = np.full(n, 2.0)
-    t = lambda a: torch.as_tensor(a, dtype=torch.float32)  # noqa: E731
+    t = lambda a: torch.as_tensor(a, dtype=torch.float32)
     g = GaussianModel(t(means), t(log_s), t(q), t(logits), t(sh))
     T = len(times)
     d_xyz = np.zeros((T, n, 3))
@@ -56,6 +56,7 @@ def make_cameras(num: int = 6, size: int = 32, times=(0.0, 0.5, 1.0)):
 def write_scene(root: Path, num: int = 6, size: int = 32, backend: str = "numba"):
     """Render the ground truth into PNGs under root; returns (views, points, gt, deform)."""
     import cv2
+
     from trase.render import rasterize
 
     root.mkdir(parents=True, exist_ok=True)

@@ -38,6 +38,10 @@ def test_export_import_renders_identically(tmp_path):
     assert (tmp_path / "point_cloud/iteration_7/point_cloud.ply").is_file()
     sd = torch.load(tmp_path / "deform/iteration_7/deform.pth", weights_only=True)
     assert set(sd) == set(d.state_dict())
+    from argparse import Namespace  # noqa: F401  (the public scripts eval cfg_args)
+
+    ns = eval((tmp_path / "cfg_args").read_text())
+    assert ns.sh_degree == 3 and ns.is_blender is False
 
 
 def test_latest_and_explicit_iteration(tmp_path):
@@ -47,7 +51,7 @@ def test_latest_and_explicit_iteration(tmp_path):
     save_model(tmp_path, g2, d2, 2000)
     g, _ = load_model(tmp_path)
     assert torch.equal(g.means, g2.means)
-    g, d = load_model(tmp_path, 100)
+    g, _ = load_model(tmp_path, 100)
     assert torch.equal(g.means, g1.means)
     with pytest.raises(CheckpointError, match="iteration 5 .*available: 100, 2000"):
         load_model(tmp_path, 5)
@@ -92,12 +96,12 @@ def test_corrupt_and_missing_checkpoints(tmp_path):
 
 def _geometry(n=5, T=3):
     rng = np.random.default_rng(0)
-    return dict(
-        means=rng.normal(size=(n, 3)), log_scales=np.full((n, 3), -2.0), quats=np.tile([1.0, 0, 0, 0], (n, 1)),
-        opacity_logits=np.zeros(n), colors=rng.uniform(size=(n, 3)), object_ids=np.arange(n, dtype=np.int32),
-        times=np.linspace(0, 1, T), d_xyz=rng.normal(size=(T, n, 3)), d_rot=np.zeros((T, n, 4)),
-        d_scale=np.zeros((T, n, 3)),
-    )
+    return {
+        "means": rng.normal(size=(n, 3)), "log_scales": np.full((n, 3), -2.0), "quats": np.tile([1.0, 0, 0, 0], (n, 1)),
+        "opacity_logits": np.zeros(n), "colors": rng.uniform(size=(n, 3)), "object_ids": np.arange(n, dtype=np.int32),
+        "times": np.linspace(0, 1, T), "d_xyz": rng.normal(size=(T, n, 3)), "d_rot": np.zeros((T, n, 4)),
+        "d_scale": np.zeros((T, n, 3)),
+    }
 
 
 def test_load_synthetic_geometry(tmp_path):

@@ -2,7 +2,13 @@ import numpy as np
 import pytest
 import torch
 
-from trase.deformation import DeformMLP, TabulatedDeformation, deformed, infer_mlp_config, positional_encoding
+from trase.deformation import (
+    DeformMLP,
+    TabulatedDeformation,
+    deformed,
+    infer_mlp_config,
+    positional_encoding,
+)
 from trase.gaussians import GaussianModel
 
 
@@ -100,5 +106,5 @@ def test_deformed_semantics_and_scale_clamp():
     assert torch.allclose(m, torch.ones(n, 3))
     assert torch.allclose(q, torch.tensor([[1.5, 0.5, 0.5, 0.5]] * n))  # normalize(q) + d_rot
     assert (s > 0).all() and torch.isfinite(s).all()
-    m0, q0, s0 = deformed(g, None, 0.0)
+    _, _, s0 = deformed(g, None, 0.0)
     assert torch.allclose(s0, torch.ones(n, 3))

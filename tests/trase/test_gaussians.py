@@ -9,7 +9,7 @@ from trase.gaussians import GaussianFileError, GaussianModel, rgb_to_sh_dc
 
 def random_model(n=20, deg=3, feat=0, seed=0):
     g = torch.Generator().manual_seed(seed)
-    r = lambda *s: torch.randn(*s, generator=g)  # noqa: E731
+    r = lambda *s: torch.randn(*s, generator=g)
     return GaussianModel(r(n, 3), r(n, 3) * 0.3 - 2, r(n, 4), r(n), r(n, (deg + 1) ** 2, 3),
                          r(n, feat) if feat else None)
 

@@ -7,8 +7,8 @@ sys.path.insert(0, str(Path(__file__).parent))
 import numpy as np
 import pytest
 import torch
-
 from recon_scene import write_scene
+
 from trase.checkpoint import CheckpointError, available_iterations, load_model
 from trase.deformation import DeformMLP
 from trase.gaussians import GaussianModel
