@@ -25,8 +25,8 @@ import numpy as np
 from benchmark.perf.common import fmt, load_average, ratio, table, time_repeats, versions
 
 HDB = {"min_cluster_size": 10, "cluster_selection_epsilon": 0.01}  # the public code's settings
-QUICK = {"sizes": [20_000], "fractions": [0.02, 0.10, 0.25], "repeats": 2, "max_hdbscan_sample": 6_000,
-         "fixed_sample": 1_000, "budget_s": 5.0}
+QUICK = {"sizes": [8_000], "fractions": [0.02, 0.10, 0.25], "repeats": 2, "max_hdbscan_sample": 1_500,
+         "fixed_sample": 1_000, "budget_s": 3.0}
 DEFAULT = {"sizes": [100_000, 1_000_000], "fractions": [0.02, 0.10, 0.25], "repeats": 3,
            "max_hdbscan_sample": 26_000, "fixed_sample": 5_000, "budget_s": 20.0}
 NORM_EPS = 1e-12

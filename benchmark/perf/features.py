@@ -27,7 +27,7 @@ import torch
 
 from benchmark.perf.common import fmt, load_average, table, time_repeats, versions
 
-QUICK = {"gaussians": 3_000, "width": 128, "height": 96, "n_pixels": [1000], "dims": [16], "repeats": 2,
+QUICK = {"gaussians": 1_000, "width": 64, "height": 48, "n_pixels": [500], "dims": [16], "repeats": 2,
          "budget_s": 5.0}
 DEFAULT = {"gaussians": 50_000, "width": 480, "height": 272, "n_pixels": [1000, 5000, 10000],
            "dims": [16, 32, 64, 128], "repeats": 3, "budget_s": 10.0}

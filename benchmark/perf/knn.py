@@ -24,7 +24,7 @@ import torch
 from benchmark.perf.common import fmt, load_average, ratio, table, time_repeats, versions
 
 K = 16
-QUICK = {"sizes": [20_000], "repeats": 2, "check_rows": 500}
+QUICK = {"sizes": [5_000], "repeats": 2, "check_rows": 300}
 DEFAULT = {"sizes": [100_000, 300_000, 1_000_000], "repeats": 3, "check_rows": 2000}
 CHUNK = 131_072
 

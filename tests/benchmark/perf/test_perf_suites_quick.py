@@ -1,0 +1,50 @@
+"""Every perf suite end to end with ``--quick`` through the CLI, into one JSON file."""
+
+import json
+
+import pytest
+
+from benchmark.cli import main
+from benchmark.perf import SUITES
+
+
+@pytest.mark.slow
+def test_all_suites_quick(tmp_path, monkeypatch, capsys):
+    from benchmark.perf import raster
+
+    monkeypatch.setenv("TRASE_CACHE", str(tmp_path / "cache"))  # synthetic scenes generated here
+    monkeypatch.setattr(raster, "QUICK", [(150, 32, 24, 4, True)])  # raster's own test covers its sizes
+    out = tmp_path / "perf.json"
+    assert main(["perf", *sorted(SUITES), "--quick", "--json", str(out)]) == 0
+    text = capsys.readouterr().out
+    d = json.loads(out.read_text())
+    s = d["suites"]
+    assert set(s) == set(SUITES) and d["machine"]["cpu_count"] >= 1
+
+    knn = s["knn"]["sizes"][0]["methods"]
+    for m in knn.values():
+        assert m["seconds"]["median"] > 0 and m["equal_up_to_ties"] == 1.0
+    assert "versions" in s["knn"] and s["knn"]["sizes"][0]["smoothing_step_seconds"]["median"] > 0
+
+    cl = s["cluster"]["sizes"][0]
+    ref = cl["configs"][cl["reference"]]
+    assert ref["ari_vs_reference"] == pytest.approx(1.0)
+    ran = [c for c in cl["configs"].values() if "skipped" not in c]
+    assert len(ran) >= 8 and all(-1 <= c["ari_vs_known"] <= 1 for c in ran)
+    assert any("skipped" in c for c in cl["configs"].values())  # 25% of 8000 > the quick cap of 1500
+
+    ft = s["features"]
+    assert ft["operators"]["bytes_per_view"] > 0
+    step = ft["steps"][0]
+    assert step["max_abs_rendered_diff"] < 1e-4 and step["loss_abs_diff"] < 1e-4
+    assert step["fastpath_render_s"]["median"] > 0 and step["rasterizer_render_s"]["median"] > 0
+
+    pl = s["pipeline"]
+    assert not pl["failed"], pl["runs"]
+    stages = pl["runs"][0]["stages"]
+    assert {"masks", "geometry", "fit", "prompts", "evaluate"} <= set(stages)
+
+    pa = s["pareto"]
+    assert not pa["failed"] and len(pa["runs"]) == 2 and pa["pareto_front"]
+    assert (tmp_path / "pareto.png").stat().st_size > 1000  # next to the --json file
+    assert "Pareto" in text and "ARI vs known" in text
