@@ -164,6 +164,24 @@ def run(quick: bool = False, echo: Callable[[str], None] = print) -> dict:
                          f"{entry['render_speedup']:.1f}x", fmt(t_obj), f"{entry['step_speedup']:.2f}x",
                          f"{entry['loss_abs_diff']:.1e}" if first_d else "-", f"{entry['max_abs_rendered_diff']:.1e}",
                          str(entry["break_even_steps"])])
+    # thread sensitivity: the fast-path step (render + objective) at the smallest setting with
+    # torch on 1 thread vs the current count (on shared, loaded cores extra threads can thrash)
+    d0, n0 = cfg["dims"][0], cfg["n_pixels"][0]
+    sample = build_sample(ms, "random", M_PRIME, n0, np.random.default_rng(n0), view=0)
+    feats0 = init_features(n, d0, torch.Generator().manual_seed(0))
+    with torch.no_grad():
+        r0 = fast.render(0, smooth_features(feats0, knn, None), sample.pixels)
+    threads = {}
+    default_threads = torch.get_num_threads()
+    for nt in sorted({1, default_threads}):
+        torch.set_num_threads(nt)
+        try:
+            tr, _ = time_repeats(render_step(fast, feats0, knn, sample.pixels), reps, warmup=1, budget_s=cfg["budget_s"])
+            to, _ = time_repeats(objective_step(objective, r0, sample), reps, warmup=1, budget_s=cfg["budget_s"])
+        finally:
+            torch.set_num_threads(default_threads)
+        threads[str(nt)] = {"render_s": tr, "objective_s": to}
+        rows.append([f"D={d0} Np={n0} torch threads={nt}", fmt(tr), "", "", fmt(to), "", "", "", ""])
     echo(table(rows, ["setting", "fast path render", "rasterizer render", "render x", "objective",
                       "step x", "|loss diff|", "max |render diff|", "break-even"]))
     echo("render = smoothing + render of the Np pixels + backward; objective = TRASE loss forward + backward "
@@ -176,5 +194,6 @@ def run(quick: bool = False, echo: Callable[[str], None] = print) -> dict:
         "versions": versions("torch", "numba", "numpy"),
         "operators": operators,
         "steps": results,
+        "threads": threads,
         "load_average_end": load_average(),
     }
