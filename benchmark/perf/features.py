@@ -7,7 +7,9 @@ smoothing (8 random slots), render the Np sampled pixels' features, TRASE soft-m
 backward, one Adam step on the features. It is timed in two parts: the path-dependent part
 (smoothing + render + backward through the render), per path and per (D, Np); and the
 objective (loss forward + backward on the rendered [Np, D] features), identical for both
-paths, once per Np (its cost grows as Np^2 and barely with D). Step time = sum of the two.
+paths, once per Np (its cost grows as Np^2 and barely with D; above ``objective_max_pixels``
+it is not run: its [Np, Np] pair matrices take ~36 B per pair, ~3.6 GB at Np = 10000, and
+minutes on 2 loaded cores). Step time = sum of the two.
 Both paths get the same sampled pixels and features; the rendered difference is measured
 for every (D, Np), the loss difference once per Np. The precomputation (pixel weights of every
 pixel inside a mask, once per view) is timed and its bytes reported; "break-even" = steps
@@ -28,9 +30,10 @@ import torch
 from benchmark.perf.common import fmt, load_average, table, time_repeats, versions
 
 QUICK = {"gaussians": 1_000, "width": 64, "height": 48, "n_pixels": [500], "dims": [16], "repeats": 2,
-         "budget_s": 5.0}
+         "budget_s": 5.0, "objective_max_pixels": 5000}
 DEFAULT = {"gaussians": 50_000, "width": 480, "height": 272, "n_pixels": [1000, 5000, 10000],
-           "dims": [16, 32, 64, 128], "repeats": 3, "budget_s": 10.0}
+           "dims": [16, 32, 64, 128], "repeats": 3, "budget_s": 10.0,
+           "objective_max_pixels": 5000}
 N_MASKS = 40
 M_PRIME = 25
 
@@ -132,13 +135,14 @@ def run(quick: bool = False, echo: Callable[[str], None] = print) -> dict:
             sample = build_sample(ms, "random", M_PRIME, npix, np.random.default_rng(npix), view=0)
             # the same features and sample through both paths: loss and rendered difference
             first_d = npix not in objective_s
+            with_objective = npix <= cfg["objective_max_pixels"]
             with torch.no_grad():
                 f = smooth_features(feats0, knn, None)
                 r_fast = fast.render(0, f, sample.pixels)
                 r_rast = raster.render(0, f, sample.pixels)
             entry = {"dim": d, "n_pixels_target": npix, "n_pixels": int(sample.pixels.shape[0]),
                      "max_abs_rendered_diff": float((r_fast - r_rast).abs().max()) if r_fast.numel() else 0.0}
-            if first_d:  # the loss (Np^2 pairs) once per Np
+            if first_d and with_objective:  # the loss (Np^2 pairs) once per Np
                 with torch.no_grad():
                     l_fast = float(objective(r_fast, sample)[0])
                     l_rast = float(objective(r_rast, sample)[0])
@@ -148,21 +152,24 @@ def run(quick: bool = False, echo: Callable[[str], None] = print) -> dict:
                                     budget_s=cfg["budget_s"])
                 entry[f"{name}_render_s"] = t
             if first_d:
-                objective_s[npix], _ = time_repeats(objective_step(objective, r_fast, sample), reps,
-                                                    budget_s=cfg["budget_s"])
+                objective_s[npix] = (time_repeats(objective_step(objective, r_fast, sample), reps,
+                                                  budget_s=cfg["budget_s"])[0] if with_objective else None)
             t_obj = entry["objective_s"] = objective_s[npix]
-            fr, rr, ob = (entry["fastpath_render_s"]["median"], entry["rasterizer_render_s"]["median"],
-                          t_obj["median"])
+            fr, rr = entry["fastpath_render_s"]["median"], entry["rasterizer_render_s"]["median"]
             entry["render_speedup"] = rr / max(fr, 1e-12)
-            entry["step_fastpath_s"] = fr + ob  # smoothing + render + loss + backward (Adam: negligible)
-            entry["step_rasterizer_s"] = rr + ob
-            entry["step_speedup"] = (rr + ob) / max(fr + ob, 1e-12)
+            if t_obj is not None:
+                ob = t_obj["median"]
+                entry["step_fastpath_s"] = fr + ob  # smoothing + render + loss + backward (Adam: negligible)
+                entry["step_rasterizer_s"] = rr + ob
+                entry["step_speedup"] = (rr + ob) / max(fr + ob, 1e-12)
             gain = rr - fr
             entry["break_even_steps"] = math.ceil(prep["median"] / gain) if gain > 0 else None
             results.append(entry)
             rows.append([f"D={d} Np={npix}", fmt(entry["fastpath_render_s"]), fmt(entry["rasterizer_render_s"]),
-                         f"{entry['render_speedup']:.1f}x", fmt(t_obj), f"{entry['step_speedup']:.2f}x",
-                         f"{entry['loss_abs_diff']:.1e}" if first_d else "-", f"{entry['max_abs_rendered_diff']:.1e}",
+                         f"{entry['render_speedup']:.1f}x", fmt(t_obj) if t_obj else "not run",
+                         f"{entry['step_speedup']:.2f}x" if t_obj else "-",
+                         f"{entry['loss_abs_diff']:.1e}" if "loss_abs_diff" in entry else "-",
+                         f"{entry['max_abs_rendered_diff']:.1e}",
                          str(entry["break_even_steps"])])
     # thread sensitivity: the fast-path step (render + objective) at the smallest setting with
     # torch on 1 thread vs the current count (on shared, loaded cores extra threads can thrash)
