@@ -172,7 +172,7 @@ def run(quick: bool = False, echo: Callable[[str], None] = print) -> dict:
                          f"{entry['max_abs_rendered_diff']:.1e}",
                          str(entry["break_even_steps"])])
     # thread sensitivity: the fast-path step (render + objective) at the smallest setting with
-    # torch on 1 thread vs the current count (on shared, loaded cores extra threads can thrash)
+    # torch on 1 and 2 threads and the current count (on shared, loaded cores threads can thrash)
     d0, n0 = cfg["dims"][0], cfg["n_pixels"][0]
     sample = build_sample(ms, "random", M_PRIME, n0, np.random.default_rng(n0), view=0)
     feats0 = init_features(n, d0, torch.Generator().manual_seed(0))
@@ -180,7 +180,7 @@ def run(quick: bool = False, echo: Callable[[str], None] = print) -> dict:
         r0 = fast.render(0, smooth_features(feats0, knn, None), sample.pixels)
     threads = {}
     default_threads = torch.get_num_threads()
-    for nt in sorted({1, default_threads}):
+    for nt in sorted({1, 2, default_threads}):
         torch.set_num_threads(nt)
         try:
             tr, _ = time_repeats(render_step(fast, feats0, knn, sample.pixels), reps, warmup=1, budget_s=cfg["budget_s"])
