@@ -24,8 +24,11 @@ $(STAMP): pyproject.toml | $(PY)
 test: $(STAMP)
 	$(PY) -m pytest
 
+# The main job on the built-in default data: TRASE on the synthetic HyperNeRF-format scene
+# (generated once into the cache), then the leaderboard of everything under runs/.
 demo: $(STAMP)
-	$(PY) -m benchmark.demo
+	$(VENV)/bin/trase-bench run --method trase --dataset hypernerf --out runs
+	$(VENV)/bin/trase-bench leaderboard --results runs --variant synthetic
 
 clean:
 	rm -rf $(VENV) build *.egg-info

@@ -1,0 +1,88 @@
+"""End-to-end: the whole pipeline on a tiny synthetic scene, results file, cache reuse, leaderboard."""
+
+import json
+
+import pytest
+
+from benchmark.cli import main
+from benchmark.config import ConfigError, merge, parse_overrides
+from benchmark.datasets.synthetic import generate
+from benchmark.results import load_results
+
+FAST = [
+    "geometry.source=ground-truth",
+    "method.features.iterations=40",
+    "method.features.n_pixels=400",
+]
+
+
+@pytest.fixture(scope="module")
+def data_root(tmp_path_factory):
+    root = tmp_path_factory.mktemp("data")
+    generate("hypernerf", root / "hypernerf" / "synthetic", seed=0, size="tiny")
+    return root
+
+
+def _run(data_root, out, method="trase", extra=()):
+    args = ["run", "--method", method, "--dataset", "hypernerf", "--sequence", "synthetic",
+            "--data-root", str(data_root), "--out", str(out), "--quiet"]
+    for s in FAST + list(extra):
+        args += ["--set", s]
+    return main(args)
+
+
+@pytest.mark.slow
+def test_pipeline_end_to_end(data_root, tmp_path, capsys):
+    out = tmp_path / "runs"
+    assert _run(data_root, out) == 0
+    path = out / "trase" / "hypernerf" / "synthetic" / "results.json"
+    r = load_results(path)
+    assert r["variant"] == "synthetic"
+    assert r["metrics"]["metric_version"] == "v1/bin1"
+    assert 0.0 <= r["metrics"]["miou"] <= 1.0
+    assert r["metrics"]["n_frames"] == len(r["per_frame"]) == len(r["frames"]) > 0
+    assert set(r["stages"]) == {"masks", "geometry", "fit", "prompts", "evaluate"}
+    assert not any(s["skipped"] for s in r["stages"].values())
+    assert r["config"]["method"]["features"]["iterations"] == 40
+    assert r["seeds"]["features"] == 0 and len(r["checksums"]["pred"]) == 16
+    assert r["prompts"]["points"]
+    assert (path.parent / "pred" / "00000.png").exists()
+
+    # a second method on the same scene reuses masks and geometry
+    assert _run(data_root, out, method="trase-hard") == 0
+    r2 = load_results(out / "trase-hard" / "hypernerf" / "synthetic" / "results.json")
+    assert r2["stages"]["masks"]["skipped"] and r2["stages"]["geometry"]["skipped"]
+    assert not r2["stages"]["fit"]["skipped"]
+    assert r2["stages"]["masks"]["key"] == r["stages"]["masks"]["key"]
+
+    # a rerun reuses everything and gives identical metrics (determinism)
+    assert _run(data_root, out) == 0
+    r3 = load_results(path)
+    assert all(s["skipped"] for n, s in r3["stages"].items() if n != "evaluate")
+    assert r3["metrics"] == r["metrics"]
+
+    capsys.readouterr()
+    assert main(["leaderboard", "--results", str(out), "--variant", "synthetic"]) == 0
+    board = capsys.readouterr().out
+    assert "HyperNeRF-Mask" in board and "trase-hard" in board and "published" not in board
+    assert main(["report", "--method", "trase", "--dataset", "hypernerf", "--sequence", "synthetic",
+                 "--out", str(out)]) == 0
+    assert (path.parent / "report.html").exists()
+
+
+def test_unknown_setting_is_an_error(data_root, tmp_path, capsys):
+    assert _run(data_root, tmp_path, extra=["method.features.itterations=5"]) == 1
+    assert "unknown setting" in capsys.readouterr().err
+
+
+def test_overrides_parse_and_merge():
+    o = parse_overrides(["a.b=3", "a.c=true", "d=text", "e=[1, 2]"])
+    assert o == {"a": {"b": 3, "c": True}, "d": "text", "e": [1, 2]}
+    base = {"a": {"b": 1, "c": False}, "d": "x", "e": []}
+    assert merge(base, o) == o
+    with pytest.raises(ConfigError, match="a.z: unknown setting"):
+        merge(base, {"a": {"z": 1}})
+    with pytest.raises(ConfigError, match="expected key=value"):
+        parse_overrides(["novalue"])
+    with pytest.raises(ConfigError, match="is a section"):
+        merge(base, {"a": 5})
