@@ -31,10 +31,21 @@ SIZE = "tiny"
 SEQ = "synthetic-tiny"
 
 
+class _Scenes(dict):
+    """dataset -> scene dir, generated on first use (once per module)."""
+
+    def __init__(self, root: Path):
+        super().__init__()
+        self.root = root
+
+    def __missing__(self, dataset: str) -> Path:
+        self[dataset] = generate(dataset, self.root / dataset / SEQ, seed=0, size=SIZE)
+        return self[dataset]
+
+
 @pytest.fixture(scope="module")
 def scenes(tmp_path_factory) -> dict[str, Path]:
-    root = tmp_path_factory.mktemp("synthetic")
-    return {d: generate(d, root / d / SEQ, seed=0, size=SIZE) for d in DATASET_KEYS}
+    return _Scenes(tmp_path_factory.mktemp("synthetic"))
 
 
 @pytest.fixture(scope="module")
