@@ -14,6 +14,7 @@ import click
 
 COMMANDS: dict[str, tuple[str, str]] = {
     # name: (import path of the click command, one-line help shown by --help)
+    "ablate": ("benchmark.commands.ablate:ablate", "The paper's ablation studies, run and tabulated."),
     "datasets": ("benchmark.commands.datasets:datasets", "List the five *-Mask benchmarks (--json for data)."),
     "leaderboard": ("benchmark.commands.leaderboard:leaderboard",
                     "Leaderboards (markdown/latex/csv/html) from results files."),

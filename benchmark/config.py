@@ -46,10 +46,15 @@ def parse_overrides(items: list[str] | tuple[str, ...]) -> dict:
 
 
 def merge(base: dict, overrides: dict, path: str = "") -> dict:
-    """Deep-merge ``overrides`` into a copy of ``base``; unknown keys are errors (typos)."""
+    """Deep-merge ``overrides`` into a copy of ``base``; unknown keys are errors (typos),
+    except inside sections named ``*params`` (keyword arguments passed through as given)."""
     out = copy.deepcopy(base)
+    open_section = path.rstrip(".").endswith("params")  # free-form keyword arguments
     for k, v in overrides.items():
         where = f"{path}{k}"
+        if k not in out and open_section:
+            out[k] = v
+            continue
         if k not in out:
             known = ", ".join(sorted(out)) or "none"
             raise ConfigError(f"--set {where}: unknown setting (known here: {known})")

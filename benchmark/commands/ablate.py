@@ -1,0 +1,37 @@
+"""``trase-bench ablate STUDY --dataset D``: the paper's ablation tables, generated."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from benchmark.ablate import STUDIES, published_table, render_table, run_study, summarise
+
+
+@click.command()
+@click.argument("study", type=click.Choice(sorted(STUDIES)))
+@click.option("--dataset", required=True)
+@click.option("--sequence", "sequences", multiple=True, help="Sequence(s); default as `run`.")
+@click.option("--data-root", type=click.Path(file_okay=False), default=None)
+@click.option("--out", "out_dir", type=click.Path(file_okay=False), default="runs", show_default=True)
+@click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", help="Applied to every variant.")
+@click.option("--format", "fmt", type=click.Choice(["markdown", "latex", "csv"]), default="markdown",
+              show_default=True)
+@click.option("--quiet", is_flag=True)
+def ablate(study, dataset, sequences, data_root, out_dir, overrides, fmt, quiet) -> None:
+    """Run every variant of STUDY (reusing cached masks and geometry) and print its table.
+
+    Studies: smoothing (K 0/16/32), feature-dim (16/32/64/128 with size and clustering time),
+    subsample (2/10/25% with time), filtering (on/off), mask-sampling (random/area/score/grid),
+    mining (soft/hard/all with intra/inter distances), clustering (HDBSCAN/DBSCAN/KMeans).
+    """
+    df = run_study(study, dataset, Path(out_dir), Path(data_root) if data_root else None,
+                   list(sequences) or None, list(overrides), progress=not quiet)
+    s = STUDIES[study]
+    data = ", ".join(sorted(set(df["data"])))
+    click.echo(render_table(summarise(df), fmt, f"{s.title}: {dataset} ({data} data, measured)"))
+    pub = published_table(study, dataset)
+    if pub is not None:
+        click.echo(render_table(pub, fmt, f"{s.title}: {dataset} (published, real data; not comparable "
+                                          "with synthetic rows)"))
