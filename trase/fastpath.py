@@ -27,6 +27,7 @@ from typing import Callable
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 
 from trase.camera import Camera
 from trase.deformation import deformed
@@ -49,8 +50,8 @@ def frozen_geometry(gaussians, deformation, t: float):
 def render_rows(pw: PixelWeights, rows: torch.Tensor, features: torch.Tensor) -> torch.Tensor:
     """Rendered features [P, D] = sum_k w_k f_{g_k} over the CSR rows ``rows`` [P] of ``pw``.
 
-    Sparse gather of just the sampled rows, then one index_add: cost O(contributors of the
-    sampled pixels * D), independent of image size and of N."""
+    Gather of just the sampled rows, then a weighted ``embedding_bag`` sum: cost
+    O(contributors of the sampled pixels * D), independent of image size and of N."""
     P = rows.shape[0]
     D = features.shape[1]
     if P == 0:
@@ -60,12 +61,12 @@ def render_rows(pw: PixelWeights, rows: torch.Tensor, features: torch.Tensor) ->
     total = int(lengths.sum())
     if total == 0:
         return features.new_zeros(P, D) + 0.0 * features.sum()
-    out_row = torch.repeat_interleave(torch.arange(P, device=rows.device), lengths)  # [nnz_s]
     first = torch.cumsum(lengths, 0) - lengths  # [P] offset of each row in the gathered list
+    out_row = torch.repeat_interleave(torch.arange(P, device=rows.device), lengths)  # [nnz_s]
     pos = torch.arange(total, device=rows.device) - first[out_row] + starts[out_row]  # [nnz_s]
-    w = pw.weights[pos].to(features.dtype)[:, None]
-    contrib = w * features[pw.indices[pos]]
-    return features.new_zeros(P, D).index_add(0, out_row, contrib)
+    # one fused weighted bag-sum per pixel (forward and backward are single kernels)
+    return F.embedding_bag(pw.indices[pos], features, first, mode="sum",
+                           per_sample_weights=pw.weights[pos].to(features.dtype))
 
 
 def _fingerprint(means, quats, scales, opacities, camera: Camera, pixels: np.ndarray, min_weight: float) -> str:

@@ -96,14 +96,43 @@ def pair_weights(mean_area: torch.Tensor) -> torch.Tensor:
     S = s s^T; W = max(S) / S clamped to >= 1 (S = 0 counts as huge, i.e. W = 1); then
     min-max rescaled to [1, W_MAX]. Small-segment pairs get large weights, so small objects
     are not drowned by the many pairs a large segment produces (as SAGA weighs pixels).
+
+    Computed in closed form, O(V) work plus one outer product (this runs every step on
+    Np x Np pairs): with a_i = max(s) / s_i, max(S) / S_ij = a_i a_j >= 1 (no clamp needed),
+    the minimum is 1 (the largest s with itself) and the maximum (max a)^2; pairs with a
+    zero s are exactly 1. ``pair_weights_reference`` is the literal formula the tests compare.
     """
+    s = mean_area.to(torch.float64).reshape(-1)
+    V = s.shape[0]
+    if V == 0:
+        return torch.ones(0, 0, dtype=torch.float32, device=mean_area.device)
+    pos = s > 0
+    if not bool(pos.any()):
+        return torch.ones(V, V, dtype=torch.float32, device=mean_area.device)
+    smax = s.max()
+    a = torch.where(pos, smax / torch.where(pos, s, torch.ones_like(s)), torch.ones_like(s))  # [V] >= 1
+    hi = float(a[pos].max()) ** 2
+    if not hi > 1.0:
+        return torch.ones(V, V, dtype=torch.float32, device=mean_area.device)
+    af = a.to(torch.float32)
+    W = torch.outer(af, af)  # [V, V] = max(S) / S where S > 0
+    W.sub_(1.0).mul_((W_MAX - 1.0) / (hi - 1.0)).add_(1.0)
+    zero = ~pos
+    if bool(zero.any()):
+        W[zero, :] = 1.0
+        W[:, zero] = 1.0
+    return W
+
+
+def pair_weights_reference(mean_area: torch.Tensor) -> torch.Tensor:
+    """The literal (slow, O(V^2) float64) form of ``pair_weights``, for tests."""
     s = mean_area.to(torch.float64)
     S = s[:, None] * s[None, :]
     smax = S.max() if S.numel() else S.new_tensor(0.0)
     W = torch.where(S > 0, smax / torch.where(S > 0, S, torch.ones_like(S)), torch.ones_like(S))
     W = W.clamp_min(1.0)
     if W.numel() == 0:
-        return W.to(mean_area.dtype if mean_area.is_floating_point() else torch.float32)
+        return W.to(torch.float32)
     lo, hi = W.min(), W.max()
     if hi - lo > 0:
         W = 1.0 + (W_MAX - 1.0) * (W - lo) / (hi - lo)

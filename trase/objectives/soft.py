@@ -44,25 +44,38 @@ ANCHOR_SIDES = ("column", "row", "either")
 NORMALISATIONS = ("anchor_pairs", "selected")
 
 
-def _offdiag(n: int, device) -> torch.Tensor:
-    """[n, n] bool, False on the diagonal."""
-    return ~torch.eye(n, dtype=torch.bool, device=device)
+def _any_offdiag(m: torch.Tensor) -> torch.Tensor:
+    """[V, V] bool (consumed in place) -> [V] column-wise any, ignoring the diagonal."""
+    m.fill_diagonal_(False)
+    return m.any(dim=0)
 
 
 def soft_anchors(ps: PairStats, tau_pos: float = TAU_POS, tau_neg: float = TAU_NEG):
     """-> (pos_anchor [V] bool, neg_anchor [V] bool): pixels with at least one imperfect
     positive (C=1, C_F < tau_pos) or negative (C=0, C_F > tau_neg) partner, diagonal excluded."""
     CF = ps.CF.detach()
-    off = _offdiag(CF.shape[0], CF.device)
-    pos = (ps.C & (CF < tau_pos) & off).any(dim=0)
-    neg = (~ps.C & (CF > tau_neg) & off).any(dim=0)
+    pos = _any_offdiag(ps.C & (CF < tau_pos))
+    neg = _any_offdiag(~ps.C & (CF > tau_neg))
     return pos, neg
 
 
 def all_anchors(ps: PairStats):
     """-> (pos_anchor, neg_anchor): pixels with any positive / any negative partner ("all")."""
-    off = _offdiag(ps.C.shape[0], ps.C.device)
-    return (ps.C & off).any(dim=0), (~ps.C & off).any(dim=0)
+    return _any_offdiag(ps.C.clone()), _any_offdiag(~ps.C)
+
+
+def anchor_pair_count(anchor: torch.Tensor, side: str = "column") -> int:
+    """Number of upper-triangle pairs (i < j) whose ``side`` member is an anchor, in O(V)."""
+    V = anchor.shape[0]
+    idx = torch.arange(V, device=anchor.device)
+    if side == "column":  # pair (i, j) counted for anchor j: j pairs with i < j
+        return int((idx * anchor).sum())
+    if side == "row":  # anchor i pairs with V - 1 - i partners j > i
+        return int(((V - 1 - idx) * anchor).sum())
+    if side == "either":
+        k = V - int(anchor.sum())  # pairs with neither member an anchor: C(k, 2)
+        return V * (V - 1) // 2 - k * (k - 1) // 2
+    raise ValueError(f"anchor side must be one of {ANCHOR_SIDES}, got {side!r}")
 
 
 def anchor_pairs(anchor: torch.Tensor, upper: torch.Tensor, side: str = "column") -> torch.Tensor:
@@ -96,8 +109,13 @@ def weighted_pair_losses(ps: PairStats, pos_pairs, neg_pairs, z_pos, z_neg):
     W, CF = ps.W, ps.CF
     zp = max(float(z_pos), 1.0)
     zn = max(float(z_neg), 1.0)
-    l_pos = -(W * CF * pos_pairs).sum() / zp
-    l_neg = (W * torch.relu(CF) * neg_pairs).sum() / zn
+    zero = W.new_zeros(())
+    # W and the selections are constants: fold them into one weight matrix per term and take
+    # a dot product with C_F (fewer [V, V] temporaries than W * CF * mask).
+    wp = torch.where(pos_pairs, W, zero).reshape(-1)
+    wn = torch.where(neg_pairs, W, zero).reshape(-1)
+    l_pos = -torch.dot(wp, CF.reshape(-1)) / zp
+    l_neg = torch.dot(wn, torch.relu(CF).reshape(-1)) / zn
     return l_pos, l_neg
 
 
@@ -129,10 +147,12 @@ class SoftMining(Objective):
         """features [Np, D] rendered at sample.pixels -> (loss, stats)."""
         ps = pair_stats(features, sample)
         pos_a, neg_a = self.anchors(ps)
-        pos, neg, pos_cand, neg_cand = select_pairs(ps, pos_a, neg_a, self.anchor_side)
-        n_pos, n_neg = int(pos.sum()), int(neg.sum())
+        pos = anchor_pairs(pos_a, ps.upper, self.anchor_side) & ps.C
+        neg = anchor_pairs(neg_a, ps.upper, self.anchor_side) & ~ps.C
+        n_pos, n_neg = int(torch.count_nonzero(pos)), int(torch.count_nonzero(neg))
         if self.normalise == "anchor_pairs":
-            z_pos, z_neg = int(pos_cand.sum()), int(neg_cand.sum())
+            z_pos = anchor_pair_count(pos_a, self.anchor_side)
+            z_neg = anchor_pair_count(neg_a, self.anchor_side)
         else:
             z_pos, z_neg = n_pos, n_neg
         l_pos, l_neg = weighted_pair_losses(ps, pos, neg, z_pos, z_neg)

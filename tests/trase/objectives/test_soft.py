@@ -115,3 +115,23 @@ def test_bad_options_fail():
         SoftMining(anchor_side="diag")
     with pytest.raises(ValueError, match="normalise"):
         SoftMining(normalise="mean")
+
+
+def test_fast_pair_weights_match_reference():
+    from trase.objectives.base import pair_weights, pair_weights_reference
+
+    g = torch.Generator().manual_seed(0)
+    for s in [torch.rand(50, generator=g) * 1000, torch.tensor([0.0, 5.0, 5.0, 0.0, 20.0]),
+              torch.zeros(4), torch.full((3,), 7.0), torch.zeros(0), torch.tensor([3.0])]:
+        torch.testing.assert_close(pair_weights(s), pair_weights_reference(s), rtol=1e-5, atol=1e-5)
+
+
+@pytest.mark.parametrize("side", ["column", "row", "either"])
+def test_anchor_pair_count_matches_matrix(side):
+    from trase.objectives.soft import anchor_pair_count, anchor_pairs
+
+    g = torch.Generator().manual_seed(1)
+    for V in (0, 1, 2, 7, 30):
+        a = torch.rand(V, generator=g) < 0.4
+        upper = torch.ones(V, V, dtype=torch.bool).triu(1)
+        assert anchor_pair_count(a, side) == int(anchor_pairs(a, upper, side).sum())

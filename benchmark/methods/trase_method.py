@@ -1,0 +1,153 @@
+"""The ``trase`` benchmark method: feature learning on frozen geometry with an objective
+(TRASE's soft mining by default), clustering, similarity filter, click prompts, rendering.
+
+Baselines reuse this class with another objective: ``TraseMethod(objective="trase-hard")``
+or a subclass registered under another name with ``objective = "..."``.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from benchmark.methods import FittedModel, Method, MethodError, register_method
+
+
+def _auto_preset() -> str:
+    import torch
+
+    return "paper" if torch.cuda.is_available() else "cpu"
+
+
+@register_method("trase")
+class TraseMethod(Method):
+    objective: str = "trase"
+
+    def __init__(self, objective: str | None = None, objective_params: dict | None = None) -> None:
+        if objective is not None:
+            self.objective = objective
+        self.objective_params = dict(objective_params or {})
+
+    # -- config ------------------------------------------------------------------------
+    def default_config(self, dataset_spec, preset: str = "auto") -> dict:
+        from trase.features import FeatureConfig
+
+        preset = _auto_preset() if preset == "auto" else preset
+        fc = FeatureConfig.preset(
+            preset,
+            n_pixels=int(dataset_spec.n_pixels),
+            n_masks=float(dataset_spec.n_masks),
+            objective=self.objective,
+            objective_params=dict(self.objective_params),
+        )
+        return {
+            "features": fc.to_dict(),
+            "preset": preset,
+            "clustering": {"method": "hdbscan", "fraction": 0.02, "min_sample": 500, "seed": 0,
+                           "params": {"min_cluster_size": 10, "cluster_selection_epsilon": 0.01}},
+            "filter_threshold": float(dataset_spec.filter_threshold),
+            "prompts": {"min_alpha": 0.5},
+            "alpha_threshold": 0.5,
+        }
+
+    # -- fit ---------------------------------------------------------------------------
+    def fit(self, scene, gaussians, deformation, masks_dir: Path, config: dict, work_dir: Path,
+            progress: bool = True) -> FittedModel:
+        import masks as masklib
+        from trase.clustering import cluster, filter_by_similarity
+        from trase.feature_stats import feature_space_stats
+        from trase.features import FeatureConfig, train_features
+
+        work_dir = Path(work_dir)
+        masks_dir = Path(masks_dir)
+        try:
+            fcfg = FeatureConfig(**config["features"])
+        except TypeError as exc:
+            raise MethodError(f"method.features: {exc}") from None
+
+        def load_masks(view):
+            p = masklib.mask_path(masks_dir, view.name)
+            if not p.is_file():
+                raise MethodError(f"{p}: masks of training view {view.name} not found")
+            return masklib.load(p)
+
+        res = train_features(gaussians, deformation, scene.train, load_masks, fcfg,
+                             cache_dir=work_dir / "pixel_weights", progress=progress)
+        feats = res.features.detach().cpu().numpy().astype(np.float32)
+        ccfg = config["clustering"]
+        t0 = time.perf_counter()
+        cl = cluster(feats, method=ccfg["method"], fraction=float(ccfg["fraction"]), seed=int(ccfg["seed"]),
+                     min_sample=int(ccfg.get("min_sample", 500)), **ccfg.get("params", {}))
+        t_cluster = time.perf_counter() - t0
+        keep = filter_by_similarity(feats, cl.labels, float(config["filter_threshold"]))
+        fs = feature_space_stats(feats, cl.labels)
+        tail = res.history[-5:]
+        stats = {
+            "n_gaussians": int(feats.shape[0]),
+            "n_clusters": cl.n_clusters,
+            "kept_fraction": float(keep.mean()) if keep.size else 0.0,
+            "feature_space": fs.to_dict(),
+            "path": res.path_stats,
+            "loss_tail": tail,
+            "objective": fcfg.objective,
+        }
+        timings = {"features_prepare": res.timings["prepare"], "features_train": res.timings["train"],
+                   "features_per_step": res.timings["per_step"], "clustering": t_cluster}
+        fitted = FittedModel(feats, cl.labels, keep, timings, stats, config, gaussians, deformation)
+        return fitted
+
+    # -- segment -----------------------------------------------------------------------
+    def select(self, fitted: FittedModel, scene, prompts) -> list[int]:
+        """Prompt clicks -> chosen cluster ids (clicks on no surface choose nothing)."""
+        from trase.prompts import click_to_cluster
+
+        view = _find_view(scene, prompts)
+        min_alpha = float(fitted.config.get("prompts", {}).get("min_alpha", 0.5))
+        chosen = set()
+        for c in prompts.clicks:
+            k = click_to_cluster(fitted.gaussians, fitted.deformation, view.camera, c, fitted.labels, min_alpha)
+            if k >= 0:
+                chosen.add(k)
+        return sorted(chosen)
+
+    def segment(self, fitted: FittedModel, scene, prompts) -> list[np.ndarray]:
+        from trase.segment import render_masks, select_gaussians
+
+        if fitted.gaussians is None:
+            raise MethodError("segment needs the fitted model's geometry (FittedModel.gaussians is None)")
+        clusters = self.select(fitted, scene, prompts)
+        fitted.stats["selected_clusters"] = clusters
+        sel = select_gaussians(fitted.labels, clusters, fitted.keep)
+        thr = float(fitted.config.get("alpha_threshold", 0.5))
+        return render_masks(fitted.gaussians, fitted.deformation, sel, [v.camera for v in scene.test], thr)
+
+    def segment_oracle(self, fitted: FittedModel, scene, gts: list[np.ndarray]) -> tuple[list[np.ndarray], list[int]]:
+        """Upper bound: clusters mostly inside the ground truth (all test frames), rendered
+        with the same filter. Report separately; never the method's score."""
+        from trase.prompts import oracle_clusters
+        from trase.segment import render_masks, select_gaussians
+
+        cams = [v.camera for v in scene.test]
+        clusters = oracle_clusters(fitted.gaussians, fitted.deformation, cams, gts, fitted.labels)
+        sel = select_gaussians(fitted.labels, clusters, fitted.keep)
+        thr = float(fitted.config.get("alpha_threshold", 0.5))
+        return render_masks(fitted.gaussians, fitted.deformation, sel, cams, thr), clusters
+
+
+def _find_view(scene, prompts):
+    for v in scene.test:
+        if v.name == prompts.view:
+            return v
+    if 0 <= prompts.view_index < len(scene.test):
+        return scene.test[prompts.view_index]
+    raise MethodError(f"prompt view {prompts.view!r} is not a test view of {scene.root}")
+
+
+def with_objective(objective: str, **params) -> TraseMethod:
+    """A TRASE pipeline with another objective (for ablations and baselines)."""
+    return TraseMethod(objective=objective, objective_params=params)
+
+
+__all__ = ["TraseMethod", "with_objective"]
