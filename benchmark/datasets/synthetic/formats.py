@@ -42,6 +42,19 @@ def write_png(path: Path, rgb: np.ndarray) -> None:
         raise OSError(f"{path}: cannot write PNG")
 
 
+def write_points_ply(path: Path, points: np.ndarray, colors: np.ndarray) -> None:
+    """Binary PLY of points [N, 3] (float32 x, y, z) with uint8 red, green, blue."""
+    from plyfile import PlyData, PlyElement
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    v = np.empty(len(points), dtype=[("x", "f4"), ("y", "f4"), ("z", "f4"),
+                                     ("red", "u1"), ("green", "u1"), ("blue", "u1")])
+    v["x"], v["y"], v["z"] = points[:, 0], points[:, 1], points[:, 2]
+    rgb = np.clip(np.round(colors * 255.0), 0, 255).astype(np.uint8)
+    v["red"], v["green"], v["blue"] = rgb[:, 0], rgb[:, 1], rgb[:, 2]
+    PlyData([PlyElement.describe(v, "vertex")]).write(str(path))
+
+
 def downscale(rgb: np.ndarray, factor: int) -> np.ndarray:
     """Area-average downscale by an integer factor (how the publishers made rgb/2x, 4x)."""
     h, w = rgb.shape[:2]

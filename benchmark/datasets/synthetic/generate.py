@@ -131,7 +131,7 @@ def _write_nerfies(dataset, out, world, views: list[RigView], report) -> None:
         items = [(v.view, v.frame, 0) for v in views]
         ids = [v.view for v in views]
         train, val = ids[0::4], ids[2::4]  # as the publisher's interp dataset.json
-    points = build_geometry(world, np.zeros(1), 4000)["means"].astype(np.float64)
+    points, _ = sparse_points(world)
     formats.write_nerfies_meta(out, items, train, val, points, near=0.3, far=12.0)
 
 
@@ -169,10 +169,20 @@ def _write_multiview(dataset, out, world, views: list[RigView], report, sequence
     else:
         formats.write_technicolor_params(out, cam_list)
     frames = sorted({v.frame for v in views})
-    _prepare(dataset, out, frames, report, sequence)
+    # an SfM-like sparse cloud of the first frame (what COLMAP would give a real user)
+    pts, cols = sparse_points(world, float(views[0].time))
+    ply = out / "synthetic" / "sparse_points.ply"
+    formats.write_points_ply(ply, pts, cols)
+    _prepare(dataset, out, frames, report, sequence, ply)
 
 
-def _prepare(dataset: str, out: Path, frames: list[int], report, sequence: str) -> None:
+def sparse_points(world: World, t: float = 0.0, n: int = 4000) -> tuple[np.ndarray, np.ndarray]:
+    """(points [M, 3], colours [M, 3] in [0, 1]): surface samples of the scene at time t."""
+    g = build_geometry(world, np.array([t]), n)
+    return (g["means"] + g["d_xyz"][0]).astype(np.float64), g["colors"].astype(np.float64)
+
+
+def _prepare(dataset: str, out: Path, frames: list[int], report, sequence: str, points: Path) -> None:
     from benchmark.datasets.prepare import prepare_sequence
 
     state = {"total": 0, "done": 0}
@@ -184,7 +194,7 @@ def _prepare(dataset: str, out: Path, frames: list[int], report, sequence: str) 
         state["done"] += 1
         report("prepare", state["done"], state["total"])
 
-    prepare_sequence(dataset, out, out / "prepared", sequence=sequence, frames=frames,
+    prepare_sequence(dataset, out, out / "prepared", sequence=sequence, frames=frames, points=points,
                      on_start=on_start, on_image=on_image)
 
 

@@ -232,7 +232,7 @@ def build_world(seed: int = 0) -> World:
         return rot("z", 0.8 * t), np.array([1.15, -0.15, S[2]]), S
 
     def pillar_pose(t):
-        return I3, np.array([-2.7 + 5.4 * t, -0.95, 0.6]), np.array([0.14, 0.14, 0.6])
+        return I3, np.array([-2.7 + 5.4 * t, -0.95, 0.62]), np.array([0.14, 0.14, 0.62])
 
     def cube_pose(t):
         R = rot("z", 4 * math.pi * t + ph[3]) @ rot("x", 0.5)

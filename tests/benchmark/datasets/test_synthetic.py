@@ -338,3 +338,23 @@ def test_cli_synth(tmp_path):
     man = json.loads((out / "synthetic" / "manifest.json").read_text())
     assert man["seed"] == 3 and man["size"] == "tiny"
     assert main(["synth", "--dataset", "hypernerf", "--out", str(out), "--size", "tiny"]) == 1
+
+
+@pytest.mark.parametrize("dataset", ["hypernerf", "technicolor"])
+def test_initial_points_lie_on_surfaces(scenes, world, dataset):
+    """points.npy (nerfies) / the prepared cloud (multi-view) are surface samples, in the
+    loader's world: every point is on some surface of the scene at the first frame."""
+    scene = load_scene(dataset, scenes[dataset])
+    pts = scene.points
+    assert 1000 < len(pts) <= 30000
+    if dataset != "hypernerf":
+        assert scene.point_colors is not None and len(scene.point_colors) == len(pts)
+    # cast from the first camera's centre towards each point: the first hit is (about) the
+    # point itself or something in front of it, never behind it
+    cam = scene.train[0].camera
+    d = pts - cam.center
+    dist = np.linalg.norm(d, axis=1)
+    hit, _, _ = world.cast(cam.center, d / dist[:, None], 0.0)
+    # (float32 storage can push a point just off a surface that a ray only grazes)
+    assert np.mean(hit <= dist + 1e-4) > 0.98
+    assert np.mean(np.abs(hit - dist) < 1e-3) > 0.2  # a good share is directly visible
