@@ -1,0 +1,40 @@
+"""Suite-wide pytest setup: hypothesis profiles for the property-based stress tests.
+
+Profiles (``hypothesis.settings``):
+
+* ``ci`` (default): few examples per property, no deadline, derandomised, so the whole
+  suite stays fast and deterministic on a small shared CI machine.
+* ``deep``: many examples per property and a fresh random seed each run, for a long
+  search before a release: ``pytest tests/stress --deep`` (or ``--hypothesis-profile=deep``).
+"""
+
+from __future__ import annotations
+
+try:  # hypothesis is a dev dependency; the rest of the suite runs without it
+    from hypothesis import HealthCheck, settings
+except ImportError:  # pragma: no cover
+    settings = None
+
+if settings is not None:
+    _common = dict(
+        deadline=None,  # shared 2-core machines: timing varies too much for per-example deadlines
+        suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
+        print_blob=True,  # a failure prints the blob to reproduce it with @reproduce_failure
+    )
+    settings.register_profile("ci", max_examples=12, derandomize=True, **_common)
+    settings.register_profile("deep", max_examples=400, derandomize=False, **_common)
+    settings.load_profile("ci")
+
+
+def pytest_addoption(parser):
+    parser.addoption(
+        "--deep",
+        action="store_true",
+        default=False,
+        help="stress tests: use the 'deep' hypothesis profile (many examples, random seeds)",
+    )
+
+
+def pytest_configure(config):
+    if settings is not None and config.getoption("--deep", default=False):
+        settings.load_profile("deep")
