@@ -20,6 +20,9 @@ import numpy as np
 from .shapes import Room
 from .world import World
 
+DISK_SIGMA = 0.5  # tangential std of a disk, in sample spacings
+INSET = 2.0  # disks sit this many sigmas below the surface (rendered alpha >= 0.5 outlines then
+#              match the true ones: oracle mIoU of the objects of interest 0.82 -> 0.98 on nerfds)
 GEOMETRY_KEYS = ("means", "log_scales", "quats", "opacity_logits", "colors", "object_ids", "times",
                  "d_xyz", "d_rot", "d_scale")
 
@@ -55,7 +58,7 @@ def _place(pose, p_local: np.ndarray, n_local: np.ndarray):
 
 
 def _budget(world: World, total: int) -> dict[int, int]:
-    """Gaussians per object: the room takes ~40%, objects share the rest by area (>= 300 each)."""
+    """Gaussians per object: the room takes ~40%, objects share the rest by area (>= 500 each)."""
     room_share = int(total * 0.4)
     areas = {}
     for k, obj in enumerate(world.objects):
@@ -66,7 +69,7 @@ def _budget(world: World, total: int) -> dict[int, int]:
         areas[k] = a * float(np.prod(S)) ** (2.0 / 3.0)
     rest = total - room_share
     tot_a = sum(areas.values())
-    out = {k: max(300, int(rest * a / tot_a)) for k, a in areas.items()}
+    out = {k: max(500, int(rest * a / tot_a)) for k, a in areas.items()}
     for k, obj in enumerate(world.objects):
         if isinstance(obj.shape, Room):
             out[k] = room_share
@@ -111,8 +114,10 @@ def _room_samples(obj, n: int):
     return np.concatenate(pts), np.concatenate(nrm), np.concatenate(spacing)
 
 
-def build_geometry(world: World, times: np.ndarray, budget: int) -> dict[str, np.ndarray]:
-    """Gaussians covering every surface + their per-time offsets (keys: ``GEOMETRY_KEYS``)."""
+def build_geometry(world: World, times: np.ndarray, budget: int, inset: float = INSET) -> dict[str, np.ndarray]:
+    """Gaussians covering every surface + their per-time offsets (keys: ``GEOMETRY_KEYS``).
+
+    ``inset=0`` puts the means exactly on the surfaces (used for SfM-like point clouds)."""
     times = np.asarray(times, dtype=np.float64)
     t0 = float(times[0])
     per_obj = _budget(world, budget)
@@ -123,14 +128,21 @@ def build_geometry(world: World, times: np.ndarray, budget: int) -> dict[str, np
         else:
             p_l, n_l, area = obj.shape.sample(per_obj[k])
             _, _, S = obj.pose(t0)
-            spacing = np.full(len(p_l), math.sqrt(area * float(np.prod(S)) ** (2.0 / 3.0) / len(p_l)))
+            # world area per sample: |det A| * |A^-T n| times the local area per sample
+            stretch = np.prod(S) * np.linalg.norm(n_l / S, axis=1)
+            spacing = np.sqrt(area / len(p_l) * stretch)
         colors = obj.color(p_l, n_l)
         ids = obj.ids_of(p_l)
         pts0, nrm0, A0 = _place(obj.pose(t0), p_l, n_l)
+        sig = DISK_SIGMA * spacing
+        if inset and not isinstance(obj.shape, Room):
+            # sink each disk by INSET sigma along its normal so that silhouettes of the
+            # rendered gaussians (alpha >= 0.5) match the true outline
+            pts0 = pts0 - (inset * sig)[:, None] * nrm0
+            p_l = (pts0 - obj.pose(t0)[1]) @ np.linalg.inv(A0).T
         frame0 = _frames(nrm0)
         # tangents in local coordinates, so the same material directions move with the surface
         t_local = np.einsum("ij,njk->nik", np.linalg.inv(A0), frame0[:, :, :1])[:, :, 0]
-        sig = 0.6 * spacing
         scales0 = np.stack([sig, sig, np.maximum(0.08 * sig, 1e-4)], axis=1)
         q0 = rotmat_to_quat(frame0)
         d_xyz, d_rot, d_scale = [], [], []

@@ -178,7 +178,7 @@ def _write_multiview(dataset, out, world, views: list[RigView], report, sequence
 
 def sparse_points(world: World, t: float = 0.0, n: int = 4000) -> tuple[np.ndarray, np.ndarray]:
     """(points [M, 3], colours [M, 3] in [0, 1]): surface samples of the scene at time t."""
-    g = build_geometry(world, np.array([t]), n)
+    g = build_geometry(world, np.array([t]), n, inset=0.0)
     return (g["means"] + g["d_xyz"][0]).astype(np.float64), g["colors"].astype(np.float64)
 
 

@@ -232,21 +232,28 @@ def test_geometry_npz(scenes, world):
     assert g["object_ids"].dtype == np.int32 and g["means"].dtype == np.float32
     assert set(np.unique(g["object_ids"])) == set(range(1, world.n_ids + 1))
     assert g["colors"].min() >= 0 and g["colors"].max() <= 1
-    # deformed gaussians of the rolling ball sit on its surface at every tabulated time
+    # deformed gaussians move with their object: the rolling ball's stay at a fixed distance
+    # from its centre (just under the surface: disks are sunk by a fraction of the radius)
     ball = world.by_name("ball")
     sel = g["object_ids"] == ball.id
+    r0 = None
     for ti, t in enumerate(g["times"]):
         _, c, S = ball.pose(float(t))
         r = np.linalg.norm(g["means"][sel] + g["d_xyz"][ti][sel] - c, axis=1)
-        np.testing.assert_allclose(r, S[0], atol=1e-4)
-    # the deforming blob: points stay on the ellipsoid x^T (R S^2 R^T)^-1 x = 1
+        assert ((r > 0.7 * S[0]) & (r <= S[0])).all()
+        r0 = r if r0 is None else r0
+        np.testing.assert_allclose(r, r0, atol=1e-5)
+    # the deforming blob: local (undeformed) coordinates of its gaussians never change
     blob = world.by_name("blob")
     sel = g["object_ids"] == blob.id
+    loc0 = None
     for ti, t in enumerate(g["times"]):
         R, c, S = blob.pose(float(t))
         local = ((g["means"][sel] + g["d_xyz"][ti][sel] - c) @ R) / S
-        np.testing.assert_allclose(np.linalg.norm(local, axis=1), 1.0, atol=1e-4)
-        # rot_t = normalize(q) + d_rot is a unit quaternion whose third axis is the normal
+        loc0 = local if loc0 is None else loc0
+        np.testing.assert_allclose(local, loc0, atol=1e-4)
+        assert (np.linalg.norm(local, axis=1) > 0.7).all() and (np.linalg.norm(local, axis=1) <= 1.0).all()
+        # rot_t = normalize(q) + d_rot is a unit quaternion
         q = g["quats"][sel] / np.linalg.norm(g["quats"][sel], axis=1, keepdims=True) + g["d_rot"][ti][sel]
         np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1.0, atol=1e-5)
     static = g["object_ids"] == world.by_name("crate").id
@@ -357,4 +364,4 @@ def test_initial_points_lie_on_surfaces(scenes, world, dataset):
     hit, _, _ = world.cast(cam.center, d / dist[:, None], 0.0)
     # (float32 storage can push a point just off a surface that a ray only grazes)
     assert np.mean(hit <= dist + 1e-4) > 0.98
-    assert np.mean(np.abs(hit - dist) < 1e-3) > 0.2  # a good share is directly visible
+    assert np.mean(np.abs(hit - dist) < 1e-3) > 0.4  # a good share is directly visible
