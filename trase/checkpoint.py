@@ -116,7 +116,8 @@ def load_deformation(path: Path) -> DeformMLP:
     try:
         sd = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # noqa: BLE001 - torch raises many types for a damaged file
-        raise CheckpointError(f"{path}: not a readable torch state dict ({type(exc).__name__}: {exc})") from None
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else ""  # one-line message
+        raise CheckpointError(f"{path}: not a readable torch state dict ({type(exc).__name__}: {first})") from None
     if not isinstance(sd, dict) or not all(torch.is_tensor(v) for v in sd.values()):
         raise CheckpointError(f"{path}: expected a state dict of tensors, got {type(sd).__name__}")
     try:

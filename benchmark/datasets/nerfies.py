@@ -96,13 +96,21 @@ def item_times(dataset_ids: list[str], metadata: dict, path: Path) -> dict[str, 
     return {k: (int(v), nerfies_time(v, max_t)) for k, v in ids_raw.items()}
 
 
+def id_list(dataset: dict, key: str, path: Path) -> list[str]:
+    """``dataset[key]`` as a list of item ids (strings), or an error naming the file."""
+    value = field(dataset, key, path)
+    if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+        raise fail(path, f"{key} must be a list of item id strings, got {type(value).__name__}")
+    return list(value)
+
+
 def split_ids(spec: DatasetSpec, dataset: dict, path: Path) -> tuple[list[str], list[str]]:
     """Train and test item ids by the registry's rule (never by folder name)."""
     if spec.key == "hypernerf":
-        ids = list(field(dataset, "ids", path))
+        ids = id_list(dataset, "ids", path)
         return ids[0::4], ids[2::4]
     if spec.key == "nerfds":
-        return list(field(dataset, "train_ids", path)), list(field(dataset, "val_ids", path))
+        return id_list(dataset, "train_ids", path), id_list(dataset, "val_ids", path)
     raise fail(path, f"dataset {spec.key} is not in the nerfies format")
 
 
@@ -118,7 +126,7 @@ def load_nerfies(spec: DatasetSpec, scene_dir: Path, sequence: str) -> Scene:
     if scale <= 0:
         raise fail(scene_path, f"scale must be positive, got {scale}")
 
-    all_ids = list(field(dataset, "ids", ds_path))
+    all_ids = id_list(dataset, "ids", ds_path)
     train_ids, test_ids = split_ids(spec, dataset, ds_path)
     for item in train_ids + test_ids:
         if item not in all_ids:

@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmark.datasets.errors import fail
+from benchmark.io import read_json
 from benchmark.datasets.images import write_image
 from benchmark.datasets.points import frustum_points, read_points
 from benchmark.datasets.rectify import make_rectifier
@@ -78,7 +79,9 @@ def prepare_sequence(
         raise fail(raw_dir, f"test camera {spec.test_camera} is missing (cameras: {', '.join(names[:4])} ...)")
     old = out_dir / MANIFEST
     if old.is_file():
-        prev = json.loads(old.read_text())
+        prev = read_json(old, "prepared manifest")
+        if not isinstance(prev, dict):
+            raise fail(old, "prepared manifest is not a JSON object")
         if (prev.get("dataset"), prev.get("sequence")) != (spec.key, seq):
             raise fail(old, f"already holds {prev.get('dataset')}/{prev.get('sequence')}, not {spec.key}/{seq}")
         old.unlink()  # re-validated and rewritten below

@@ -95,12 +95,14 @@ class TechnicolorSource:
         """Read one PNG. A truncated file (the publisher's Birthday_undist_00173_09.png is one)
         is completed from the previous frame of the same camera where its pixels are missing
         (black), as the public preprocessing does; repairs are listed in ``self.repaired``."""
-        from PIL import Image, ImageFile
+        from PIL import Image, ImageFile, UnidentifiedImageError
 
         try:
             with Image.open(p) as im:
                 im.load()
             return read_image(p)
+        except UnidentifiedImageError:  # not a truncated PNG: not an image at all
+            raise fail(p, "cannot read image (not a PNG file)") from None
         except (OSError, SyntaxError):
             pass
         prev = self.files.get((camera, frame - 1))
