@@ -154,7 +154,7 @@ def immersive_rig(size: RigSize, rng: np.random.Generator) -> list[Camera]:
     """Equidistant-fisheye cameras on a dome (sphere cap of radius 0.45 m) looking outwards."""
     W, H = size.width, size.height
     f = W / 2 / 0.85  # 0.85 rad (49 deg) to the left/right image border
-    centre = np.array([0.0, -3.6, 1.1])
+    centre = np.array([0.0, -2.7, 1.0])
     cams = []
     n = size.cameras
     for k in range(n):
