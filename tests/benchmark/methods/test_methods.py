@@ -1,0 +1,72 @@
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import masks as masklib
+from benchmark.methods import FittedModel, MethodError, get_method
+from benchmark.methods.trase_method import TraseMethod
+from benchmark.scoring import score_masks
+from trase.prompts import make_benchmark_prompts
+
+from tests.trase.helpers import exact_masks, tiny_scene
+
+
+@dataclasses.dataclass
+class _Spec:
+    n_pixels: int = 300
+    n_masks: int = 3
+    filter_threshold: float = 0.5
+
+
+@dataclasses.dataclass
+class _Scene:
+    train: list
+    test: list
+    root: Path = Path("tiny")
+
+
+def test_registry():
+    m = get_method("trase")
+    assert isinstance(m, TraseMethod) and m.name == "trase" and m.objective == "trase"
+    assert get_method("trase", objective="trase-hard").objective == "trase-hard"
+    with pytest.raises(MethodError, match="unknown method 'nope'"):
+        get_method("nope")
+
+
+def test_fit_segment_end_to_end(tmp_path):
+    gm, deform, ids, views = tiny_scene()
+    masks_dir = tmp_path / "masks"
+    for v in views:
+        masklib.save(masklib.mask_path(masks_dir, v.name), exact_masks(gm, deform, ids, v))
+    scene = _Scene(train=views, test=views)
+    method = get_method("trase")
+    cfg = method.default_config(_Spec(), preset="cpu")
+    cfg["features"].update(iterations=120, dim=8, knn=4, knn_keep=2, lr=0.02)
+    cfg["clustering"].update(method="kmeans", params={"n_clusters": 2})
+    fitted = method.fit(scene, gm, deform, masks_dir, cfg, tmp_path / "fit", progress=False)
+    assert fitted.labels.shape == (len(ids),) and fitted.stats["n_clusters"] == 2
+    gts = [exact_masks(gm, deform, ids, v).masks[0] for v in views]  # object 0 is "of interest"
+    prompts = make_benchmark_prompts(views, gts)
+    preds = method.segment(fitted, scene, prompts)
+    names = [str(i) for i in range(len(views))]
+    score = score_masks(dict(zip(names, preds)), dict(zip(names, gts)))
+    assert score.miou > 0.8
+    opreds, oclusters = method.segment_oracle(fitted, scene, gts)
+    assert len(oclusters) == 1
+    # save / load round trip
+    fitted.save(tmp_path / "out")
+    back = FittedModel.load(tmp_path / "out", gm, deform)
+    assert np.array_equal(back.labels, fitted.labels) and back.stats["n_clusters"] == 2
+    assert (tmp_path / "out" / "point_cloud.ply").is_file()
+    with pytest.raises(MethodError, match="not a fitted model directory"):
+        FittedModel.load(tmp_path / "missing")
+
+
+def test_missing_masks_is_a_user_error(tmp_path):
+    gm, deform, ids, views = tiny_scene(n_per=3)
+    method = get_method("trase")
+    cfg = method.default_config(_Spec(), preset="cpu")
+    with pytest.raises(MethodError, match="masks of training view"):
+        method.fit(_Scene(views, views), gm, deform, tmp_path, cfg, tmp_path / "fit", progress=False)
