@@ -407,6 +407,15 @@ def _reconstruct(views, points, point_colors, config, out_dir, resume, progress,
             state = torch.load(sp, map_location="cpu", weights_only=True)
         except Exception as exc:  # noqa: BLE001 - torch raises many types for a damaged file
             raise CheckpointError(f"{sp}: unreadable trainer state ({type(exc).__name__})") from None
+        need = ["active_sh_degree", "opt_g", "opt_d", "grad_accum", "denom", "rng", "view_stack", "ema_loss", "ema_psnr"]
+        lost = [k for k in need if not isinstance(state, dict) or k not in state]
+        if lost:
+            raise CheckpointError(f"{sp}: trainer state lacks {', '.join(lost)}")
+        if state["grad_accum"].shape[0] != gaussians.num_gaussians:
+            raise CheckpointError(
+                f"{sp}: trainer state is for {state['grad_accum'].shape[0]} gaussians, "
+                f"the point cloud has {gaussians.num_gaussians}"
+            )
         gaussians.active_sh_degree = int(state["active_sh_degree"])
         deform.train()
         opt_g, opt_d = _make_optimizers(gaussians, deform, cfg)

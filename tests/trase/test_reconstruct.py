@@ -66,7 +66,14 @@ def test_resume_without_trainer_state_is_an_error(scene, tmp_path):
     views, pts = scene
     half = dataclasses.replace(CFG, iterations=20)
     reconstruct(views, pts, None, half, tmp_path / "m", progress=False)
-    (tmp_path / "m/trainer_state/iteration_20.pt").unlink()
+    sp = tmp_path / "m/trainer_state/iteration_20.pt"
+    torch.save({"iteration": 20}, sp)
+    with pytest.raises(CheckpointError, match="iteration_20.pt: trainer state lacks"):
+        reconstruct(views, pts, None, CFG, tmp_path / "m", progress=False)
+    sp.write_bytes(b"garbage")
+    with pytest.raises(CheckpointError, match="iteration_20.pt: unreadable"):
+        reconstruct(views, pts, None, CFG, tmp_path / "m", progress=False)
+    sp.unlink()
     with pytest.raises(CheckpointError, match="iteration_20.pt"):
         reconstruct(views, pts, None, CFG, tmp_path / "m", progress=False)
 
