@@ -6,6 +6,7 @@ Profiles (``hypothesis.settings``):
   suite stays fast and deterministic on a small shared CI machine.
 * ``deep``: many examples per property and a fresh random seed each run, for a long
   search before a release: ``pytest tests/stress --deep`` (or ``--hypothesis-profile=deep``).
+  ``--deep`` also runs the tests marked ``deep`` (minutes each; skipped by default).
 """
 
 from __future__ import annotations
@@ -36,5 +37,18 @@ def pytest_addoption(parser):
 
 
 def pytest_configure(config):
+    config.addinivalue_line("markers", "deep: long stress tests, run only with --deep")
     if settings is not None and config.getoption("--deep", default=False):
         settings.load_profile("deep")
+
+
+def pytest_collection_modifyitems(config, items):
+    """Tests marked ``deep`` (minutes each) are skipped unless --deep is given."""
+    if config.getoption("--deep", default=False):
+        return
+    import pytest
+
+    skip = pytest.mark.skip(reason="long stress test; run with --deep")
+    for item in items:
+        if "deep" in item.keywords:
+            item.add_marker(skip)
