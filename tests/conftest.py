@@ -11,6 +11,8 @@ Profiles (``hypothesis.settings``):
 
 from __future__ import annotations
 
+import sys
+
 try:  # hypothesis is a dev dependency; the rest of the suite runs without it
     from hypothesis import HealthCheck, settings
 except ImportError:  # pragma: no cover
@@ -52,3 +54,16 @@ def pytest_collection_modifyitems(config, items):
     for item in items:
         if "deep" in item.keywords:
             item.add_marker(skip)
+
+
+def pytest_terminal_summary(terminalreporter):
+    """One line of stress counts (cases tried, corruptions caught, kills survived), summed
+    over the ``STATS`` dicts of the stress test modules that ran."""
+    totals: dict[str, int] = {}
+    for name, mod in list(sys.modules.items()):
+        if "stress" in name.split(".") and name.split(".")[-1].startswith("test_"):
+            for k, v in getattr(mod, "STATS", {}).items():
+                if isinstance(v, int):
+                    totals[k] = totals.get(k, 0) + v
+    if any(totals.values()):
+        terminalreporter.write_line("stress counts: " + ", ".join(f"{k} {v}" for k, v in sorted(totals.items())))

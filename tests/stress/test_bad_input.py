@@ -18,6 +18,7 @@ from .bad_input_harness import MULTIVIEW, build_pristine, copy_input, output_dir
 from .catalogue import CASES, TARGETS
 
 RUN_TARGETS = ("hypernerf", "nerfds", "hypernerf-named")
+STATS = {"corruptions_caught": 0}
 
 
 @pytest.fixture(scope="module")
@@ -70,6 +71,7 @@ def test_corruption_gives_one_line_error(case, pristine, tmp_path, capsys):
     assert case.fragment.lower() in msg.lower(), f"{case.id}: expected {case.fragment!r} in {msg}"
     assert "Traceback" not in err
     assert not _leftovers(out, before), f"{case.id}: partial output left: {_leftovers(out, before)}"
+    STATS["corruptions_caught"] += 1
 
 
 @pytest.mark.parametrize("target", sorted({c.target for c in CASES}))
