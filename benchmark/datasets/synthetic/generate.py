@@ -16,6 +16,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import re
+import shutil
 from collections.abc import Callable
 from pathlib import Path
 
@@ -73,8 +74,21 @@ def generate(dataset: str, out_dir: Path | str, seed: int = 0, size: str = "smal
     out = Path(out_dir)
     if out.exists() and any(out.iterdir()):
         raise SyntheticError(f"{out}: output directory is not empty")
+    existed = out.exists()
     out.mkdir(parents=True, exist_ok=True)
-    report = progress or (lambda stage, done, total: None)
+    try:
+        _generate_into(dataset, out, seed, size, progress or (lambda stage, done, total: None))
+    except BaseException:
+        # everything inside was written by this call (the directory was empty): leave no
+        # partial scene behind that a rerun would refuse or, worse, trust
+        shutil.rmtree(out, ignore_errors=True)
+        if existed:
+            out.mkdir(parents=True, exist_ok=True)
+        raise
+    return out
+
+
+def _generate_into(dataset: str, out: Path, seed: int, size: str, report: Progress) -> None:
     world = build_world(seed)
     rs = SIZES[dataset][size]
     views = rig_views(dataset, size, seed)
@@ -86,7 +100,6 @@ def generate(dataset: str, out_dir: Path | str, seed: int = 0, size: str = "smal
     scene = _load(dataset, out, sequence_name(size))
     _check_loader(scene, {v.view: (v.camera, v.time) for v in views})
     _write_truth(scene, out, world, seed, size, rs.gaussians, report)
-    return out
 
 
 @dataclasses.dataclass(frozen=True)

@@ -365,3 +365,21 @@ def test_initial_points_lie_on_surfaces(scenes, world, dataset):
     # (float32 storage can push a point just off a surface that a ray only grazes)
     assert np.mean(hit <= dist + 1e-4) > 0.98
     assert np.mean(np.abs(hit - dist) < 1e-3) > 0.4  # a good share is directly visible
+
+
+def test_failed_generation_leaves_nothing(tmp_path, monkeypatch):
+    import importlib
+
+    gen = importlib.import_module("benchmark.datasets.synthetic.generate")  # the module, not the function
+
+    def broken(*a, **k):
+        raise RuntimeError("loader exploded")
+
+    monkeypatch.setattr(gen, "_load", broken)
+    with pytest.raises(RuntimeError, match="exploded"):
+        generate("hypernerf", tmp_path / "new" / SEQ, size=SIZE)
+    assert not (tmp_path / "new" / SEQ).exists()
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(RuntimeError):
+        generate("hypernerf", tmp_path / "empty", size=SIZE)
+    assert (tmp_path / "empty").is_dir() and not any((tmp_path / "empty").iterdir())
