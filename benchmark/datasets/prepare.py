@@ -22,12 +22,12 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmark.datasets.errors import fail
-from benchmark.io import read_json
+from benchmark.datasets.errors import DatasetError, fail
 from benchmark.datasets.images import write_image
 from benchmark.datasets.points import frustum_points, read_points
 from benchmark.datasets.rectify import make_rectifier
 from benchmark.datasets.registry import DatasetSpec, get_dataset
+from benchmark.io import read_json
 
 MANIFEST = "prepared.json"
 FORMAT_VERSION = 1
@@ -71,7 +71,13 @@ def prepare_sequence(
     raw_dir, out_dir = Path(raw_dir), Path(out_dir)
     if not raw_dir.is_dir():
         raise fail(raw_dir, "raw directory does not exist")
-    seq = spec.resolve_sequence(sequence if sequence is not None else raw_dir.name)
+    name = sequence if sequence is not None else raw_dir.name
+    try:
+        seq = spec.resolve_sequence(name)
+    except DatasetError:
+        if frames is None:
+            raise
+        seq = name  # not a benchmark sequence (e.g. a synthetic scene): frames given explicitly
     frame_list = list(frames) if frames is not None else spec.frames(seq)
     source = open_source(spec, raw_dir)
     names = [c.name for c in source.cameras]
