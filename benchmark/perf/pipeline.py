@@ -35,6 +35,7 @@ OVERRIDES = ["geometry.source=ground-truth", "method.features.iterations=20", "m
 QUICK = {"datasets": ["nerfds"], "sizes": ["tiny"],
          "overrides": ["geometry.source=ground-truth", "method.features.iterations=2", "method.features.n_pixels=200"], "warmup": False}
 DEFAULT = {"datasets": DATASETS, "sizes": ["tiny", "small"], "overrides": OVERRIDES, "warmup": True}
+MAX_CONDITION = 30.0  # joint fit only when pixels and gaussians vary independently enough
 SEQUENCE = {"tiny": "synthetic-tiny", "small": "synthetic", "medium": "synthetic-medium"}
 
 
@@ -67,7 +68,8 @@ def stage_table(record: dict) -> dict:
 def fit_exponents(points: list[dict]) -> dict:
     """points: [{"pixels", "gaussians", "seconds"}] -> exponents of seconds in pixels and in
     gaussians: one-driver slopes, and the joint slopes with the design's condition number
-    (None where the data cannot determine them: < 2 distinct values, or < 3 points jointly)."""
+    (None where the data cannot determine them: < 2 distinct values, < 3 points jointly, or a
+    design too close to collinear for the split to mean anything: condition > MAX_CONDITION)."""
     pts = [p for p in points if p["seconds"] > 0 and p["pixels"] > 0 and p["gaussians"] > 0]
     y = np.log([p["seconds"] for p in pts]) if pts else np.zeros(0)
     lp = np.log([p["pixels"] for p in pts]) if pts else np.zeros(0)
@@ -83,10 +85,13 @@ def fit_exponents(points: list[dict]) -> dict:
            "joint": None}
     if len(pts) >= 3:
         A = np.stack([np.ones_like(lp), lp - lp.mean(), lg - lg.mean()], 1)
-        if np.linalg.matrix_rank(A) == 3:
+        cond = float(np.linalg.cond(A))
+        if np.linalg.matrix_rank(A) == 3 and cond <= MAX_CONDITION:
             coef, *_ = np.linalg.lstsq(A, y, rcond=None)
             out["joint"] = {"pixels_exponent": float(coef[1]), "gaussians_exponent": float(coef[2]),
-                            "condition_number": float(np.linalg.cond(A))}
+                            "condition_number": cond}
+        else:
+            out["joint_skipped"] = f"drivers (nearly) collinear: condition number {cond:.0f} > {MAX_CONDITION}"
     return out
 
 
@@ -140,7 +145,7 @@ def run(quick: bool = False, echo: Callable[[str], None] = print) -> dict:
         j = f["joint"] or {}
         frows.append([st, str(f["n_points"]), _e(f["pixels_exponent"]), _e(f["gaussians_exponent"]),
                       _e(j.get("pixels_exponent")), _e(j.get("gaussians_exponent")),
-                      "" if not j else f"{j['condition_number']:.0f}"])
+                      f"{j['condition_number']:.0f}" if j else ("collinear" if "joint_skipped" in f else "")])
     echo(table(frows, ["stage", "runs", "px exp (alone)", "gauss exp (alone)", "px exp (joint)",
                        "gauss exp (joint)", "cond"]))
     failed = [f"{r['dataset']} {r['size']}" for r in runs if "error" in r]

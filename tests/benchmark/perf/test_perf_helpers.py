@@ -61,6 +61,10 @@ def test_fit_exponents_degenerate_inputs():
     assert one["n_points"] == 1 and one["pixels_exponent"] is None and one["joint"] is None
     zero = fit_exponents([{"pixels": 10.0, "gaussians": 5.0, "seconds": 0.0}] * 3)  # log(0) left out
     assert zero["n_points"] == 0
+    # drivers that grow together: no joint split, said so
+    tied = [{"pixels": p, "gaussians": 2 * p * (1 + 1e-3 * k), "seconds": p} for k, p in enumerate((10.0, 100.0, 1e3))]
+    f = fit_exponents(tied)
+    assert f["joint"] is None and "collinear" in f["joint_skipped"] and f["pixels_exponent"] == pytest.approx(1.0, abs=1e-2)
 
 
 def test_stage_table_flattens_fit_timings():
