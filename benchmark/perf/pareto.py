@@ -111,7 +111,8 @@ def run(quick: bool = False, echo: Callable[[str], None] = print, out_dir: Path 
             except Exception as exc:  # noqa: BLE001 - reported per setting, not hidden
                 entry["error"] = f"{type(exc).__name__}: {exc}"
                 entry["traceback"] = traceback.format_exc(limit=3)
-                rows.append([label, "FAILED", entry["error"][:100], ""])
+                rows.append([label, "FAILED", "", ""])
+                echo(f"FAILED {label}: {entry['error']}")
                 runs.append(entry)
                 continue
             st = rec["stages"]

@@ -121,7 +121,7 @@ def run(quick: bool = False, echo: Callable[[str], None] = print) -> dict:
                 except Exception as exc:  # noqa: BLE001 - reported per run (table + JSON), not hidden
                     entry["error"] = f"{type(exc).__name__}: {exc}"
                     entry["traceback"] = traceback.format_exc(limit=3)
-                    rows.append([f"{ds} {size}", "FAILED", entry["error"][:100], "", "", ""])
+                    rows.append([f"{ds} {size}", f"{rig.width}x{rig.height}", "", "FAILED (below)", "", ""])
                     runs.append(entry)
                     continue
                 entry["wall_seconds"] = time.perf_counter() - t0
@@ -149,8 +149,9 @@ def run(quick: bool = False, echo: Callable[[str], None] = print) -> dict:
     echo(table(frows, ["stage", "runs", "px exp (alone)", "gauss exp (alone)", "px exp (joint)",
                        "gauss exp (joint)", "cond"]))
     failed = [f"{r['dataset']} {r['size']}" for r in runs if "error" in r]
-    if failed:
-        echo(f"FAILED runs (left out of the fits): {', '.join(failed)}")
+    for r in runs:
+        if "error" in r:
+            echo(f"FAILED {r['dataset']} {r['size']} (left out of the fits): {r['error']}")
     return {
         "description": __doc__.strip().splitlines()[0],
         "quick": quick,
