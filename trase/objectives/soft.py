@@ -104,18 +104,26 @@ def select_pairs(ps: PairStats, pos_anchor, neg_anchor, side: str = "column"):
 def weighted_pair_losses(ps: PairStats, pos_pairs, neg_pairs, z_pos, z_neg):
     """L_pos = -sum(W C_F)/Z_pos over pos_pairs, L_neg = sum(W relu(C_F))/Z_neg over neg_pairs.
 
-    Masked sums (not boolean indexing) keep the graph dense and the gradient exact; Z is
-    clamped to >= 1, so empty selections give 0."""
+    W and the selections are constants, so each term is ``ps.pair_sum(coef)`` with one
+    constant coefficient matrix (relu folded in as the mask C_F > 0, which is also its exact
+    gradient). Z is clamped to >= 1, so empty selections give 0.
+    ``weighted_pair_losses_reference`` is the literal element-wise form the tests compare."""
     W, CF = ps.W, ps.CF
     zp = max(float(z_pos), 1.0)
     zn = max(float(z_neg), 1.0)
     zero = W.new_zeros(())
-    # W and the selections are constants: fold them into one weight matrix per term and take
-    # a dot product with C_F (fewer [V, V] temporaries than W * CF * mask).
-    wp = torch.where(pos_pairs, W, zero).reshape(-1)
-    wn = torch.where(neg_pairs, W, zero).reshape(-1)
-    l_pos = -torch.dot(wp, CF.reshape(-1)) / zp
-    l_neg = torch.dot(wn, torch.relu(CF).reshape(-1)) / zn
+    l_pos = -ps.pair_sum(torch.where(pos_pairs, W, zero)) / zp
+    l_neg = ps.pair_sum(torch.where(neg_pairs & (CF > 0), W, zero)) / zn
+    return l_pos, l_neg
+
+
+def weighted_pair_losses_reference(ps: PairStats, pos_pairs, neg_pairs, z_pos, z_neg):
+    """Plain form of ``weighted_pair_losses`` with C_F rebuilt in the autograd graph."""
+    CF = ps.fn @ ps.fn.T
+    zp = max(float(z_pos), 1.0)
+    zn = max(float(z_neg), 1.0)
+    l_pos = -(ps.W * CF * pos_pairs).sum() / zp
+    l_neg = (ps.W * torch.relu(CF) * neg_pairs).sum() / zn
     return l_pos, l_neg
 
 
