@@ -71,11 +71,12 @@ STUDIES: dict[str, Study] = {s.name: s for s in (
 
 
 def _extra(col: str, rec: dict) -> float | int | None:
-    fit = rec.get("stages", {}).get("fit", {})
+    stages = rec.get("stages", {})
+    fit = stages.get("fit", {})
     timings = fit.get("info", {}).get("timings", {})
     fs = rec.get("feature_space") or {}
     return {
-        "fit_s": fit.get("seconds"),
+        "fit_s": (stages.get("features", {}).get("seconds") or 0.0) + (fit.get("seconds") or 0.0),
         "cluster_s": timings.get("clustering"),
         "size_mb": rec.get("model_size_bytes", 0) / 2**20,
         "n_clusters": rec.get("n_clusters"),

@@ -216,20 +216,52 @@ def dir_size(path: Path) -> int:
     return sum(p.stat().st_size for p in Path(path).rglob("*") if p.is_file())
 
 
-def stage_fit(cache: StageCache, method, scene, cfg: dict, masks_rec: StageRecord,
-              geo_rec: StageRecord, progress: bool) -> StageRecord:
-    key = cache.key("fit", {"method": method.name, **cfg["method"]},
-                    {"masks": masks_rec.key, "geometry": geo_rec.key})
+def stage_features(cache: StageCache, method, scene, cfg: dict, masks_rec: StageRecord,
+                   geo_rec: StageRecord, progress: bool) -> StageRecord:
+    """Learned per-gaussian features: keyed only on the settings that change them."""
+    fcfg = {"method": method.name, **{k: cfg["method"][k] for k in method.FEATURE_KEYS if k in cfg["method"]}}
+    key = cache.key("features", fcfg, {"masks": masks_rec.key, "geometry": geo_rec.key})
 
     def work(d: Path) -> dict:
+        gaussians, deformation = load_geometry(geo_rec.path)
+        feats, info = method.learn(scene, gaussians, deformation, masks_rec.path, cfg["method"], d / "work",
+                                   progress=progress)
+        np.save(d / "features.npy", feats)
+        shutil.rmtree(d / "work", ignore_errors=True)  # pixel-weight cache, not a result
+        return _jsonable(info)
+
+    return cache.run("features", key, work, fcfg)
+
+
+def stage_fit(cache: StageCache, method, scene, cfg: dict, masks_rec: StageRecord,
+              geo_rec: StageRecord, progress: bool) -> tuple[StageRecord | None, StageRecord]:
+    """(features record or None, fit record). Methods with ``learn``/``group`` halves get two
+    cached stages, so clustering and filtering changes reuse the trained features."""
+    mcfg = {"method": method.name, **cfg["method"]}
+    if hasattr(method, "learn") and hasattr(method, "group"):
+        feat_rec = stage_features(cache, method, scene, cfg, masks_rec, geo_rec, progress)
+        key = cache.key("fit", mcfg, {"features": feat_rec.key, "geometry": geo_rec.key})
+
+        def work(d: Path) -> dict:
+            gaussians, deformation = load_geometry(geo_rec.path)
+            feats = np.load(feat_rec.path / "features.npy")
+            fitted = method.group(feats, cfg["method"], gaussians, deformation, feat_rec.info)
+            fitted.save(d)
+            return {"timings": fitted.timings, "stats": _jsonable(fitted.stats)}
+
+        return feat_rec, cache.run("fit", key, work, mcfg)
+
+    key = cache.key("fit", mcfg, {"masks": masks_rec.key, "geometry": geo_rec.key})
+
+    def work_whole(d: Path) -> dict:
         gaussians, deformation = load_geometry(geo_rec.path)
         fitted = method.fit(scene, gaussians, deformation, masks_rec.path, cfg["method"], d / "work",
                             progress=progress)
         fitted.save(d)
-        shutil.rmtree(d / "work" / "pixel_weights", ignore_errors=True)  # cache, not a result
+        shutil.rmtree(d / "work", ignore_errors=True)
         return {"timings": fitted.timings, "stats": _jsonable(fitted.stats)}
 
-    return cache.run("fit", key, work, {"method": method.name, **cfg["method"]})
+    return None, cache.run("fit", key, work_whole, mcfg)
 
 
 def stage_prompts(cache: StageCache, scene, cfg: dict, gt_key: str) -> StageRecord:
@@ -328,7 +360,10 @@ def run_sequence(opts: RunOptions, sequence: str | None, reporter: Reporter, ind
     reporter.stage(seq, recs["masks"])
     recs["geometry"] = stage_geometry(cache, scene, cfg, scene_key, opts.progress)
     reporter.stage(seq, recs["geometry"])
-    recs["fit"] = stage_fit(cache, method, scene, cfg, recs["masks"], recs["geometry"], opts.progress)
+    feat_rec, recs["fit"] = stage_fit(cache, method, scene, cfg, recs["masks"], recs["geometry"], opts.progress)
+    if feat_rec is not None:
+        recs["features"] = feat_rec
+        reporter.stage(seq, feat_rec)
     reporter.stage(seq, recs["fit"])
     recs["prompts"] = stage_prompts(cache, scene, cfg, gt_key)
     reporter.stage(seq, recs["prompts"])

@@ -65,27 +65,24 @@ class CGCMethod(TraseMethod):
         cfg["filter_threshold"] = None  # CGC's own threshold replaces TRASE's filter
         return cfg
 
-    def fit(
-        self,
-        scene,
-        gaussians,
-        deformation,
-        masks_dir: Path,
-        config: dict,
-        work_dir: Path,
-        progress: bool = True,
-    ) -> FittedModel:
+    def learn(self, scene, gaussians, deformation, masks_dir: Path, config: dict, work_dir: Path,
+              progress: bool = True):
         cfg = copy.deepcopy(config)
         params = cfg["features"].setdefault("objective_params", {})
         if params.get("min_mask_pixels", "auto") == "auto":
             params["min_mask_pixels"] = _auto_min_mask_pixels(scene, masks_dir)
-        shared = copy.deepcopy(cfg)
-        shared["filter_threshold"] = -1.0  # the base fit needs a number; keep is replaced below
-        fitted = super().fit(scene, gaussians, deformation, masks_dir, shared, work_dir, progress)
-        fitted.config = cfg
-        fitted.keep = np.ones(fitted.labels.shape, bool)
+        feats, info = super().learn(scene, gaussians, deformation, masks_dir, cfg, work_dir, progress)
+        info["min_mask_pixels"] = params["min_mask_pixels"]
+        return feats, info
+
+    def group(self, feats, config: dict, gaussians=None, deformation=None, learn_info=None) -> FittedModel:
+        shared = copy.deepcopy(config)
+        shared["filter_threshold"] = -1.0  # the shared grouping needs a number; keep is replaced
+        fitted = super().group(feats, shared, gaussians, deformation, learn_info)
+        fitted.config = copy.deepcopy(config)
+        fitted.keep = np.ones(fitted.labels.shape, bool)  # CGC's own threshold replaces the filter
         fitted.stats["kept_fraction"] = 1.0
-        fitted.stats["min_mask_pixels"] = params["min_mask_pixels"]
+        fitted.stats["min_mask_pixels"] = (learn_info or {}).get("min_mask_pixels")
         return fitted
 
     def segment(self, fitted: FittedModel, scene, prompts) -> list[np.ndarray]:
@@ -127,26 +124,16 @@ class OpenGaussianMethod(TraseMethod):
         cfg["filter_threshold"] = None  # every gaussian keeps its class (codebook semantics)
         return cfg
 
-    def fit(
-        self,
-        scene,
-        gaussians,
-        deformation,
-        masks_dir: Path,
-        config: dict,
-        work_dir: Path,
-        progress: bool = True,
-    ) -> FittedModel:
+    def group(self, feats, config: dict, gaussians=None, deformation=None, learn_info=None) -> FittedModel:
         shared = copy.deepcopy(config)
         if shared.get("filter_threshold") is None:
             shared["filter_threshold"] = -1.0
-        fitted = super().fit(scene, gaussians, deformation, masks_dir, shared, work_dir, progress)
+        fitted = super().group(feats, shared, gaussians, deformation, learn_info)
         fitted.config = copy.deepcopy(config)
         if config.get("filter_threshold") is None:
             fitted.keep = np.ones(fitted.labels.shape, bool)
             fitted.stats["kept_fraction"] = 1.0
         return fitted
-
 
 def _auto_min_mask_pixels(scene, masks_dir: Path) -> int:
     """CGC's 100-pixel small-segment threshold at the resolution of this scene's masks."""

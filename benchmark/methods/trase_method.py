@@ -53,11 +53,15 @@ class TraseMethod(Method):
         }
 
     # -- fit ---------------------------------------------------------------------------
-    def fit(self, scene, gaussians, deformation, masks_dir: Path, config: dict, work_dir: Path,
-            progress: bool = True) -> FittedModel:
+    # ``fit`` = ``learn`` (features: the slow part) then ``group`` (clustering + filter). The
+    # runner caches the two halves as separate stages, so a clustering or filtering change
+    # reuses the trained features.
+    FEATURE_KEYS = ("features", "preset")  # config entries that change the learned features
+
+    def learn(self, scene, gaussians, deformation, masks_dir: Path, config: dict, work_dir: Path,
+              progress: bool = True) -> tuple[np.ndarray, dict]:
+        """Train per-gaussian features [N, D] on frozen geometry -> (features, info)."""
         import masks as masklib
-        from trase.clustering import cluster, filter_by_similarity
-        from trase.feature_stats import feature_space_stats
         from trase.features import FeatureConfig, train_features
 
         work_dir = Path(work_dir)
@@ -76,6 +80,22 @@ class TraseMethod(Method):
         res = train_features(gaussians, deformation, scene.train, load_masks, fcfg,
                              cache_dir=work_dir / "pixel_weights", progress=progress)
         feats = res.features.detach().cpu().numpy().astype(np.float32)
+        info = {
+            "timings": {"features_prepare": res.timings["prepare"], "features_train": res.timings["train"],
+                        "features_per_step": res.timings["per_step"]},
+            "path": res.path_stats,
+            "loss_tail": res.history[-5:],
+            "objective": fcfg.objective,
+        }
+        return feats, info
+
+    def group(self, feats: np.ndarray, config: dict, gaussians=None, deformation=None,
+              learn_info: dict | None = None) -> FittedModel:
+        """Cluster features, assign every gaussian, filter by similarity -> FittedModel."""
+        from trase.clustering import cluster, filter_by_similarity
+        from trase.feature_stats import feature_space_stats
+
+        learn_info = dict(learn_info or {})
         ccfg = config["clustering"]
         t0 = time.perf_counter()
         cl = cluster(feats, method=ccfg["method"], fraction=float(ccfg["fraction"]), seed=int(ccfg["seed"]),
@@ -83,20 +103,22 @@ class TraseMethod(Method):
         t_cluster = time.perf_counter() - t0
         keep = filter_by_similarity(feats, cl.labels, float(config["filter_threshold"]))
         fs = feature_space_stats(feats, cl.labels)
-        tail = res.history[-5:]
         stats = {
             "n_gaussians": int(feats.shape[0]),
             "n_clusters": cl.n_clusters,
             "kept_fraction": float(keep.mean()) if keep.size else 0.0,
             "feature_space": fs.to_dict(),
-            "path": res.path_stats,
-            "loss_tail": tail,
-            "objective": fcfg.objective,
+            "path": learn_info.get("path", {}),
+            "loss_tail": learn_info.get("loss_tail", []),
+            "objective": learn_info.get("objective"),
         }
-        timings = {"features_prepare": res.timings["prepare"], "features_train": res.timings["train"],
-                   "features_per_step": res.timings["per_step"], "clustering": t_cluster}
-        fitted = FittedModel(feats, cl.labels, keep, timings, stats, config, gaussians, deformation)
-        return fitted
+        timings = {**learn_info.get("timings", {}), "clustering": t_cluster}
+        return FittedModel(feats, cl.labels, keep, timings, stats, config, gaussians, deformation)
+
+    def fit(self, scene, gaussians, deformation, masks_dir: Path, config: dict, work_dir: Path,
+            progress: bool = True) -> FittedModel:
+        feats, info = self.learn(scene, gaussians, deformation, masks_dir, config, work_dir, progress)
+        return self.group(feats, config, gaussians, deformation, info)
 
     # -- segment -----------------------------------------------------------------------
     def select(self, fitted: FittedModel, scene, prompts) -> list[int]:

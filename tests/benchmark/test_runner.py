@@ -41,7 +41,7 @@ def test_pipeline_end_to_end(data_root, tmp_path, capsys):
     assert r["metrics"]["metric_version"] == "v1/bin1"
     assert 0.0 <= r["metrics"]["miou"] <= 1.0
     assert r["metrics"]["n_frames"] == len(r["per_frame"]) == len(r["frames"]) > 0
-    assert set(r["stages"]) == {"masks", "geometry", "fit", "prompts", "evaluate"}
+    assert set(r["stages"]) == {"masks", "geometry", "features", "fit", "prompts", "evaluate"}
     assert not any(s["skipped"] for s in r["stages"].values())
     assert r["config"]["method"]["features"]["iterations"] == 40
     assert r["seeds"]["features"] == 0 and len(r["checksums"]["pred"]) == 16
@@ -52,7 +52,7 @@ def test_pipeline_end_to_end(data_root, tmp_path, capsys):
     assert _run(data_root, out, method="trase-hard") == 0
     r2 = load_results(out / "trase-hard" / "hypernerf" / "synthetic" / "results.json")
     assert r2["stages"]["masks"]["skipped"] and r2["stages"]["geometry"]["skipped"]
-    assert not r2["stages"]["fit"]["skipped"]
+    assert not r2["stages"]["features"]["skipped"] and not r2["stages"]["fit"]["skipped"]
     assert r2["stages"]["masks"]["key"] == r["stages"]["masks"]["key"]
 
     # a rerun reuses everything and gives identical metrics (determinism)
@@ -60,6 +60,11 @@ def test_pipeline_end_to_end(data_root, tmp_path, capsys):
     r3 = load_results(path)
     assert all(s["skipped"] for n, s in r3["stages"].items() if n != "evaluate")
     assert r3["metrics"] == r["metrics"]
+
+    # a clustering change reuses the trained features and reruns only the fit stage
+    assert _run(data_root, out, extra=["method.clustering.fraction=0.5"]) == 0
+    r4 = load_results(path)
+    assert r4["stages"]["features"]["skipped"] and not r4["stages"]["fit"]["skipped"]
 
     capsys.readouterr()
     assert main(["leaderboard", "--results", str(out), "--variant", "synthetic"]) == 0
