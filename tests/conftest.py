@@ -19,11 +19,11 @@ except ImportError:  # pragma: no cover
     settings = None
 
 if settings is not None:
-    _common = dict(
-        deadline=None,  # shared 2-core machines: timing varies too much for per-example deadlines
-        suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
-        print_blob=True,  # a failure prints the blob to reproduce it with @reproduce_failure
-    )
+    _common = {
+        "deadline": None,  # shared 2-core machines: timing varies too much for per-example deadlines
+        "suppress_health_check": [HealthCheck.too_slow, HealthCheck.data_too_large],
+        "print_blob": True,  # a failure prints the blob to reproduce it with @reproduce_failure
+    }
     settings.register_profile("ci", max_examples=12, derandomize=True, **_common)
     settings.register_profile("deep", max_examples=400, derandomize=False, **_common)
     settings.load_profile("ci")

@@ -21,22 +21,12 @@ MULTIVIEW = {  # dataset -> (registry sequence to prepare as, publisher frame sp
     "immersive": ("01_Welder", "0-1"),
     "technicolor": ("Birthday", "1-2"),
 }
-SYNTHETIC_SEQ_BUG = "unknown sequence 'synthetic-tiny'"
 
 
 def _generate(dataset: str, out: Path) -> Path:
     from benchmark.datasets.synthetic import generate
 
-    try:
-        generate(dataset, out, seed=0, size="tiny")
-    except Exception as exc:  # noqa: BLE001
-        # Known generator bug (reported): for the multi-view formats the generator's own
-        # ``prepare`` step asks the registry for sequence 'synthetic-tiny', which it does not
-        # know. The raw files (what this catalogue corrupts) are complete by then; the test
-        # ``test_pristine_inputs_are_valid`` proves they prepare cleanly.
-        if dataset not in MULTIVIEW or SYNTHETIC_SEQ_BUG not in str(exc):
-            raise
-    return out
+    return generate(dataset, out, seed=0, size="tiny")
 
 
 def build_pristine(base: Path) -> dict[str, Path]:
@@ -156,7 +146,7 @@ def run_target(target: str, root: Path, work: Path) -> tuple[int, str, Path | No
             load_synthetic_geometry(root / "geometry.npz")
         else:
             raise KeyError(target)
-    except Exception as exc:  # noqa: BLE001
+    except Exception as exc:
         if not is_user_error(exc):
             raise
         return 1, f"error: {exc}\n", None
@@ -202,7 +192,7 @@ def explore(base: Path | None = None, only: tuple[str, ...] = ()) -> None:
         work = base / f"case{i}"
         work.mkdir()
         try:
-            rc, err, path, out = run_case(case, pristine, work)
+            rc, err, _path, _out = run_case(case, pristine, work)
             print(f"{case.id:28s} rc={rc} {err.strip()!r}")
         except Exception as exc:  # noqa: BLE001
             print(f"{case.id:28s} CRASH {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}")

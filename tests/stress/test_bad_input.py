@@ -14,7 +14,13 @@ from pathlib import Path
 
 import pytest
 
-from .bad_input_harness import MULTIVIEW, build_pristine, copy_input, output_dir, run_case, run_target
+from .bad_input_harness import (
+    MULTIVIEW,
+    build_pristine,
+    copy_input,
+    run_case,
+    run_target,
+)
 from .catalogue import CASES, TARGETS
 
 RUN_TARGETS = ("hypernerf", "nerfds", "hypernerf-named")
@@ -32,7 +38,7 @@ def test_catalogue_is_large_and_well_formed():
     assert all(c.fragment for c in CASES), "every case states what the error must say"
     assert {c.target.split("-")[0] for c in CASES} >= {"hypernerf", "nerfds", "neu3d", "immersive", "technicolor",
                                                        "masks", "checkpoint", "results"}
-    assert set(c.target for c in CASES) <= set(TARGETS)
+    assert {c.target for c in CASES} <= set(TARGETS)
 
 
 def _leftovers(out: Path | None, before: set[Path]) -> list[str]:
@@ -59,7 +65,6 @@ def _leftovers(out: Path | None, before: set[Path]) -> list[str]:
 @pytest.mark.parametrize("case", CASES, ids=[c.id for c in CASES])
 def test_corruption_gives_one_line_error(case, pristine, tmp_path, capsys):
     before: set[Path] = set()
-    out = output_dir(case.target, tmp_path)
     rc, err, path, out = run_case(case, pristine, tmp_path)
     if out is not None and case.file.startswith("@out/"):
         before = {path}  # the user's own (damaged) file stays as it was
