@@ -86,6 +86,11 @@ class StageCache:
             t0 = time.perf_counter()
             info = fn(partial) or {}
             seconds = time.perf_counter() - t0
+        for stray in sorted(partial.rglob(".*.tmp"), reverse=True):  # left by writes cut by a kill
+            if stray.is_dir():
+                shutil.rmtree(stray, ignore_errors=True)
+            else:
+                stray.unlink(missing_ok=True)
         meta = {"stage": stage, "key": key, "config": config or {}, "seconds": seconds,
                 "peak_rss_mb": mem.peak_mb, "info": info, "finished": time.time()}
         atomic_write_json(partial / STAGE_FILE, meta)
