@@ -16,7 +16,7 @@ SUITES: dict[str, tuple[str, str]] = {
     "cluster": ("benchmark.perf.cluster:run", "Feature clustering: HDBSCAN 2/10/25% vs DBSCAN, KMeans, PCA and fixed-sample variants (ARI)."),
     "features": ("benchmark.perf.features:run", "One feature-learning step: frozen-geometry fast path vs rasterizer; bytes per view."),
     "pipeline": ("benchmark.perf.pipeline:run", "Per-stage time and peak memory of the runner per synthetic dataset, 2 sizes; exponents."),
-    "pareto": ("benchmark.perf.pareto:run", "mIoU vs fit+evaluate time over a settings grid for one scene; PNG with the Pareto front."),
+    "pareto": ("benchmark.perf.pareto:run", "mIoU vs features+fit+evaluate time over a settings grid for one scene; PNG with the Pareto front."),
 }
 
 

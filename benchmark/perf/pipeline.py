@@ -52,16 +52,17 @@ def run_pipeline(dataset: str, sequence: str, overrides: list[str], out_dir: Pat
 
 
 def stage_table(record: dict) -> dict:
-    """Record -> {stage: {seconds, peak_rss_mb}} plus the fit stage's own timings as
-    ``fit.<part>`` (features_prepare, features_train, features_per_step, clustering)."""
+    """Record -> {stage: {seconds, peak_rss_mb, cached}} plus each stage's own ``info.timings``
+    as ``<stage>.<part>`` (e.g. features_prepare, features_train, features_per_step, clustering)."""
     out = {}
     for name, s in record["stages"].items():
         out[name] = {"seconds": float(s["seconds"]), "peak_rss_mb": float(s["peak_rss_mb"]),
                      "cached": bool(s.get("skipped", False))}
-    timings = ((record["stages"].get("fit") or {}).get("info") or {}).get("timings") or {}
-    for k, v in timings.items():
-        if isinstance(v, (int, float)) and not k.startswith("n_"):
-            out[f"fit.{k}"] = {"seconds": float(v), "peak_rss_mb": None, "cached": False}
+    for name, s in record["stages"].items():
+        timings = (s.get("info") or {}).get("timings") or {}
+        for k, v in timings.items():
+            if isinstance(v, (int, float)) and not isinstance(v, bool) and not k.startswith("n_"):
+                out[f"{name}.{k}"] = {"seconds": float(v), "peak_rss_mb": None, "cached": False}
     return out
 
 
