@@ -80,9 +80,12 @@ class CGCMethod(TraseMethod):
         shared["filter_threshold"] = -1.0  # the shared grouping needs a number; keep is replaced
         fitted = super().group(feats, shared, gaussians, deformation, learn_info)
         fitted.config = copy.deepcopy(config)
+        resolved = (learn_info or {}).get("min_mask_pixels")
+        if resolved is not None:  # record the threshold "auto" resolved to
+            fitted.config["features"].setdefault("objective_params", {})["min_mask_pixels"] = resolved
         fitted.keep = np.ones(fitted.labels.shape, bool)  # CGC's own threshold replaces the filter
         fitted.stats["kept_fraction"] = 1.0
-        fitted.stats["min_mask_pixels"] = (learn_info or {}).get("min_mask_pixels")
+        fitted.stats["min_mask_pixels"] = resolved
         return fitted
 
     def segment(self, fitted: FittedModel, scene, prompts) -> list[np.ndarray]:
