@@ -32,12 +32,15 @@ class TraseMethod(Method):
 
     # -- config ------------------------------------------------------------------------
     def default_config(self, dataset_spec, preset: str = "auto") -> dict:
-        from trase.features import FeatureConfig
+        from trase.features import CPU_MAX_PIXELS, FeatureConfig
 
         preset = _auto_preset() if preset == "auto" else preset
+        n_pixels = int(dataset_spec.n_pixels)
+        if preset == "cpu":
+            n_pixels = min(n_pixels, CPU_MAX_PIXELS)
         fc = FeatureConfig.preset(
             preset,
-            n_pixels=int(dataset_spec.n_pixels),
+            n_pixels=n_pixels,
             n_masks=float(dataset_spec.n_masks),
             objective=self.objective,
             objective_params=dict(self.objective_params),
