@@ -35,7 +35,7 @@ OVERRIDES = ["geometry.source=ground-truth", "method.features.iterations=20", "m
 QUICK = {"datasets": ["nerfds"], "sizes": ["tiny"],
          "overrides": ["geometry.source=ground-truth", "method.features.iterations=2", "method.features.n_pixels=200"], "warmup": False}
 DEFAULT = {"datasets": DATASETS, "sizes": ["tiny", "small"], "overrides": OVERRIDES, "warmup": True}
-MAX_CONDITION = 30.0  # joint fit only when pixels and gaussians vary independently enough
+MAX_CORRELATION = 0.8  # joint fit only when pixels and gaussians vary independently enough
 SEQUENCE = {"tiny": "synthetic-tiny", "small": "synthetic", "medium": "synthetic-medium"}
 
 
@@ -58,10 +58,14 @@ def stage_table(record: dict) -> dict:
     for name, s in record["stages"].items():
         out[name] = {"seconds": float(s["seconds"]), "peak_rss_mb": float(s["peak_rss_mb"]),
                      "cached": bool(s.get("skipped", False))}
+    seen: dict[str, float] = {}  # a stage that passes on an earlier stage's timings: listed once
     for name, s in record["stages"].items():
         timings = (s.get("info") or {}).get("timings") or {}
         for k, v in timings.items():
             if isinstance(v, (int, float)) and not isinstance(v, bool) and not k.startswith("n_"):
+                if seen.get(k) == float(v):
+                    continue
+                seen[k] = float(v)
                 out[f"{name}.{k}"] = {"seconds": float(v), "peak_rss_mb": None, "cached": False}
     return out
 
@@ -70,7 +74,7 @@ def fit_exponents(points: list[dict]) -> dict:
     """points: [{"pixels", "gaussians", "seconds"}] -> exponents of seconds in pixels and in
     gaussians: one-driver slopes, and the joint slopes with the design's condition number
     (None where the data cannot determine them: < 2 distinct values, < 3 points jointly, or a
-    design too close to collinear for the split to mean anything: condition > MAX_CONDITION)."""
+    design too close to collinear for the split to mean anything: |corr| > MAX_CORRELATION)."""
     pts = [p for p in points if p["seconds"] > 0 and p["pixels"] > 0 and p["gaussians"] > 0]
     y = np.log([p["seconds"] for p in pts]) if pts else np.zeros(0)
     lp = np.log([p["pixels"] for p in pts]) if pts else np.zeros(0)
@@ -87,12 +91,15 @@ def fit_exponents(points: list[dict]) -> dict:
     if len(pts) >= 3:
         A = np.stack([np.ones_like(lp), lp - lp.mean(), lg - lg.mean()], 1)
         cond = float(np.linalg.cond(A))
-        if np.linalg.matrix_rank(A) == 3 and cond <= MAX_CONDITION:
+        sp, sg = float(np.std(lp)), float(np.std(lg))
+        corr = float(np.mean((lp - lp.mean()) * (lg - lg.mean())) / (sp * sg)) if sp > 1e-12 and sg > 1e-12 else 1.0
+        if np.linalg.matrix_rank(A) == 3 and abs(corr) <= MAX_CORRELATION:
             coef, *_ = np.linalg.lstsq(A, y, rcond=None)
             out["joint"] = {"pixels_exponent": float(coef[1]), "gaussians_exponent": float(coef[2]),
-                            "condition_number": cond}
+                            "condition_number": cond, "driver_correlation": corr}
         else:
-            out["joint_skipped"] = f"drivers (nearly) collinear: condition number {cond:.0f} > {MAX_CONDITION}"
+            out["joint_skipped"] = (f"drivers (nearly) collinear: correlation of log pixels and log gaussians "
+                                    f"{corr:.2f} (|r| > {MAX_CORRELATION})")
     return out
 
 

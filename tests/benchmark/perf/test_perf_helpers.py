@@ -71,8 +71,11 @@ def test_stage_table_flattens_fit_timings():
     rec = {"stages": {"masks": {"seconds": 1.0, "peak_rss_mb": 10.0, "skipped": False},
                       "fit": {"seconds": 5.0, "peak_rss_mb": 20.0, "info": {"timings": {
                           "features_train": 4.0, "clustering": 0.5, "n_usable_views": 3}}}}}
+    rec["stages"]["evaluate"] = {"seconds": 2.0, "peak_rss_mb": 20.0,
+                                 "info": {"timings": {"features_train": 4.0, "render": 1.5}}}
     t = stage_table(rec)
-    assert set(t) == {"masks", "fit", "fit.features_train", "fit.clustering"}
+    # evaluate's copy of fit's features_train is listed once
+    assert set(t) == {"masks", "fit", "evaluate", "fit.features_train", "fit.clustering", "evaluate.render"}
     assert t["fit.features_train"]["seconds"] == 4.0 and t["masks"]["peak_rss_mb"] == 10.0
 
 
