@@ -108,7 +108,7 @@ def cluster(
     if N == 0:
         return Clustering(np.zeros(0, np.int64), np.zeros((0, D), np.float32), np.zeros(0, np.int64), method, params)
     rng = np.random.default_rng(seed)
-    S = min(N, max(int(math.ceil(fraction * N)), int(min_sample)))
+    S = min(N, max(math.ceil(fraction * N), int(min_sample)))
     sample = np.sort(rng.choice(N, size=S, replace=False)) if S < N else np.arange(N)
     sub_labels = _cluster_sample(fn[sample], method, seed, params)
     _, cents = _centres(fn[sample], sub_labels)  # noise (-1) centroid is a centre too

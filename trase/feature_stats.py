@@ -31,7 +31,7 @@ class FeatureStats:
     n_gaussians: int
 
     def to_dict(self) -> dict:
-        clean = lambda x: None if math.isnan(x) else float(x)  # noqa: E731
+        clean = lambda x: None if math.isnan(x) else float(x)
         return {"intra": clean(self.intra), "inter": clean(self.inter),
                 "n_clusters": self.n_clusters, "n_gaussians": self.n_gaussians}
 

@@ -16,8 +16,8 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Callable, Sequence
 
 import numpy as np
 import torch
@@ -28,7 +28,6 @@ from trase.fastpath import RasterizerPath, ViewWeights
 from trase.gaussians import rgb_to_sh_dc
 from trase.objectives import PixelSample, get_objective
 from trase.smoothing import knn_indices, smooth_features
-
 
 CPU_MAX_PIXELS = 2000  # the cpu preset samples at most this many pixels per step (Np^2 pairs)
 
@@ -59,7 +58,7 @@ class FeatureConfig:
     torch_threads: int = 0  # intra-op threads while training; 0 = leave torch's setting
 
     @classmethod
-    def preset(cls, name: str, **overrides) -> "FeatureConfig":
+    def preset(cls, name: str, **overrides) -> FeatureConfig:
         """``paper``: the public code's settings; ``cpu``: fewer iterations for 2-core CPUs."""
         if name == "paper":
             base = cls()

@@ -22,8 +22,8 @@ import dataclasses
 import json
 import os
 import tempfile
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 import torch
@@ -172,7 +172,7 @@ class BenchmarkPrompts:
         }
 
     @classmethod
-    def from_dict(cls, d: dict, path: str = "prompts.json") -> "BenchmarkPrompts":
+    def from_dict(cls, d: dict, path: str = "prompts.json") -> BenchmarkPrompts:
         try:
             if int(d["version"]) != PROMPTS_VERSION:
                 raise PromptError(f"{path}: prompts version {d['version']} (expected {PROMPTS_VERSION})")

@@ -7,7 +7,7 @@ filter (``keep``; the paper's post-processing). Several clusters merge into one 
 
 from __future__ import annotations
 
-from typing import Iterable, Sequence
+from collections.abc import Iterable, Sequence
 
 import numpy as np
 import torch

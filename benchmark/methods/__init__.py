@@ -17,8 +17,8 @@ from __future__ import annotations
 import dataclasses
 import importlib
 import json
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -29,7 +29,7 @@ class MethodError(UserError):
     """Unknown method or bad method input; one line naming the problem."""
 
 
-METHODS: dict[str, Callable[..., "Method"]] = {}
+METHODS: dict[str, Callable[..., Method]] = {}
 _BUILTIN_MODULES = {"trase": "benchmark.methods.trase_method"}
 
 
@@ -46,7 +46,7 @@ def register_method(name: str) -> Callable:
     return wrap
 
 
-def get_method(name: str, **kwargs) -> "Method":
+def get_method(name: str, **kwargs) -> Method:
     """Build a registered method; imports the module that registers it on first use."""
     if name not in METHODS:
         modules = [_BUILTIN_MODULES[name]] if name in _BUILTIN_MODULES else []
@@ -91,7 +91,7 @@ class FittedModel:
             {"timings": self.timings, "stats": self.stats, "config": self.config}, indent=1, default=float))
 
     @classmethod
-    def load(cls, out_dir: str | Path, gaussians=None, deformation=None) -> "FittedModel":
+    def load(cls, out_dir: str | Path, gaussians=None, deformation=None) -> FittedModel:
         out = Path(out_dir)
         need = ["features.npy", "clusters.npy", "keep.npy", "fitted.json"]
         missing = [n for n in need if not (out / n).is_file()]

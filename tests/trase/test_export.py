@@ -1,10 +1,9 @@
 import numpy as np
 import torch
 
+from tests.trase.helpers import tiny_scene
 from trase.export import export_clusters, export_ply
 from trase.gaussians import GaussianModel
-
-from tests.trase.helpers import tiny_scene
 
 
 def test_ply_roundtrip_with_features_and_clusters(tmp_path):

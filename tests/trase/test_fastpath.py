@@ -6,7 +6,6 @@ from trase.camera import Camera, intrinsics, look_at
 from trase.deformation import TabulatedDeformation
 from trase.fastpath import FastPathError, RasterizerPath, ViewWeights, render_rows
 from trase.gaussians import GaussianModel
-from trase.render import pixel_weights, rasterize
 
 
 def _scene(n=200, seed=0):

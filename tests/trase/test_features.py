@@ -1,10 +1,9 @@
 import numpy as np
 import torch
 
+from tests.trase.helpers import exact_masks, tiny_scene
 from trase.clustering import cluster
 from trase.features import FeatureConfig, build_sample, train_features
-
-from tests.trase.helpers import exact_masks, tiny_scene
 
 
 def _train(tmp_path, iterations=120, **kw):
@@ -39,7 +38,7 @@ def test_deterministic_and_fastpath_matches_rasterizer(tmp_path):
 def test_degenerate_views_and_single_gaussian(tmp_path):
     from masks.maskset import MaskSet
 
-    gm, deform, ids, views = tiny_scene(n_per=1)
+    gm, deform, _, views = tiny_scene(n_per=1)
     empty = MaskSet.empty(views[0].camera.height, views[0].camera.width)
     cfg = FeatureConfig(dim=4, iterations=5, n_pixels=50, knn=16)
     res = train_features(gm, deform, views, lambda v: empty, cfg, progress=False)  # no masks at all

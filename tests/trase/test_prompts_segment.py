@@ -3,6 +3,7 @@ import json
 import numpy as np
 import pytest
 
+from tests.trase.helpers import exact_masks, object_alpha, tiny_scene
 from trase.prompts import (
     Click,
     PromptError,
@@ -14,8 +15,6 @@ from trase.prompts import (
     oracle_clusters,
 )
 from trase.segment import render_masks, select_gaussians
-
-from tests.trase.helpers import exact_masks, object_alpha, tiny_scene
 
 
 def test_interior_points_deterministic():

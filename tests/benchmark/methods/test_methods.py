@@ -8,9 +8,8 @@ import masks as masklib
 from benchmark.methods import FittedModel, MethodError, get_method
 from benchmark.methods.trase_method import TraseMethod
 from benchmark.scoring import score_masks
-from trase.prompts import make_benchmark_prompts
-
 from tests.trase.helpers import exact_masks, tiny_scene
+from trase.prompts import make_benchmark_prompts
 
 
 @dataclasses.dataclass
@@ -54,6 +53,7 @@ def test_fit_segment_end_to_end(tmp_path):
     score = score_masks(dict(zip(names, preds)), dict(zip(names, gts)))
     assert score.miou > 0.8
     opreds, oclusters = method.segment_oracle(fitted, scene, gts)
+    assert len(opreds) == len(views)
     assert len(oclusters) == 1
     # save / load round trip
     fitted.save(tmp_path / "out")
@@ -65,7 +65,7 @@ def test_fit_segment_end_to_end(tmp_path):
 
 
 def test_missing_masks_is_a_user_error(tmp_path):
-    gm, deform, ids, views = tiny_scene(n_per=3)
+    gm, deform, _, views = tiny_scene(n_per=3)
     method = get_method("trase")
     cfg = method.default_config(_Spec(), preset="cpu")
     with pytest.raises(MethodError, match="masks of training view"):
