@@ -93,7 +93,10 @@ def default_config(method, spec, variant: str, overrides: dict) -> dict:
     if preset == "paper":
         train = ReconstructionConfig.paper(**sched)
     else:
-        train = ReconstructionConfig.cpu()
+        # On CPU the geometry trains at half the benchmark resolution: 5x cheaper per
+        # iteration, and segmentation needs object boundaries, not texture detail. Evaluation
+        # still renders at full resolution. Recorded in the config like every setting.
+        train = ReconstructionConfig.cpu(image_downscale=2.0)
     base = {
         "masks": {
             "generator": "synthetic" if variant == "synthetic" else "classical",
