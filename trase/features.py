@@ -206,6 +206,10 @@ def _train(gaussians, deformation, views, load_masks, config, cache_dir, progres
             vi = usable[int(rng.integers(len(usable)))]
             ms = masks_of(vi)
             sample = build_sample(ms, config.mask_rule, config.n_masks, config.n_pixels, rng, view=vi)
+            if getattr(objective, "needs_alpha", False):
+                # rendering is linear in the features, so rendering ones gives alpha = sum of weights
+                with torch.no_grad():
+                    sample.alpha = path.render(vi, feats.new_ones(n, 1), sample.pixels)[:, 0]
             f = smooth_features(feats, knn, config.knn_keep, gen)
             rendered = path.render(vi, f, sample.pixels)  # [P, D]
             loss, stats = objective(rendered, sample)

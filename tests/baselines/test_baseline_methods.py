@@ -53,7 +53,7 @@ def _small(cfg):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", ["trase-hard", "cgc"])
+@pytest.mark.parametrize("name", ["trase-hard", "cgc", "opengaussian"])
 def test_fit_and_segment_tiny_scene(tmp_path, name):
     gm, deform, ids, scene, mdir, prompts = _scene(tmp_path)
     method = get_method(name)
