@@ -96,7 +96,8 @@ def default_config(method, spec, variant: str, overrides: dict) -> dict:
         # On CPU the geometry trains at half the benchmark resolution: 5x cheaper per
         # iteration, and segmentation needs object boundaries, not texture detail. Evaluation
         # still renders at full resolution. Recorded in the config like every setting.
-        train = ReconstructionConfig.cpu(image_downscale=2.0)
+        # 2000 steps keep `make demo` under 10 minutes on two cores.
+        train = ReconstructionConfig.cpu(image_downscale=2.0, iterations=2000)
     base = {
         "masks": {
             "generator": "synthetic" if variant == "synthetic" else "classical",

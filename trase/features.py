@@ -67,8 +67,10 @@ class FeatureConfig:
             # cores made every step ~10x slower than a single thread (measured)
             # fewer, larger steps: with lr 0.0025 features barely turn in a few thousand steps
             # (measured on the synthetic nerfds scene: mIoU 0.11 after 1500 steps at 0.0025,
-            # 0.62 after 3000 steps at 0.05); Np is capped by the method (CPU_MAX_PIXELS)
-            base = cls(iterations=3000, lr=0.05, torch_threads=1)
+            # 0.62 after 3000 steps at 0.05 with a 500-point clustering sample; 0.83 after 800
+            # steps once the sample floor is 5000, so 1000 steps keep `make demo` short);
+            # Np is capped by the method (CPU_MAX_PIXELS)
+            base = cls(iterations=1000, lr=0.05, torch_threads=1)
         else:
             raise FeatureTrainingError(f"unknown feature preset {name!r} (use 'paper' or 'cpu')")
         return dataclasses.replace(base, **overrides)
