@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import torch
 
-from trase.objectives.base import TAU_NEG, TAU_POS, PixelSample, register_objective
+from trase.objectives.base import PixelSample, register_objective
 from trase.objectives.soft import SoftMining, all_anchors
 
 
@@ -32,16 +32,6 @@ class AllMining(SoftMining):
 
     ``tau_pos``/``tau_neg`` are accepted for a uniform signature but select nothing: the
     "all" rule has no threshold."""
-
-    def __init__(
-        self,
-        tau_pos: float = TAU_POS,
-        tau_neg: float = TAU_NEG,
-        anchor_side: str = "column",
-        normalise: str = "anchor_pairs",
-        reg_weight: float = 1.0,
-    ) -> None:
-        super().__init__(tau_pos, tau_neg, anchor_side, normalise, reg_weight)
 
     def anchors(self, ps):
         return all_anchors(ps)

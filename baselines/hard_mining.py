@@ -30,11 +30,10 @@ from trase.objectives.base import (
     ObjectiveInputError,
     PairStats,
     PixelSample,
-    norm_regulariser,
     pair_stats,
     register_objective,
 )
-from trase.objectives.soft import weighted_pair_losses
+from trase.objectives.soft import combine_pair_losses, weighted_pair_losses
 
 
 def check_thresholds(tau_pos: float, tau_neg: float) -> None:
@@ -67,17 +66,7 @@ def hard_mining_loss(
     pos, neg = hard_pairs(ps, tau_pos, tau_neg)
     n_pos, n_neg = int(pos.sum()), int(neg.sum())
     l_pos, l_neg = weighted_pair_losses(ps, pos, neg, n_pos, n_neg)
-    reg = norm_regulariser(features)
-    loss = l_pos + l_neg + reg_weight * reg
-    stats = {
-        "loss_pos": float(l_pos.detach()),
-        "loss_neg": float(l_neg.detach()),
-        "reg": float(reg.detach()),
-        "n_pos": n_pos,
-        "n_neg": n_neg,
-        "n_valid": int(ps.valid.sum()),
-    }
-    return loss, stats
+    return combine_pair_losses(ps, features, l_pos, l_neg, n_pos, n_neg, reg_weight)
 
 
 @register_objective("trase-hard")

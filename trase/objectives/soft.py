@@ -117,6 +117,22 @@ def weighted_pair_losses(ps: PairStats, pos_pairs, neg_pairs, z_pos, z_neg):
     return l_pos, l_neg
 
 
+def combine_pair_losses(ps: PairStats, features, l_pos, l_neg, n_pos: int, n_neg: int,
+                        reg_weight: float = 1.0) -> tuple[torch.Tensor, dict]:
+    """L = L_pos + L_neg + reg_weight * regulariser, with the stats every mining rule reports."""
+    reg = norm_regulariser(features)
+    loss = l_pos + l_neg + reg_weight * reg
+    stats = {
+        "loss_pos": float(l_pos.detach()),
+        "loss_neg": float(l_neg.detach()),
+        "reg": float(reg.detach()),
+        "n_pos": n_pos,
+        "n_neg": n_neg,
+        "n_valid": int(ps.valid.sum()),
+    }
+    return loss, stats
+
+
 def weighted_pair_losses_reference(ps: PairStats, pos_pairs, neg_pairs, z_pos, z_neg):
     """Plain form of ``weighted_pair_losses`` with C_F rebuilt in the autograd graph."""
     CF = ps.fn @ ps.fn.T
@@ -164,14 +180,4 @@ class SoftMining(Objective):
         else:
             z_pos, z_neg = n_pos, n_neg
         l_pos, l_neg = weighted_pair_losses(ps, pos, neg, z_pos, z_neg)
-        reg = norm_regulariser(features)
-        loss = l_pos + l_neg + self.reg_weight * reg
-        stats = {
-            "loss_pos": float(l_pos.detach()),
-            "loss_neg": float(l_neg.detach()),
-            "reg": float(reg.detach()),
-            "n_pos": n_pos,
-            "n_neg": n_neg,
-            "n_valid": int(ps.valid.sum()),
-        }
-        return loss, stats
+        return combine_pair_losses(ps, features, l_pos, l_neg, n_pos, n_neg, self.reg_weight)
