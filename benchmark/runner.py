@@ -216,15 +216,6 @@ def load_geometry(stage_dir: Path):
     return load_model(stage_dir / "model")
 
 
-def remove_stale_temporaries(directory: Path) -> None:
-    """Delete ``.*.tmp`` files and folders (atomic writes cut short by a kill) in ``directory``."""
-    for p in Path(directory).glob(".*.tmp"):
-        if p.is_dir():
-            shutil.rmtree(p, ignore_errors=True)
-        else:
-            p.unlink(missing_ok=True)
-
-
 def dir_size(path: Path) -> int:
     return sum(p.stat().st_size for p in Path(path).rglob("*") if p.is_file())
 
@@ -387,7 +378,6 @@ def run_sequence(opts: RunOptions, sequence: str | None, reporter: Reporter, ind
 
     run_dir = results_path(opts.out_dir, opts.method, spec.key, seq).parent
     run_dir.mkdir(parents=True, exist_ok=True)
-    remove_stale_temporaries(run_dir)  # left by a run killed while writing predictions
     with PeakMemory() as mem:
         t0 = time.perf_counter()
         gaussians, deformation = load_geometry(recs["geometry"].path)

@@ -12,9 +12,7 @@ same types with a TabulatedDeformation.
 from __future__ import annotations
 
 import io
-import os
 import re
-import tempfile
 import zipfile
 from pathlib import Path
 
@@ -23,6 +21,7 @@ import torch
 
 from trase.deformation import DeformMLP, TabulatedDeformation, infer_mlp_config
 from trase.gaussians import GaussianFileError, GaussianModel, rgb_to_sh_dc
+from trase.io import atomic_write_bytes
 
 
 class CheckpointError(ValueError):
@@ -32,19 +31,6 @@ class CheckpointError(ValueError):
 
 
 _ITER_RE = re.compile(r"^iteration_(\d+)$")
-
-
-def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write to a temp file beside ``path`` and rename, so readers never see half a file."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def atomic_torch_save(obj, path: Path) -> None:

@@ -19,9 +19,7 @@ import collections
 import dataclasses
 import hashlib
 import json
-import os
 import re
-import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
@@ -31,6 +29,7 @@ import torch.nn.functional as F
 
 from trase.camera import Camera
 from trase.deformation import deformed
+from trase.io import atomic_path
 from trase.render import PixelWeights, pixel_weights, rasterize
 
 CACHE_VERSION = 1
@@ -84,16 +83,8 @@ def _safe_name(name: str) -> str:
 
 
 def _save_npz_atomic(path: Path, **arrays) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            np.savez(fh, **arrays)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        np.savez(fh, **arrays)
 
 
 def pw_nbytes(pw: PixelWeights) -> int:

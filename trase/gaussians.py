@@ -14,13 +14,13 @@ channel-major (all red coefficients, then green, then blue), as 3DGS does.
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 import torch
 from torch import nn
+
+from trase.io import atomic_path
 
 SH_C0 = 0.28209479177387814  # Y_0^0; colour = SH_C0 * dc + 0.5
 
@@ -231,14 +231,8 @@ class GaussianModel(nn.Module):
         for i, a in enumerate(names):
             rec[a] = data[:, i]
         el = PlyElement.describe(rec, "vertex")
-        fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-        os.close(fd)
-        try:
+        with atomic_path(path) as tmp:
             PlyData([el]).write(tmp)
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
 
     @classmethod
     def load_ply(cls, path: str | Path) -> GaussianModel:

@@ -20,8 +20,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
-import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -31,6 +29,7 @@ from scipy.spatial import cKDTree
 
 from trase.camera import Camera
 from trase.deformation import deformed
+from trase.io import atomic_write_text
 from trase.render import rasterize
 
 PROMPTS_VERSION = 1
@@ -212,11 +211,7 @@ def load_or_make_prompts(path: str | Path, test_views: Sequence, load_gt, min_ar
                 yield load_gt(i)
 
     bp = make_benchmark_prompts(test_views, _Lazy(), min_area)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
-    with os.fdopen(fd, "w") as fh:
-        json.dump(bp.to_dict(), fh, indent=1)
-    os.replace(tmp, path)
+    atomic_write_text(path, json.dumps(bp.to_dict(), indent=1))
     return bp
 
 

@@ -79,13 +79,3 @@ def test_read_json_errors_name_the_file(tmp_path):
     atomic_write_json(p, {"a": 1})
     assert json.loads(p.read_text()) == {"a": 1}
 
-
-def test_stale_temporaries_are_swept(tmp_path):
-    from benchmark.runner import remove_stale_temporaries
-
-    (tmp_path / ".pred.abc.tmp").mkdir()
-    (tmp_path / ".pred.abc.tmp" / "00000.png").write_bytes(b"half")
-    (tmp_path / ".results.json.x.tmp").write_text("{")
-    (tmp_path / "results.json").write_text("{}")
-    remove_stale_temporaries(tmp_path)
-    assert [p.name for p in tmp_path.iterdir()] == ["results.json"]
