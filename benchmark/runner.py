@@ -9,12 +9,14 @@ masks and the reconstruction and says so. Results land in
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import json
 import os
 import shutil
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +24,7 @@ import numpy as np
 from benchmark.cache import StageCache, StageRecord, config_hash
 from benchmark.config import ConfigError, merge, parse_overrides
 from benchmark.errors import UserError
-from benchmark.io import atomic_directory, atomic_write_json, sha256_files
+from benchmark.io import atomic_directory, sha256_files
 from benchmark.results import results_path, write_results
 from benchmark.scoring import read_mask, score_masks
 
@@ -221,13 +223,13 @@ def dir_size(path: Path) -> int:
 
 
 def stage_features(cache: StageCache, method, scene, cfg: dict, masks_rec: StageRecord,
-                   geo_rec: StageRecord, progress: bool) -> StageRecord:
+                   geo_rec: StageRecord, geometry: Callable, progress: bool) -> StageRecord:
     """Learned per-gaussian features: keyed only on the settings that change them."""
     fcfg = {"method": method.name, **{k: cfg["method"][k] for k in method.FEATURE_KEYS if k in cfg["method"]}}
     key = cache.key("features", fcfg, {"masks": masks_rec.key, "geometry": geo_rec.key})
 
     def work(d: Path) -> dict:
-        gaussians, deformation = load_geometry(geo_rec.path)
+        gaussians, deformation = geometry()
         feats, info = method.learn(scene, gaussians, deformation, masks_rec.path, cfg["method"], d / "work",
                                    progress=progress)
         np.save(d / "features.npy", feats)
@@ -238,16 +240,18 @@ def stage_features(cache: StageCache, method, scene, cfg: dict, masks_rec: Stage
 
 
 def stage_fit(cache: StageCache, method, scene, cfg: dict, masks_rec: StageRecord,
-              geo_rec: StageRecord, progress: bool) -> tuple[StageRecord | None, StageRecord]:
+              geo_rec: StageRecord, geometry: Callable, progress: bool
+              ) -> tuple[StageRecord | None, StageRecord]:
     """(features record or None, fit record). Methods with ``learn``/``group`` halves get two
-    cached stages, so clustering and filtering changes reuse the trained features."""
+    cached stages, so clustering and filtering changes reuse the trained features.
+    ``geometry()`` returns the (gaussians, deformation) of ``geo_rec``, loaded once."""
     mcfg = {"method": method.name, **cfg["method"]}
     if hasattr(method, "learn") and hasattr(method, "group"):
-        feat_rec = stage_features(cache, method, scene, cfg, masks_rec, geo_rec, progress)
+        feat_rec = stage_features(cache, method, scene, cfg, masks_rec, geo_rec, geometry, progress)
         key = cache.key("fit", mcfg, {"features": feat_rec.key, "geometry": geo_rec.key})
 
         def work(d: Path) -> dict:
-            gaussians, deformation = load_geometry(geo_rec.path)
+            gaussians, deformation = geometry()
             feats = np.load(feat_rec.path / "features.npy")
             fitted = method.group(feats, cfg["method"], gaussians, deformation, feat_rec.info)
             fitted.save(d)
@@ -258,7 +262,7 @@ def stage_fit(cache: StageCache, method, scene, cfg: dict, masks_rec: StageRecor
     key = cache.key("fit", mcfg, {"masks": masks_rec.key, "geometry": geo_rec.key})
 
     def work_whole(d: Path) -> dict:
-        gaussians, deformation = load_geometry(geo_rec.path)
+        gaussians, deformation = geometry()
         fitted = method.fit(scene, gaussians, deformation, masks_rec.path, cfg["method"], d / "work",
                             progress=progress)
         fitted.save(d)
@@ -364,7 +368,10 @@ def run_sequence(opts: RunOptions, sequence: str | None, reporter: Reporter, ind
     reporter.stage(seq, recs["masks"])
     recs["geometry"] = stage_geometry(cache, scene, cfg, scene_key, opts.progress)
     reporter.stage(seq, recs["geometry"])
-    feat_rec, recs["fit"] = stage_fit(cache, method, scene, cfg, recs["masks"], recs["geometry"], opts.progress)
+    # loaded at most once per sequence, and only by a stage that has to run
+    geometry = functools.cache(lambda: load_geometry(recs["geometry"].path))
+    feat_rec, recs["fit"] = stage_fit(cache, method, scene, cfg, recs["masks"], recs["geometry"], geometry,
+                                      opts.progress)
     if feat_rec is not None:
         recs["features"] = feat_rec
         reporter.stage(seq, feat_rec)
@@ -380,12 +387,13 @@ def run_sequence(opts: RunOptions, sequence: str | None, reporter: Reporter, ind
     run_dir.mkdir(parents=True, exist_ok=True)
     with PeakMemory() as mem:
         t0 = time.perf_counter()
-        gaussians, deformation = load_geometry(recs["geometry"].path)
+        gaussians, deformation = geometry()
         fitted = FittedModel.load(recs["fit"].path, gaussians, deformation)
         prompts_path = recs["prompts"].path / "prompts.json"
         from benchmark.io import read_json
 
-        prompts = BenchmarkPrompts.from_dict(read_json(prompts_path, "prompts file"), str(prompts_path))
+        prompts_dict = read_json(prompts_path, "prompts file")
+        prompts = BenchmarkPrompts.from_dict(prompts_dict, str(prompts_path))
         ev = evaluate(method, fitted, scene, prompts, run_dir)
         seconds = time.perf_counter() - t0
     recs["evaluate"] = StageRecord("evaluate", "-", run_dir, False, seconds, mem.peak_mb, {})
@@ -418,7 +426,7 @@ def run_sequence(opts: RunOptions, sequence: str | None, reporter: Reporter, ind
                   "features": cfg["method"].get("features", {}).get("seed"),
                   "clustering": cfg["method"].get("clustering", {}).get("seed")},
         "checksums": {"gt": gt_key, "pred": sha256_files(pred_files)[:16]},
-        "prompts": read_json(prompts_path, "prompts file"),
+        "prompts": prompts_dict,
         "scene_dir": str(scene_dir),
         "frames": [{"frame": f"{i:05d}", "view": v.name, "image": str(v.image_path),
                     "gt": str(scene.gt_masks[i]), "pred": f"pred/{i:05d}.png"}
