@@ -48,16 +48,6 @@ class ImageLoadError(ValueError):
     user_facing = True
 
 
-# Per-dataset (warm_up, densify_until) of the public configs (DESIGN.md).
-DATASET_SCHEDULES = {
-    "nerfds": (3000, 15000),
-    "hypernerf": (1500, 9000),
-    "neu3d": (3000, 8000),
-    "immersive": (1000, 3000),
-    "technicolor": (3000, 5000),
-}
-
-
 @dataclasses.dataclass
 class ReconstructionConfig:
     iterations: int = 20_000
@@ -98,15 +88,10 @@ class ReconstructionConfig:
     log_interval: int = 10
 
     @classmethod
-    def paper(cls, dataset: str | None = None, **overrides) -> ReconstructionConfig:
-        """Public settings; ``dataset`` picks the per-dataset warm-up / densify-until."""
-        kw: dict[str, Any] = {}
-        if dataset is not None:
-            if dataset not in DATASET_SCHEDULES:
-                raise ValueError(f"unknown dataset {dataset!r}; known: {', '.join(DATASET_SCHEDULES)}")
-            kw["warm_up"], kw["densify_until"] = DATASET_SCHEDULES[dataset]
-        kw.update(overrides)
-        return cls(**kw)
+    def paper(cls, **overrides) -> ReconstructionConfig:
+        """Public settings. The per-dataset ``warm_up`` / ``densify_until`` are passed in by
+        the caller from the benchmark registry (trase knows no dataset)."""
+        return cls(**overrides)
 
     @classmethod
     def cpu(cls, **overrides) -> ReconstructionConfig:

@@ -91,3 +91,15 @@ def test_overrides_parse_and_merge():
         parse_overrides(["novalue"])
     with pytest.raises(ConfigError, match="is a section"):
         merge(base, {"a": 5})
+
+
+def test_paper_preset_takes_the_registry_schedule():
+    from benchmark.datasets import get_dataset
+    from benchmark.methods import get_method
+    from benchmark.runner import default_config
+
+    spec = get_dataset("hypernerf")
+    cfg = default_config(get_method("trase"), spec, "real", {"geometry": {"preset": "paper"}})
+    train = cfg["geometry"]["train"]
+    assert (train["warm_up"], train["densify_until"]) == (spec.warm_up, spec.densify_until) == (1500, 9000)
+    assert train["iterations"] == 20_000 and train["image_downscale"] == 1.0
