@@ -38,7 +38,6 @@ class Table:
     groups: list[str]  # one per column pair (dataset or sequence)
     rows: list[tuple[str, list[float | None], float | None]]  # label, [miou, macc]*groups, s/seq
     notes: list[str] = dataclasses.field(default_factory=list)
-    with_time: bool = True
 
     def best(self) -> list[float | None]:
         n = 2 * len(self.groups)
