@@ -1,6 +1,7 @@
 """Numba CPU compositing as a torch.autograd.Function (forward and hand-written backward
 kernels in numba_kernels.py). Inputs are composited in float32 and results cast back to the
-caller's dtype; projection and SH stay in torch (see projection.py)."""
+caller's dtype. The numba backend projects with numba_projection.py; SH colour evaluation
+stays in torch (sh.py), shared with the reference."""
 
 from __future__ import annotations
 

@@ -357,11 +357,11 @@ def backward(
                 for q in range(L):
                     # branch-free: an unused lane has a = 0, so T and acc stay as they are
                     a = w[q]
-                    one_m = 1.0 - a
-                    Tq = T[q] / one_m  # transmittance in front of this gaussian
+                    inv = 1.0 / (1.0 - a)
+                    Tq = T[q] * inv  # transmittance in front of this gaussian
                     wq = a * Tq
                     f = float(fg[q])
-                    d_a = Tq * f - acc[q] / one_m + ga[q] * tf[q] / one_m
+                    d_a = Tq * f - (acc[q] - ga[q] * tf[q]) * inv
                     acc[q] += wq * f
                     T[q] = Tq
                     w[q] = wq

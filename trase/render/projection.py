@@ -48,6 +48,35 @@ def tile_grid(camera: Camera, tile_size: int) -> tuple[int, int]:
     return (camera.width + tile_size - 1) // tile_size, (camera.height + tile_size - 1) // tile_size
 
 
+def screen_rects(
+    means2d: torch.Tensor,  # [N, 2] (no grad)
+    lam: torch.Tensor,  # [N] largest eigenvalue of the dilated 2D covariance
+    ok: torch.Tensor,  # [N] bool: not culled
+    camera: Camera,
+    tile_size: int,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """-> (radii [N] int64, rects [N, 4] int64 half-open tile ranges (x0, x1, y0, y1));
+    radius ceil(3 sqrt(lam)) pixels, 0 and an empty rect for culled or off-screen gaussians."""
+    radius = torch.ceil(3.0 * torch.sqrt(lam))
+    radius = torch.where(ok & torch.isfinite(radius), radius, torch.zeros_like(radius))
+    gx, gy = tile_grid(camera, tile_size)
+    big = float(max(gx, gy) + 2)
+
+    def tiles(lo: torch.Tensor, hi: torch.Tensor, n: int) -> tuple[torch.Tensor, torch.Tensor]:
+        t0 = torch.floor(lo / tile_size).clamp(-1.0, big).to(torch.int64).clamp(0, n)
+        t1 = (torch.floor(hi / tile_size) + 1).clamp(-1.0, big).to(torch.int64).clamp(0, n)
+        return t0, t1
+
+    uu, vv = means2d[:, 0], means2d[:, 1]
+    x0, x1 = tiles(uu - radius, uu + radius, gx)
+    y0, y1 = tiles(vv - radius, vv + radius, gy)
+    empty = (radius <= 0) | (x1 <= x0) | (y1 <= y0)
+    rects = torch.stack([x0, x1, y0, y1], dim=1)
+    rects[empty] = 0
+    radii = torch.where(empty, torch.zeros_like(radius), radius).to(torch.int64)
+    return radii, rects
+
+
 def project_gaussians(
     means: torch.Tensor,  # [N, 3]
     quats: torch.Tensor,  # [N, 4] wxyz
@@ -104,23 +133,7 @@ def project_gaussians(
     with torch.no_grad():
         mid = 0.5 * (a + c)
         lam = mid + torch.sqrt((mid * mid - det).clamp_min(0.1))
-        radius = torch.ceil(3.0 * torch.sqrt(lam))
-        radius = torch.where(ok & torch.isfinite(radius), radius, torch.zeros_like(radius))
-        gx, gy = tile_grid(camera, tile_size)
-        big = float(max(gx, gy) + 2)
-
-        def tiles(lo: torch.Tensor, hi: torch.Tensor, n: int) -> tuple[torch.Tensor, torch.Tensor]:
-            t0 = torch.floor(lo / tile_size).clamp(-1.0, big).to(torch.int64).clamp(0, n)
-            t1 = (torch.floor(hi / tile_size) + 1).clamp(-1.0, big).to(torch.int64).clamp(0, n)
-            return t0, t1
-
-        uu, vv = means2d[:, 0].detach(), means2d[:, 1].detach()
-        x0, x1 = tiles(uu - radius, uu + radius, gx)
-        y0, y1 = tiles(vv - radius, vv + radius, gy)
-        empty = (radius <= 0) | (x1 <= x0) | (y1 <= y0)
-        rects = torch.stack([x0, x1, y0, y1], dim=1)
-        rects[empty] = 0
-        radii = torch.where(empty, torch.zeros_like(radius), radius).to(torch.int64)
+        radii, rects = screen_rects(means2d.detach(), lam, ok, camera, tile_size)
     assert math.isfinite(near)
     return Projected(
         means2d=means2d.to(out_dtype),

@@ -1,7 +1,8 @@
 """The public rasterizer: ``rasterize`` (colour, features, depth, alpha) and ``pixel_weights``
 (each pixel's contributing gaussians and weights, for the frozen-geometry fast path).
 
-Pipeline: EWA projection (torch, shared by the CPU backends) -> per-gaussian channels
+Pipeline: EWA projection (torch reference in projection.py; numba twin in numba_projection.py
+for the numba backend) -> per-gaussian channels
 (SH colour, features, camera z for depth) -> tile compositing (backend) -> split channels.
 Backends: ``torch`` (reference, autograd), ``numba`` (fast CPU, hand-written backward),
 ``gsplat`` (CUDA only), ``auto`` (gsplat for CUDA tensors, numba otherwise).
@@ -111,7 +112,12 @@ def rasterize(
     if tile_size <= 0:
         raise RenderError(f"rasterize: tile_size must be positive, got {tile_size}")
     dtype = means.dtype
-    proj = project_gaussians(means, quats, scales, camera, near=near, tile_size=tile_size, dtype=dtype)
+    if backend == "torch":
+        proj = project_gaussians(means, quats, scales, camera, near=near, tile_size=tile_size, dtype=dtype)
+    else:
+        from trase.render.numba_projection import project_gaussians_numba
+
+        proj = project_gaussians_numba(means, quats, scales, camera, near=near, tile_size=tile_size, dtype=dtype)
     parts = []
     rgb = None
     if colors is not None:
@@ -181,7 +187,9 @@ def pixel_weights(
             raise RenderError(f"pixel_weights: pixel ids must lie in [0, {hw}) for a {camera.width}x{camera.height} camera")
     with torch.no_grad():
         args = [t.detach().to("cpu") for t in (means, quats, scales, opacities)]
-        proj = project_gaussians(*args[:3], camera, near=near, tile_size=tile_size, dtype=torch.float32)
+        from trase.render.numba_projection import project_gaussians_numba
+
+        proj = project_gaussians_numba(*args[:3], camera, near=near, tile_size=tile_size, dtype=torch.float32)
         indptr, indices, weights = pixel_weights_numba(
             proj.means2d, proj.conics, args[3].to(torch.float32), proj.depths, proj.rects,
             camera.width, camera.height, tile_size, pix, float(min_weight),
