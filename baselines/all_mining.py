@@ -20,6 +20,8 @@ Choices (inherited from ``SoftMining``, see its module doc for the alternatives)
 
 from __future__ import annotations
 
+import math
+
 import torch
 
 from trase.objectives.base import PixelSample, register_objective
@@ -33,6 +35,11 @@ class AllMining(SoftMining):
     ``tau_pos``/``tau_neg`` are accepted for a uniform signature but select nothing: the
     "all" rule has no threshold."""
 
+    def thresholds(self) -> tuple[float, float]:
+        # every C = 1 pair has C_F < inf and every C = 0 pair C_F > -inf: the fused kernels'
+        # soft anchor test with these thresholds is exactly the "all" rule
+        return math.inf, -math.inf
+
     def anchors(self, ps):
         return all_anchors(ps)
 
@@ -43,8 +50,9 @@ def all_mining_loss(
     anchor_side: str = "column",
     normalise: str = "anchor_pairs",
     reg_weight: float = 1.0,
+    impl: str = "auto",
 ) -> tuple[torch.Tensor, dict]:
     """features [Np, D] rendered at sample.pixels -> (scalar loss, stats). See module doc."""
-    return AllMining(anchor_side=anchor_side, normalise=normalise, reg_weight=reg_weight)(
+    return AllMining(anchor_side=anchor_side, normalise=normalise, reg_weight=reg_weight, impl=impl)(
         features, sample
     )

@@ -17,6 +17,8 @@ Choices:
   selection gives a zero term (Z clamped to 1), never NaN.
 * The selection uses C_F detached (a pair's membership in P/N is not differentiated).
 * tau_p = 0.75, tau_n = 0.5 and reg_weight = 1, as TRASE.
+* ``impl``: "auto" (fused kernels on CPU, ``trase.objectives.fused``), "fused" or
+  "reference" (the dense torch form below), as ``SoftMining``; same loss, gradients, stats.
 """
 
 from __future__ import annotations
@@ -33,7 +35,8 @@ from trase.objectives.base import (
     pair_stats,
     register_objective,
 )
-from trase.objectives.soft import combine_pair_losses, weighted_pair_losses
+from trase.objectives.fused import fused_pair_losses
+from trase.objectives.soft import IMPLS, combine_pair_losses, use_fused, weighted_pair_losses
 
 
 def check_thresholds(tau_pos: float, tau_neg: float) -> None:
@@ -59,9 +62,14 @@ def hard_mining_loss(
     tau_pos: float = TAU_POS,
     tau_neg: float = TAU_NEG,
     reg_weight: float = 1.0,
+    impl: str = "auto",
 ) -> tuple[torch.Tensor, dict]:
     """features [Np, D] rendered at sample.pixels -> (scalar loss, stats). See module doc."""
     check_thresholds(tau_pos, tau_neg)
+    if use_fused(impl, features):
+        l_pos, l_neg, n_pos, n_neg, n_valid = fused_pair_losses(
+            features, sample, hard=True, tau_pos=tau_pos, tau_neg=tau_neg)
+        return combine_pair_losses(n_valid, features, l_pos, l_neg, n_pos, n_neg, reg_weight)
     ps = pair_stats(features, sample)  # checks the feature shape against the sample
     pos, neg = hard_pairs(ps, tau_pos, tau_neg)
     n_pos, n_neg = int(pos.sum()), int(neg.sum())
@@ -74,12 +82,16 @@ class HardMining(Objective):
     """TRASE's weighted pair loss over only the individually violating pairs (ablation)."""
 
     def __init__(
-        self, tau_pos: float = TAU_POS, tau_neg: float = TAU_NEG, reg_weight: float = 1.0
+        self, tau_pos: float = TAU_POS, tau_neg: float = TAU_NEG, reg_weight: float = 1.0,
+        impl: str = "auto",
     ) -> None:
         super().__init__()
         check_thresholds(tau_pos, tau_neg)
+        if impl not in IMPLS:
+            raise ValueError(f"impl must be one of {IMPLS}, got {impl!r}")
+        self.impl = impl
         self.tau_pos, self.tau_neg = float(tau_pos), float(tau_neg)
         self.reg_weight = float(reg_weight)
 
     def forward(self, features: torch.Tensor, sample: PixelSample) -> tuple[torch.Tensor, dict]:
-        return hard_mining_loss(features, sample, self.tau_pos, self.tau_neg, self.reg_weight)
+        return hard_mining_loss(features, sample, self.tau_pos, self.tau_neg, self.reg_weight, self.impl)

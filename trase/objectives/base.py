@@ -13,7 +13,7 @@ mask may well group together. They still count in the feature-norm regulariser.
 from __future__ import annotations
 
 import dataclasses
-from typing import Callable
+from collections.abc import Callable
 
 import torch
 import torch.nn.functional as F

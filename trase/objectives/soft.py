@@ -23,6 +23,12 @@ Exact choices (the paper's equations and the public code differ in details):
   considered); ``"selected"`` divides by the number of selected pairs of that term. Z is
   clamped to >= 1 so an empty selection gives a zero (not NaN) term.
 * L = L_pos + L_neg + reg_weight * (1 - mean ||F(p)||)^2 with reg_weight = 1.
+
+Implementations (``impl``): ``"fused"`` (``trase.objectives.fused``: bit-packed membership,
+blockwise BLAS C_F, numba pair kernels, O(V (D + M / 64)) memory, a custom autograd Function)
+and ``"reference"`` (the dense [V, V] torch matrices below, kept readable; the tests compare
+the two). ``"auto"`` (default) is fused for CPU tensors and the reference on other devices.
+Both give the same loss, gradients and stats (to float rounding).
 """
 
 from __future__ import annotations
@@ -39,9 +45,20 @@ from trase.objectives.base import (
     pair_stats,
     register_objective,
 )
+from trase.objectives.fused import fused_pair_losses
 
 ANCHOR_SIDES = ("column", "row", "either")
 NORMALISATIONS = ("anchor_pairs", "selected")
+IMPLS = ("auto", "fused", "reference")
+
+
+def use_fused(impl: str, features: torch.Tensor) -> bool:
+    """Whether ``impl`` runs the fused kernels on these features (auto: CPU tensors)."""
+    if impl not in IMPLS:
+        raise ValueError(f"impl must be one of {IMPLS}, got {impl!r}")
+    if impl == "fused" and features.device.type != "cpu":
+        raise ValueError(f"impl='fused' runs on CPU tensors, got features on {features.device}")
+    return impl == "fused" or (impl == "auto" and features.device.type == "cpu")
 
 
 def _any_offdiag(m: torch.Tensor) -> torch.Tensor:
@@ -117,9 +134,12 @@ def weighted_pair_losses(ps: PairStats, pos_pairs, neg_pairs, z_pos, z_neg):
     return l_pos, l_neg
 
 
-def combine_pair_losses(ps: PairStats, features, l_pos, l_neg, n_pos: int, n_neg: int,
+def combine_pair_losses(n_valid: int, features, l_pos, l_neg, n_pos: int, n_neg: int,
                         reg_weight: float = 1.0) -> tuple[torch.Tensor, dict]:
-    """L = L_pos + L_neg + reg_weight * regulariser, with the stats every mining rule reports."""
+    """L = L_pos + L_neg + reg_weight * regulariser, with the stats every mining rule reports.
+    ``n_valid``: pixels in >= 1 sampled mask (an int, or the ``PairStats`` they came from)."""
+    if isinstance(n_valid, PairStats):
+        n_valid = int(n_valid.valid.sum())
     reg = norm_regulariser(features)
     loss = l_pos + l_neg + reg_weight * reg
     stats = {
@@ -128,7 +148,7 @@ def combine_pair_losses(ps: PairStats, features, l_pos, l_neg, n_pos: int, n_neg
         "reg": float(reg.detach()),
         "n_pos": n_pos,
         "n_neg": n_neg,
-        "n_valid": int(ps.valid.sum()),
+        "n_valid": int(n_valid),
     }
     return loss, stats
 
@@ -154,8 +174,11 @@ class SoftMining(Objective):
         anchor_side: str = "column",
         normalise: str = "anchor_pairs",
         reg_weight: float = 1.0,
+        impl: str = "auto",
     ) -> None:
         super().__init__()
+        if impl not in IMPLS:
+            raise ValueError(f"impl must be one of {IMPLS}, got {impl!r}")
         if anchor_side not in ANCHOR_SIDES:
             raise ValueError(f"anchor_side must be one of {ANCHOR_SIDES}, got {anchor_side!r}")
         if normalise not in NORMALISATIONS:
@@ -163,12 +186,28 @@ class SoftMining(Objective):
         self.tau_pos, self.tau_neg = float(tau_pos), float(tau_neg)
         self.anchor_side, self.normalise = anchor_side, normalise
         self.reg_weight = float(reg_weight)
+        self.impl = impl
+
+    def thresholds(self) -> tuple[float, float]:
+        """(tau_pos, tau_neg) of the anchor test; (inf, -inf) makes every pixel with a
+        positive (negative) partner an anchor ("all" mining)."""
+        return self.tau_pos, self.tau_neg
 
     def anchors(self, ps: PairStats):
-        return soft_anchors(ps, self.tau_pos, self.tau_neg)
+        return soft_anchors(ps, *self.thresholds())
 
     def forward(self, features: torch.Tensor, sample: PixelSample) -> tuple[torch.Tensor, dict]:
         """features [Np, D] rendered at sample.pixels -> (loss, stats)."""
+        if not use_fused(self.impl, features):
+            return self.forward_reference(features, sample)
+        tau_pos, tau_neg = self.thresholds()
+        l_pos, l_neg, n_pos, n_neg, n_valid = fused_pair_losses(
+            features, sample, tau_pos=tau_pos, tau_neg=tau_neg, side=self.anchor_side,
+            normalise=self.normalise)
+        return combine_pair_losses(n_valid, features, l_pos, l_neg, n_pos, n_neg, self.reg_weight)
+
+    def forward_reference(self, features: torch.Tensor, sample: PixelSample) -> tuple[torch.Tensor, dict]:
+        """The dense torch form (readable; the tests compare ``forward`` against it)."""
         ps = pair_stats(features, sample)
         pos_a, neg_a = self.anchors(ps)
         pos = anchor_pairs(pos_a, ps.upper, self.anchor_side) & ps.C
