@@ -18,10 +18,21 @@ from benchmark.perf import SUITES, get_suite, machine_info
 @click.option("--json", "json_out", type=click.Path(dir_okay=False), help="Also write all figures to this JSON file.")
 @click.option("--out-dir", type=click.Path(file_okay=False), default=None,
               help="Where suites write files (pareto.png). Default: the --json file's folder, else ./perf-out.")
-def perf(suites: tuple[str, ...], quick: bool, json_out: str | None, out_dir: str | None) -> None:
+@click.option("--threads", type=click.IntRange(min=1), default=None,
+              help="Threads for torch and numba (default: theirs, all cores). On a shared, loaded "
+                   "machine --threads 1 gives the steadiest side-by-side ratios.")
+def perf(suites: tuple[str, ...], quick: bool, json_out: str | None, out_dir: str | None,
+         threads: int | None) -> None:
     """Run performance SUITES (default: all) and print their figures."""
     names = suites or tuple(sorted(SUITES))
-    result = {"machine": machine_info(), "started": time.strftime("%Y-%m-%dT%H:%M:%S"), "suites": {}}
+    if threads:
+        import numba
+        import torch
+
+        torch.set_num_threads(threads)
+        numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+    result = {"machine": machine_info(), "started": time.strftime("%Y-%m-%dT%H:%M:%S"), "suites": {},
+              "threads": threads}
     for name in names:
         click.echo(f"== {name} ==")
         fn = get_suite(name)

@@ -342,8 +342,9 @@ def backward(
                     continue
                 for q in range(L):
                     sq = np.float32(0.0)
-                    for c in range(C):  # a reduction: vectorised thanks to "reassoc"
-                        sq += chans[g, c] * gblk[q, c]
+                    if w[q] > 0.0:  # only lanes this gaussian reaches (about half of them)
+                        for c in range(C):  # a reduction: vectorised thanks to "reassoc"
+                            sq += chans[g, c] * gblk[q, c]
                     fg[q] = sq
                 o = pk[i, 5]
                 ca, cb, cc = pk[i, 2], pk[i, 3], pk[i, 4]
