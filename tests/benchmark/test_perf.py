@@ -23,6 +23,24 @@ def test_raster_suite_runs_and_writes_json(tmp_path, monkeypatch, capsys):
         assert row[backend]["total_s"]["median"] > 0 and len(row[backend]["forward_s"]["all"]) >= 2
 
 
+def test_threads_option_sets_and_records_thread_count(tmp_path, monkeypatch):
+    import numba
+    import torch
+
+    from benchmark.perf import raster
+
+    monkeypatch.setattr(raster, "QUICK", [(50, 16, 16, 2, False)])
+    before = (torch.get_num_threads(), numba.get_num_threads())
+    out = tmp_path / "perf.json"
+    try:
+        assert main(["perf", "raster", "--quick", "--threads", "1", "--json", str(out)]) == 0
+        assert torch.get_num_threads() == 1 and numba.get_num_threads() == 1
+    finally:
+        torch.set_num_threads(before[0])
+        numba.set_num_threads(before[1])
+    assert json.loads(out.read_text())["threads"] == 1
+
+
 def test_registry_entries_resolve():
     for name in SUITES:
         assert callable(get_suite(name))
