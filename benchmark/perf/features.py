@@ -1,28 +1,34 @@
 """One feature-learning step through the frozen-geometry fast path (trase.fastpath.ViewWeights:
 precomputed sparse pixel -> gaussian weights) against the same step through the rasterizer
-(trase.fastpath.RasterizerPath, numba backend), for Np sampled pixels and D feature channels.
+(trase.fastpath.RasterizerPath, numba backend), and the objective both paths share.
 
-A step is what trase.features.train_features does per iteration after sampling: K=16
-smoothing (8 random slots), render the Np sampled pixels' features, TRASE soft-mined loss,
-backward, one Adam step on the features. It is timed in two parts: the path-dependent part
-(smoothing + render + backward through the render), per path and per (D, Np); and the
-objective (loss forward + backward on the rendered [Np, D] features), identical for both
-paths, once per Np (its cost grows as Np^2 and barely with D; above ``objective_max_pixels``
-it is not run: its [Np, Np] pair matrices take ~36 B per pair, ~3.6 GB at Np = 10000, and
-minutes on 2 loaded cores). Step time = sum of the two.
-Both paths get the same sampled pixels and features; the rendered difference is measured
-for every (D, Np), the loss difference once per Np. The precomputation (pixel weights of every
-pixel inside a mask, once per view) is timed and its bytes reported; "break-even" = steps
-after which the fast path has paid for it.
+Three parts, side by side in one run:
 
-Scene: random gaussians in a unit ball seen from distance 3 (benchmark.perf.raster.make_scene),
-40 random elliptical masks per view (~most of the image covered), M' = 25 masks per step.
+1. Whole step on the default synthetic scene (the issue's goal: Np = 5000, synthetic NeRF-DS,
+   ground-truth geometry, synthetic masks, the dataset's M'; ``--quick``: the random scene of
+   part 3). A step is what trase.features.train_features does per iteration after sampling:
+   smoothing (8 of K=16 slots) -> render the Np sampled pixels -> TRASE soft-mined loss ->
+   backward. Timed whole through each path, plus its parts: render + backward from a leaf (R
+   rasterizer, F fast path) and the objective forward + backward (O fused, O_ref the dense torch
+   reference). Since O is the same for both paths, the step ratio is at most (R + O) / (F + O);
+   "O for 10x" = (R - 10 F) / 9 is the objective time a 10x step would need. The loss of the
+   two paths and of the two objective implementations is compared. Repeated at 1 and 2 threads.
+2. The objective alone at Np = 5000 and 10000 (D = 32 rendered features, M' = 25 of 40 random
+   elliptical masks): fused kernels vs dense reference, |loss diff|, max relative gradient diff.
+3. Render grid (D x Np) on a random scene (gaussians in a unit ball seen from distance 3,
+   benchmark.perf.raster.make_scene; 40 random elliptical masks, M' = 25): the path-dependent
+   part (smoothing + render + backward) per path, the fused objective per Np, step ratio; the
+   precomputation (pixel weights of every pixel inside a mask, once per view) is timed, its bytes
+   reported; "break-even" = steps after which the fast path has paid for it.
 """
 
 from __future__ import annotations
 
 import math
+import statistics
+import tempfile
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -30,12 +36,14 @@ import torch
 from benchmark.perf.common import fmt, load_average, table, time_repeats, versions
 
 QUICK = {"gaussians": 1_000, "width": 64, "height": 48, "n_pixels": [500], "dims": [16], "repeats": 2,
-         "budget_s": 5.0, "objective_max_pixels": 5000}
+         "budget_s": 5.0, "objective_pixels": [500], "step_pixels": 500, "step_threads": [1],
+         "synthetic": None}
 DEFAULT = {"gaussians": 50_000, "width": 480, "height": 272, "n_pixels": [1000, 5000, 10000],
-           "dims": [16, 32, 64, 128], "repeats": 3, "budget_s": 10.0,
-           "objective_max_pixels": 5000}
+           "dims": [16, 32, 64, 128], "repeats": 5, "budget_s": 10.0, "objective_pixels": [5000, 10000],
+           "step_pixels": 5000, "step_threads": [1, 2], "synthetic": {"dataset": "nerfds", "size": "small"}}
 N_MASKS = 40
 M_PRIME = 25
+STEP_DIM = 32  # the paper's feature dimension
 
 
 def make_masks(width: int, height: int, n: int = N_MASKS, seed: int = 0):
@@ -64,6 +72,31 @@ def make_gaussians(n: int, width: int, height: int):
     return gm, cam
 
 
+def synthetic_view(dataset: str, size: str) -> dict:
+    """The first training view of the cached synthetic scene with its ground-truth geometry and
+    synthetic masks (generated into a temporary folder): the default scene of the speed goal."""
+    import masks as masklib
+    from benchmark.datasets import get_dataset, load_scene
+    from benchmark.datasets.synthetic.cache import ensure_synthetic
+    from benchmark.io import read_json
+    from masks.generators.base import make_generator
+    from trase.checkpoint import load_synthetic_geometry
+
+    scene_dir = ensure_synthetic(dataset, size=size)
+    scene = load_scene(dataset, scene_dir, gt_dir=scene_dir / "gt_masks")
+    g, deform, _ = load_synthetic_geometry(scene_dir / "synthetic" / "geometry.npz")
+    view = scene.train[0]
+    manifest_path = scene_dir / "synthetic" / "manifest.json"
+    manifest = read_json(manifest_path, "synthetic manifest")
+    work = Path(tempfile.mkdtemp(prefix="perf-features-"))
+    masklib.generate_scene_masks([view], make_generator("synthetic", seed=0), work / "masks", progress=False,
+                                 instance_maps={view.name: manifest_path.parent / manifest["instances"][view.name]})
+    ms = masklib.load(masklib.mask_path(work / "masks", view.name))
+    return {"name": f"synthetic {dataset} ({size}), view {view.name}, ground-truth geometry",
+            "gaussians": g, "deformation": deform, "camera": view.camera, "masks": ms,
+            "m_prime": get_dataset(dataset).n_masks}
+
+
 def render_step(path, feats0: torch.Tensor, knn: torch.Tensor, pixels: torch.Tensor) -> Callable[[], float]:
     """The path-dependent part of a step: smoothing (8 of 16 slots) + rendering the sampled
     pixels + backward of a fixed random linear functional of the [Np, D] result."""
@@ -82,15 +115,158 @@ def render_step(path, feats0: torch.Tensor, knn: torch.Tensor, pixels: torch.Ten
     return step
 
 
-def objective_step(objective, rendered: torch.Tensor, sample) -> Callable[[], float]:
-    """The path-independent part: TRASE loss on rendered [Np, D] features, forward + backward."""
-    def step() -> float:
+def objective_step(objective, rendered: torch.Tensor, sample) -> Callable[[], tuple]:
+    """The path-independent part: the loss on rendered [Np, D] features, forward + backward.
+    Returns (loss, stats, gradient) of the last call."""
+    def step():
         r = rendered.detach().clone().requires_grad_(True)
-        loss = objective(r, sample)[0]
+        loss, stats = objective(r, sample)
         loss.backward()
-        return float(loss.detach())
+        return float(loss.detach()), stats, r.grad
 
     return step
+
+
+def _compare_objectives(fused: tuple, ref: tuple) -> dict:
+    """(loss, stats, grad) of the fused and the reference objective -> their differences."""
+    gf, gr = fused[2], ref[2]
+    scale = float(gr.abs().max()) if gr.numel() else 0.0
+    return {"loss_abs_diff": abs(fused[0] - ref[0]),
+            "grad_max_rel_diff": float((gf - gr).abs().max()) / scale if scale > 0 else 0.0,
+            "stats_equal": all(fused[1][k] == ref[1][k] for k in ("n_pos", "n_neg", "n_valid"))}
+
+
+class _threads:
+    """Torch and numba on ``n`` threads inside the block (numba's pool capped), restored after."""
+
+    def __init__(self, n: int) -> None:
+        self.n = n
+
+    def __enter__(self):
+        import numba
+
+        self.old = (torch.get_num_threads(), numba.get_num_threads())
+        numba.set_num_threads(min(self.n, numba.config.NUMBA_NUM_THREADS))
+        torch.set_num_threads(self.n)  # after numba: they share the OpenMP runtime
+        return self
+
+    def __exit__(self, *exc):
+        import numba
+
+        numba.set_num_threads(self.old[1])
+        torch.set_num_threads(self.old[0])
+
+
+def whole_step(scene: dict, n_pixels: int, reps: int, budget_s: float, threads: list[int], echo) -> dict:
+    """Part 1: the whole step through both paths, its parts, and the ratio arithmetic."""
+    from trase.fastpath import RasterizerPath, ViewWeights
+    from trase.features import build_sample, init_features
+    from trase.objectives import get_objective
+    from trase.smoothing import knn_indices, smooth_features
+
+    gm, deform, cam, ms = scene["gaussians"], scene["deformation"], scene["camera"], scene["masks"]
+    sample = build_sample(ms, "random", scene["m_prime"], n_pixels, np.random.default_rng(0), view=0)
+    gen = torch.Generator().manual_seed(0)
+    feats0 = init_features(gm.num_gaussians, STEP_DIM, gen)
+    knn = knn_indices(gm.means.detach(), 16)
+    slots = knn[:, torch.randperm(16, generator=gen)[:8]]  # the same 8 slots for both paths
+    fused, reference = get_objective("trase", impl="fused"), get_objective("trase", impl="reference")
+    fast = ViewWeights(gm, deform, cache_dir=None)
+    raster = RasterizerPath(gm, deform, backend="numba")
+    for p in (fast, raster):
+        p.register(0, "perf", cam, ms.covered)
+    prep, _ = time_repeats(lambda: fast.get(0), 1)
+
+    def step(path):
+        def run():
+            f = torch.nn.Parameter(feats0.clone())
+            loss, _ = fused(path.render(0, smooth_features(f, slots, None), sample.pixels), sample)
+            loss.backward()
+            return float(loss.detach())
+        return run
+
+    with torch.no_grad():
+        smoothed = smooth_features(feats0, slots, None)
+        rendered = fast.render(0, smoothed, sample.pixels)  # [Np, D]
+        feat_diff = float((rendered - raster.render(0, smoothed, sample.pixels)).abs().max())
+
+    def render_backward(path):
+        def run():
+            leaf = smoothed.clone().requires_grad_(True)
+            r = path.render(0, leaf, sample.pixels)
+            r.backward(torch.ones_like(r))
+        return run
+
+    out = {"scene": scene["name"], "n_gaussians": gm.num_gaussians, "image": f"{cam.width}x{cam.height}",
+           "n_pixels": sample.n_pixels, "n_valid": int(sample.membership.any(1).sum()), "m_prime": sample.n_masks,
+           "dim": STEP_DIM, "precompute_s": prep, "bytes_per_view": fast.stats()["bytes_per_view_max"],
+           "feature_max_abs_diff": feat_diff, "threads": {}}
+    echo(f"whole step: {out['scene']}; {out['n_gaussians']} gaussians, {out['image']}, Np={out['n_pixels']} "
+         f"(V={out['n_valid']} in a sampled mask), M'={out['m_prime']}, D={STEP_DIM}; pixel weights "
+         f"{out['bytes_per_view'] / 2**20:.1f} MiB, computed in {fmt(prep)}")
+    rows = []
+    for nt in threads:
+        with _threads(nt):
+            t = {}
+            for name, fn in (("step_fast", step(fast)), ("step_raster", step(raster)),
+                             ("render_fast", render_backward(fast)), ("render_raster", render_backward(raster)),
+                             ("objective", objective_step(fused, rendered, sample)),
+                             ("objective_reference", objective_step(reference, rendered, sample))):
+                t[name], t[name + "_result"] = time_repeats(fn, reps, warmup=1, budget_s=budget_s)
+        m = {k: v["median"] for k, v in t.items() if not k.endswith("_result")}
+        R, F, O, Oref = m["render_raster"], m["render_fast"], m["objective"], m["objective_reference"]
+        entry = {k: v for k, v in t.items() if not k.endswith("_result")}
+        entry.update(
+            loss_fast=t["step_fast_result"], loss_raster=t["step_raster_result"],
+            loss_abs_diff=abs(t["step_fast_result"] - t["step_raster_result"]),
+            objective_vs_reference=_compare_objectives(t["objective_result"], t["objective_reference_result"]),
+            step_speedup=m["step_raster"] / max(m["step_fast"], 1e-12),
+            render_speedup=R / max(F, 1e-12),
+            ratio_bound=(R + O) / max(F + O, 1e-12),
+            ratio_bound_reference_objective=(R + Oref) / max(F + Oref, 1e-12),
+            objective_for_10x_s=(R - 10 * F) / 9,
+        )
+        out["threads"][str(nt)] = entry
+        rows.append([f"threads={nt}", fmt(t["step_raster"]), fmt(t["step_fast"]), f"{entry['step_speedup']:.2f}x",
+                     fmt(t["render_raster"]), fmt(t["render_fast"]), f"{entry['render_speedup']:.1f}x",
+                     fmt(t["objective"]), fmt(t["objective_reference"]), f"{entry['ratio_bound']:.2f}x",
+                     f"{entry['objective_for_10x_s'] * 1e3:.1f}ms", f"{entry['loss_abs_diff']:.1e}"])
+    echo(table(rows, ["", "raster step", "fast step", "step x", "R raster render", "F fast render", "R/F",
+                      "O objective", "O_ref (dense)", "(R+O)/(F+O)", "O for 10x", "|loss diff|"]))
+    for nt, e in out["threads"].items():
+        c = e["objective_vs_reference"]
+        echo(f"threads={nt}: fused vs dense objective on the same features: |loss diff| {c['loss_abs_diff']:.1e}, "
+             f"max rel grad diff {c['grad_max_rel_diff']:.1e}, n_pos/n_neg/n_valid equal: {c['stats_equal']}")
+    echo("step = smoothing + render + objective + backward; R, F = render + backward from a leaf; O = objective "
+         "forward + backward; a 10x step needs O <= (R - 10 F) / 9 (negative: impossible even with O = 0)")
+    return out
+
+
+def objective_alone(fast, gm, ms, knn, n_pixels: list[int], reps: int, budget_s: float, echo) -> list[dict]:
+    """Part 2: fused vs dense reference objective on the same rendered features."""
+    from trase.features import build_sample, init_features
+    from trase.objectives import get_objective
+    from trase.smoothing import smooth_features
+
+    fused, reference = get_objective("trase", impl="fused"), get_objective("trase", impl="reference")
+    feats = init_features(gm.num_gaussians, STEP_DIM, torch.Generator().manual_seed(0))
+    with torch.no_grad():
+        smoothed = smooth_features(feats, knn, None)
+    out, rows = [], []
+    for npix in n_pixels:
+        sample = build_sample(ms, "random", M_PRIME, npix, np.random.default_rng(npix), view=0)
+        with torch.no_grad():
+            rendered = fast.render(0, smoothed, sample.pixels)
+        tf, rf = time_repeats(objective_step(fused, rendered, sample), reps, warmup=1, budget_s=budget_s)
+        tr, rr = time_repeats(objective_step(reference, rendered, sample), reps, warmup=1, budget_s=budget_s)
+        e = {"n_pixels": sample.n_pixels, "n_valid": int(sample.membership.any(1).sum()), "fused_s": tf,
+             "reference_s": tr, "speedup": tr["median"] / max(tf["median"], 1e-12), **_compare_objectives(rf, rr)}
+        out.append(e)
+        rows.append([f"Np={e['n_pixels']} V={e['n_valid']}", fmt(tf), fmt(tr), f"{e['speedup']:.1f}x",
+                     f"{e['loss_abs_diff']:.1e}", f"{e['grad_max_rel_diff']:.1e}", str(e["stats_equal"])])
+    echo(table(rows, ["objective alone (D=32)", "fused", "dense reference", "speed-up", "|loss diff|",
+                      "max rel grad diff", "stats equal"]))
+    return out
 
 
 def run(quick: bool = False, echo: Callable[[str], None] = print) -> dict:
@@ -102,13 +278,20 @@ def run(quick: bool = False, echo: Callable[[str], None] = print) -> dict:
     cfg = QUICK if quick else DEFAULT
     reps = cfg["repeats"]
     n, w, h = cfg["gaussians"], cfg["width"], cfg["height"]
-    echo(f"feature step, fast path vs rasterizer (numba): {n} gaussians, {w}x{h} view, {N_MASKS} masks "
-         f"(M'={M_PRIME}); median of up to {reps} repeats after 1 warm-up, spread = max - min; "
-         f"torch threads {torch.get_num_threads()}")
+    echo(f"feature step, fast path vs rasterizer (numba); median of up to {reps} repeats after 1 warm-up, "
+         f"spread = max - min; torch threads {torch.get_num_threads()}")
     gm, cam = make_gaussians(n, w, h)
     ms = make_masks(w, h)
     knn = knn_indices(gm.means.detach(), 16)
     objective = get_objective("trase")
+
+    # 1. whole step (default: the synthetic scene; quick: this random scene)
+    if cfg["synthetic"]:
+        scene = synthetic_view(**cfg["synthetic"])
+    else:
+        scene = {"name": "random scene (part 3)", "gaussians": gm, "deformation": None, "camera": cam,
+                 "masks": ms, "m_prime": M_PRIME}
+    step = whole_step(scene, cfg["step_pixels"], reps, cfg["budget_s"], cfg["step_threads"], echo)
 
     def prepare() -> ViewWeights:  # one view's weights from scratch (no disk cache)
         vw = ViewWeights(gm, None, cache_dir=None)
@@ -118,6 +301,12 @@ def run(quick: bool = False, echo: Callable[[str], None] = print) -> dict:
 
     prep, fast = time_repeats(prepare, 1, warmup=1)  # warm-up: numba compilation
     st = fast.stats()
+
+    # 2. the objective alone
+    objective_cmp = objective_alone(fast, gm, ms, knn, cfg["objective_pixels"], reps, cfg["budget_s"], echo)
+
+    # 3. render grid on the random scene
+    echo(f"render grid: random scene, {n} gaussians, {w}x{h} view, {N_MASKS} masks (M'={M_PRIME})")
     raster = RasterizerPath(gm, None, backend="numba")
     raster.register(0, "perf", cam, ms.covered)
     covered = int(ms.covered.sum())
@@ -135,14 +324,13 @@ def run(quick: bool = False, echo: Callable[[str], None] = print) -> dict:
             sample = build_sample(ms, "random", M_PRIME, npix, np.random.default_rng(npix), view=0)
             # the same features and sample through both paths: loss and rendered difference
             first_d = npix not in objective_s
-            with_objective = npix <= cfg["objective_max_pixels"]
             with torch.no_grad():
                 f = smooth_features(feats0, knn, None)
                 r_fast = fast.render(0, f, sample.pixels)
                 r_rast = raster.render(0, f, sample.pixels)
             entry = {"dim": d, "n_pixels_target": npix, "n_pixels": int(sample.pixels.shape[0]),
                      "max_abs_rendered_diff": float((r_fast - r_rast).abs().max()) if r_fast.numel() else 0.0}
-            if first_d and with_objective:  # the loss (Np^2 pairs) once per Np
+            if first_d:  # the loss (Np^2 pairs) once per Np
                 with torch.no_grad():
                     l_fast = float(objective(r_fast, sample)[0])
                     l_rast = float(objective(r_rast, sample)[0])
@@ -152,55 +340,39 @@ def run(quick: bool = False, echo: Callable[[str], None] = print) -> dict:
                                     budget_s=cfg["budget_s"])
                 entry[f"{name}_render_s"] = t
             if first_d:
-                objective_s[npix] = (time_repeats(objective_step(objective, r_fast, sample), reps,
-                                                  budget_s=cfg["budget_s"])[0] if with_objective else None)
+                objective_s[npix] = time_repeats(objective_step(objective, r_fast, sample), reps, warmup=1,
+                                                 budget_s=cfg["budget_s"])[0]
             t_obj = entry["objective_s"] = objective_s[npix]
             fr, rr = entry["fastpath_render_s"]["median"], entry["rasterizer_render_s"]["median"]
+            ob = t_obj["median"]
             entry["render_speedup"] = rr / max(fr, 1e-12)
-            if t_obj is not None:
-                ob = t_obj["median"]
-                entry["step_fastpath_s"] = fr + ob  # smoothing + render + loss + backward (Adam: negligible)
-                entry["step_rasterizer_s"] = rr + ob
-                entry["step_speedup"] = (rr + ob) / max(fr + ob, 1e-12)
+            entry["step_fastpath_s"] = fr + ob  # smoothing + render + loss + backward (Adam: negligible)
+            entry["step_rasterizer_s"] = rr + ob
+            entry["step_speedup"] = (rr + ob) / max(fr + ob, 1e-12)
             gain = rr - fr
             entry["break_even_steps"] = math.ceil(prep["median"] / gain) if gain > 0 else None
             results.append(entry)
             rows.append([f"D={d} Np={npix}", fmt(entry["fastpath_render_s"]), fmt(entry["rasterizer_render_s"]),
-                         f"{entry['render_speedup']:.1f}x", fmt(t_obj) if t_obj else "not run",
-                         f"{entry['step_speedup']:.2f}x" if t_obj else "-",
+                         f"{entry['render_speedup']:.1f}x", fmt(t_obj), f"{entry['step_speedup']:.2f}x",
                          f"{entry['loss_abs_diff']:.1e}" if "loss_abs_diff" in entry else "-",
-                         f"{entry['max_abs_rendered_diff']:.1e}",
-                         str(entry["break_even_steps"])])
-    # thread sensitivity: the fast-path step (render + objective) at the smallest setting with
-    # torch on 1 and 2 threads and the current count (on shared, loaded cores threads can thrash)
-    d0, n0 = cfg["dims"][0], cfg["n_pixels"][0]
-    sample = build_sample(ms, "random", M_PRIME, n0, np.random.default_rng(n0), view=0)
-    feats0 = init_features(n, d0, torch.Generator().manual_seed(0))
-    with torch.no_grad():
-        r0 = fast.render(0, smooth_features(feats0, knn, None), sample.pixels)
-    threads = {}
-    default_threads = torch.get_num_threads()
-    for nt in sorted({1, 2, default_threads}):
-        torch.set_num_threads(nt)
-        try:
-            tr, _ = time_repeats(render_step(fast, feats0, knn, sample.pixels), reps, warmup=1, budget_s=cfg["budget_s"])
-            to, _ = time_repeats(objective_step(objective, r0, sample), reps, warmup=1, budget_s=cfg["budget_s"])
-        finally:
-            torch.set_num_threads(default_threads)
-        threads[str(nt)] = {"render_s": tr, "objective_s": to}
-        rows.append([f"D={d0} Np={n0} torch threads={nt}", fmt(tr), "", "", fmt(to), "", "", "", ""])
-    echo(table(rows, ["setting", "fast path render", "rasterizer render", "render x", "objective",
+                         f"{entry['max_abs_rendered_diff']:.1e}", str(entry["break_even_steps"])])
+    echo(table(rows, ["setting", "fast path render", "rasterizer render", "render x", "objective (fused)",
                       "step x", "|loss diff|", "max |render diff|", "break-even"]))
     echo("render = smoothing + render of the Np pixels + backward; objective = TRASE loss forward + backward "
          "(the same for both paths); step x = (rasterizer render + objective) / (fast render + objective)")
+    t1 = step["threads"][str(cfg["step_threads"][0])]
+    summary = {"step_speedup": t1["step_speedup"], "ratio_bound": t1["ratio_bound"],
+               "objective_speedup_vs_dense": statistics.median(e["speedup"] for e in objective_cmp)}
     return {
         "description": __doc__.strip().splitlines()[0],
         "quick": quick,
-        "settings": {**cfg, "masks": N_MASKS, "m_prime": M_PRIME, "objective": "trase", "knn": 16, "knn_keep": 8,
-                     "torch_threads": torch.get_num_threads()},
+        "settings": {**{k: v for k, v in cfg.items()}, "masks": N_MASKS, "m_prime": M_PRIME, "objective": "trase",
+                     "knn": 16, "knn_keep": 8, "torch_threads": torch.get_num_threads()},
         "versions": versions("torch", "numba", "numpy"),
+        "whole_step": step,
+        "objective_alone": objective_cmp,
         "operators": operators,
         "steps": results,
-        "threads": threads,
+        "summary": summary,
         "load_average_end": load_average(),
     }

@@ -44,6 +44,7 @@ from trase.objectives.base import W_MAX, PixelSample, check_features
 # W is rounded exactly as the reference's float32 ops round it (bit-identical W).
 FASTMATH = {"reassoc", "nsz", "nnan", "ninf"}
 BLOCK_BYTES = 4 << 20  # target size of one [B, V] block of C_F (and of S)
+PARALLEL_MIN_PIXELS = 2048  # below this V, one thread (waking numba's pool costs more than it saves)
 SIDES = {"column": 0, "row": 1, "either": 2}
 
 
@@ -396,7 +397,7 @@ class _Plan:
             crow = np.zeros((T, V), dt)
             cols = np.zeros((T, n_cols, V), dt)
             qbuf = np.zeros((T, (V + 7) // 8 + 1), np.uint64)
-            run = _rows_serial if T == 1 else _rows_parallel
+            run = _rows_serial if T == 1 or V < PARALLEL_MIN_PIXELS else _rows_parallel
             S_buf = torch.empty(B * V, dtype=fn.dtype) if kind == COEF else None
             for i0 in range(0, V, B):
                 i1 = min(V, i0 + B)

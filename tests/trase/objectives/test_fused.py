@@ -85,7 +85,11 @@ def test_fused_matches_reference_many_masks_and_blocks(name, make, monkeypatch):
     _compare(make, f, s, rtol=1e-9)
 
 
-def test_two_threads_match_one():
+def test_two_threads_match_one(monkeypatch):
+    import trase.objectives.fused as fused
+
+    monkeypatch.setattr(fused, "PARALLEL_MIN_PIXELS", 0)  # the parallel driver even for 300 pixels
+    monkeypatch.setattr(fused, "BLOCK_BYTES", 1)  # several blocks, rows split over 2 threads each
     s = _sample(300, 25)
     f = _features(300, 16, torch.float32)
     old = torch.get_num_threads()
