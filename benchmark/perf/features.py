@@ -9,10 +9,11 @@ Three parts, side by side in one run:
    part 3). A step is what trase.features.train_features does per iteration after sampling:
    smoothing (8 of K=16 slots) -> render the Np sampled pixels -> TRASE soft-mined loss ->
    backward. Timed whole through each path, plus its parts: render + backward from a leaf (R
-   rasterizer, F fast path) and the objective forward + backward (O fused, O_ref the dense torch
-   reference). Since O is the same for both paths, the step ratio is at most (R + O) / (F + O);
-   "O for 10x" = (R - 10 F) / 9 is the objective time a 10x step would need. The loss of the
-   two paths and of the two objective implementations is compared. Repeated at 1 and 2 threads.
+   rasterizer, F fast path), smoothing forward + backward (X) and the objective forward +
+   backward (O fused, O_ref the dense torch reference). X and O are the same for both paths, so
+   the step ratio is about (R + O + X) / (F + O + X); "O for 10x" = (R - 10 F - 9 X) / 9 is the
+   objective time a 10x step would need. The loss of the two paths and of the two objective
+   implementations is compared. Repeated at 1 and 2 threads (``step_threads``).
 2. The objective alone at Np = 5000 and 10000 (D = 32 rendered features, M' = 25 of 40 random
    elliptical masks): fused kernels vs dense reference, |loss diff|, max relative gradient diff.
 3. Render grid (D x Np) on a random scene (gaussians in a unit ball seen from distance 3,
@@ -197,6 +198,11 @@ def whole_step(scene: dict, n_pixels: int, reps: int, budget_s: float, threads: 
             r.backward(torch.ones_like(r))
         return run
 
+    def smoothing():  # path-independent too: the third part of both steps
+        f = torch.nn.Parameter(feats0.clone())
+        sm = smooth_features(f, slots, None)
+        sm.backward(torch.ones_like(sm))
+
     out = {"scene": scene["name"], "n_gaussians": gm.num_gaussians, "image": f"{cam.width}x{cam.height}",
            "n_pixels": sample.n_pixels, "n_valid": int(sample.membership.any(1).sum()), "m_prime": sample.n_masks,
            "dim": STEP_DIM, "precompute_s": prep, "bytes_per_view": fast.stats()["bytes_per_view_max"],
@@ -210,11 +216,13 @@ def whole_step(scene: dict, n_pixels: int, reps: int, budget_s: float, threads: 
             t = {}
             for name, fn in (("step_fast", step(fast)), ("step_raster", step(raster)),
                              ("render_fast", render_backward(fast)), ("render_raster", render_backward(raster)),
+                             ("smoothing", smoothing),
                              ("objective", objective_step(fused, rendered, sample)),
                              ("objective_reference", objective_step(reference, rendered, sample))):
                 t[name], t[name + "_result"] = time_repeats(fn, reps, warmup=1, budget_s=budget_s)
         m = {k: v["median"] for k, v in t.items() if not k.endswith("_result")}
         R, F, O, Oref = m["render_raster"], m["render_fast"], m["objective"], m["objective_reference"]
+        X = m["smoothing"]
         entry = {k: v for k, v in t.items() if not k.endswith("_result")}
         entry.update(
             loss_fast=t["step_fast_result"], loss_raster=t["step_raster_result"],
@@ -222,23 +230,25 @@ def whole_step(scene: dict, n_pixels: int, reps: int, budget_s: float, threads: 
             objective_vs_reference=_compare_objectives(t["objective_result"], t["objective_reference_result"]),
             step_speedup=m["step_raster"] / max(m["step_fast"], 1e-12),
             render_speedup=R / max(F, 1e-12),
-            ratio_bound=(R + O) / max(F + O, 1e-12),
-            ratio_bound_reference_objective=(R + Oref) / max(F + Oref, 1e-12),
-            objective_for_10x_s=(R - 10 * F) / 9,
+            ratio_bound=(R + O + X) / max(F + O + X, 1e-12),
+            ratio_bound_reference_objective=(R + Oref + X) / max(F + Oref + X, 1e-12),
+            objective_for_10x_s=(R - 10 * F - 9 * X) / 9,
         )
         out["threads"][str(nt)] = entry
         rows.append([f"threads={nt}", fmt(t["step_raster"]), fmt(t["step_fast"]), f"{entry['step_speedup']:.2f}x",
                      fmt(t["render_raster"]), fmt(t["render_fast"]), f"{entry['render_speedup']:.1f}x",
-                     fmt(t["objective"]), fmt(t["objective_reference"]), f"{entry['ratio_bound']:.2f}x",
+                     fmt(t["smoothing"]), fmt(t["objective"]), fmt(t["objective_reference"]),
+                     f"{entry['ratio_bound']:.2f}x",
                      f"{entry['objective_for_10x_s'] * 1e3:.1f}ms", f"{entry['loss_abs_diff']:.1e}"])
     echo(table(rows, ["", "raster step", "fast step", "step x", "R raster render", "F fast render", "R/F",
-                      "O objective", "O_ref (dense)", "(R+O)/(F+O)", "O for 10x", "|loss diff|"]))
+                      "X smoothing", "O objective", "O_ref (dense)", "(R+O+X)/(F+O+X)", "O for 10x", "|loss diff|"]))
     for nt, e in out["threads"].items():
         c = e["objective_vs_reference"]
         echo(f"threads={nt}: fused vs dense objective on the same features: |loss diff| {c['loss_abs_diff']:.1e}, "
              f"max rel grad diff {c['grad_max_rel_diff']:.1e}, n_pos/n_neg/n_valid equal: {c['stats_equal']}")
-    echo("step = smoothing + render + objective + backward; R, F = render + backward from a leaf; O = objective "
-         "forward + backward; a 10x step needs O <= (R - 10 F) / 9 (negative: impossible even with O = 0)")
+    echo("step = smoothing + render + objective + backward; R, F = render + backward from a leaf; X = smoothing "
+         "forward + backward; O = objective forward + backward; X and O are the same for both paths, so a 10x "
+         "step needs O <= (R - 10 F - 9 X) / 9 (negative: impossible even with O = 0)")
     return out
 
 
