@@ -57,6 +57,9 @@ class TraseMethod(Method):
             "filter_threshold": float(dataset_spec.filter_threshold),
             "prompts": {"min_alpha": 0.5},
             "alpha_threshold": 0.5,
+            # "alone": the paper's rule (selected gaussians rendered without the rest);
+            # "visible": their weight in the full render (occluded parts excluded), see trase.segment
+            "render_rule": "alone",
         }
 
     # -- fit ---------------------------------------------------------------------------
@@ -150,7 +153,8 @@ class TraseMethod(Method):
         fitted.stats["selected_clusters"] = clusters
         sel = select_gaussians(fitted.labels, clusters, fitted.keep)
         thr = float(fitted.config.get("alpha_threshold", 0.5))
-        return render_masks(fitted.gaussians, fitted.deformation, sel, [v.camera for v in scene.test], thr)
+        rule = str(fitted.config.get("render_rule", "alone"))
+        return render_masks(fitted.gaussians, fitted.deformation, sel, [v.camera for v in scene.test], thr, rule)
 
     def segment_oracle(self, fitted: FittedModel, scene, gts: list[np.ndarray]) -> tuple[list[np.ndarray], list[int]]:
         """Upper bound: clusters mostly inside the ground truth (all test frames), rendered
@@ -162,7 +166,8 @@ class TraseMethod(Method):
         clusters = oracle_clusters(fitted.gaussians, fitted.deformation, cams, gts, fitted.labels)
         sel = select_gaussians(fitted.labels, clusters, fitted.keep)
         thr = float(fitted.config.get("alpha_threshold", 0.5))
-        return render_masks(fitted.gaussians, fitted.deformation, sel, cams, thr), clusters
+        rule = str(fitted.config.get("render_rule", "alone"))
+        return render_masks(fitted.gaussians, fitted.deformation, sel, cams, thr, rule), clusters
 
 
 def _find_view(scene, prompts):

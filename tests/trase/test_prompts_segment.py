@@ -80,3 +80,24 @@ def test_prompts_json_roundtrip(tmp_path):
     p.write_text(json.dumps({"version": 1}))
     with pytest.raises(PromptError, match="malformed"):
         load_or_make_prompts(p, views, lambda i: gts[i])
+
+
+def test_render_rule_visible_drops_occluded_parts():
+    """Looking along x, blob 1 hides most of blob 0: 'alone' (paper) predicts blob 0's whole
+    outline, 'visible' only what is seen, which is what a view's ground truth marks."""
+    from tests.trase.helpers import TinyView
+    from trase.camera import Camera, intrinsics, look_at
+    from trase.segment import SegmentError
+
+    gm, deform, ids, _ = tiny_scene()
+    cam = Camera(intrinsics(30, 30, 20, 15), look_at([3.2, 0.3, 0.2], [0, 0, 0]), 40, 30, time=0.0, name="side")
+    seen = exact_masks(gm, deform, ids, TinyView("side", cam)).masks[0]  # blob 0 where it is visible
+    sel = select_gaussians(ids, [0])
+    alone = render_masks(gm, deform, sel, [cam])[0]
+    visible = render_masks(gm, deform, sel, [cam], rule="visible")[0]
+    assert visible.sum() < 0.8 * alone.sum() and not (visible & ~alone).any()
+    iou = lambda a, b: (a & b).sum() / max((a | b).sum(), 1)
+    assert iou(visible, seen) > 0.9 > iou(alone, seen)
+    assert not render_masks(gm, deform, select_gaussians(ids, []), [cam], rule="visible")[0].any()
+    with pytest.raises(SegmentError, match="unknown segmentation rule 'x'"):
+        render_masks(gm, deform, sel, [cam], rule="x")
