@@ -398,13 +398,12 @@ class _Plan:
             cols = np.zeros((T, n_cols, V), dt)
             qbuf = np.zeros((T, (V + 7) // 8 + 1), np.uint64)
             run = _rows_serial if T == 1 or V < PARALLEL_MIN_PIXELS else _rows_parallel
-            S_buf = torch.empty(B * V, dtype=fn.dtype) if kind == COEF else None
+            buf = torch.empty(B * V, dtype=fn.dtype)  # one block of C_F or S, reused
             for i0 in range(0, V, B):
                 i1 = min(V, i0 + B)
-                if kind == COEF:
-                    mat = S_buf[: (i1 - i0) * (V - i0)].view(i1 - i0, V - i0)
-                else:
-                    mat = torch.mm(fn[i0:i1], fn[i0:].T)  # [B, V - i0] C_F block
+                mat = buf[: (i1 - i0) * (V - i0)].view(i1 - i0, V - i0)
+                if kind != COEF:
+                    torch.mm(fn[i0:i1], fn[i0:].T, out=mat)  # [B, V - i0] C_F block
                 run(kind, mat.numpy(), i0, self.bits, self.b, self.kw, dt(self.tp), dt(self.tn), posA, negA,
                     wc, wr, qpos, dt(coef[0]), dt(coef[1]), UNPACK, crow, cols, rows, self.qbits, self.qoff, qbuf)
                 if grad is not None:
