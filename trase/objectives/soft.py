@@ -27,7 +27,7 @@ Exact choices (the paper's equations and the public code differ in details):
 Implementations (``impl``): ``"fused"`` (``trase.objectives.fused``: bit-packed membership,
 blockwise BLAS C_F, numba pair kernels, O(V (D + M / 64)) memory, a custom autograd Function)
 and ``"reference"`` (the dense [V, V] torch matrices below, kept readable; the tests compare
-the two). ``"auto"`` (default) is fused for CPU tensors and the reference on other devices.
+the two). ``"auto"`` (default) is fused for CPU float32/float64 tensors, else the reference.
 Both give the same loss, gradients and stats (to float rounding).
 """
 
@@ -56,9 +56,10 @@ def use_fused(impl: str, features: torch.Tensor) -> bool:
     """Whether ``impl`` runs the fused kernels on these features (auto: CPU tensors)."""
     if impl not in IMPLS:
         raise ValueError(f"impl must be one of {IMPLS}, got {impl!r}")
-    if impl == "fused" and features.device.type != "cpu":
-        raise ValueError(f"impl='fused' runs on CPU tensors, got features on {features.device}")
-    return impl == "fused" or (impl == "auto" and features.device.type == "cpu")
+    supported = features.device.type == "cpu" and features.dtype in (torch.float32, torch.float64)
+    if impl == "fused" and not supported:
+        raise ValueError(f"impl='fused' runs on CPU float32/float64 tensors, got {features.dtype} on {features.device}")
+    return impl == "fused" or (impl == "auto" and supported)
 
 
 def _any_offdiag(m: torch.Tensor) -> torch.Tensor:

@@ -86,7 +86,7 @@ def test_fused_matches_reference_many_masks_and_blocks(name, make, monkeypatch):
 
 
 def test_two_threads_match_one(monkeypatch):
-    import trase.objectives.fused as fused
+    from trase.objectives import fused
 
     monkeypatch.setattr(fused, "PARALLEL_MIN_PIXELS", 0)  # the parallel driver even for 300 pixels
     monkeypatch.setattr(fused, "BLOCK_BYTES", 1)  # several blocks, rows split over 2 threads each
@@ -204,3 +204,20 @@ def test_bad_impl_and_side_fail():
     with pytest.raises(ValueError, match="anchor side"):
         fused_pair_losses(torch.zeros(2, 3), _hand([[1], [1]]), tau_pos=0.75, tau_neg=0.5, side="diag")
     assert math.isinf(AllMining().thresholds()[0])
+    half = torch.randn(3, 4).half()
+    with pytest.raises(ValueError, match="float32/float64"):
+        SoftMining(impl="fused")(half, _hand([[1], [1], [0]]))
+
+
+def test_auto_uses_the_reference_for_other_dtypes(monkeypatch):
+    from trase.objectives import soft
+
+    def boom(*a, **k):
+        raise AssertionError("fused called")
+
+    monkeypatch.setattr(soft, "fused_pair_losses", boom)
+    s = _hand([[1, 0], [1, 0], [0, 1]])
+    loss, stats = SoftMining()(torch.randn(3, 4).bfloat16(), s)  # auto -> reference
+    assert torch.isfinite(loss.float()) and stats["n_valid"] == 3
+    with pytest.raises(AssertionError, match="fused called"):
+        SoftMining()(torch.randn(3, 4), s)  # auto on CPU float32 -> fused
