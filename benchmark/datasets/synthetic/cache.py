@@ -1,7 +1,8 @@
 """The embedded default: real data when it is there, else a cached synthetic scene.
 
-Cache layout: ``<cache>/<dataset>/<sequence>/`` with ``<cache>`` = ``$TRASE_CACHE/synthetic``
-or ``~/.cache/trase-bench/synthetic``. A scene is generated into a temporary sibling directory
+Cache layout: ``<cache>/<dataset>/v<GENERATOR_VERSION>/<sequence>/`` with ``<cache>`` =
+``$TRASE_CACHE/synthetic`` or ``~/.cache/trase-bench/synthetic``: a new generator version never
+reuses (nor deletes, under a running job) the scenes of an older one. A scene is generated into a temporary sibling directory
 and renamed into place when complete, so an interrupted run never leaves a half scene that a
 later run would trust; concurrent generators race harmlessly (the loser's copy is removed).
 """
@@ -14,7 +15,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from .generate import SEQUENCE_NAMES, SyntheticError, _check_args, generate
+from .generate import GENERATOR_VERSION, SEQUENCE_NAMES, SyntheticError, _check_args, generate
 
 SYNTHETIC_SEQUENCES = {name: size for size, name in SEQUENCE_NAMES.items()}
 
@@ -30,17 +31,33 @@ def _is_complete(scene_dir: Path) -> bool:
     return (scene_dir / "synthetic" / "manifest.json").is_file()
 
 
+def _check_version(scene_dir: Path) -> None:
+    """A cached scene written by another generator version is an error, never silently used."""
+    import json
+
+    path = scene_dir / "synthetic" / "manifest.json"
+    try:
+        version = json.loads(path.read_text()).get("generator_version")
+    except (OSError, ValueError) as exc:
+        raise SyntheticError(f"{path}: unreadable synthetic manifest ({exc}); delete {scene_dir} to regenerate") from None
+    if version != GENERATOR_VERSION:
+        raise SyntheticError(f"{path}: scene from generator version {version}, this is version "
+                             f"{GENERATOR_VERSION}; delete {scene_dir} to regenerate")
+
+
 def ensure_synthetic(dataset: str, size: str = "small", seed: int = 0,
                      cache_dir: Path | str | None = None, progress=None) -> Path:
     """The cached synthetic scene of ``dataset`` (generated on first use, with a notice).
 
-    Seed 0 lives at ``<cache>/<dataset>/<sequence>``; another seed at ``<sequence>-seed<N>``.
+    Seed 0 lives at ``<cache>/<dataset>/v<version>/<sequence>``; another seed at
+    ``<sequence>-seed<N>``.
     """
     _check_args(dataset, size)
     cache = Path(cache_dir) if cache_dir is not None else default_cache_dir()
     name = SEQUENCE_NAMES[size] + (f"-seed{seed}" if seed != 0 else "")
-    final = cache / dataset / name
+    final = cache / dataset / f"v{GENERATOR_VERSION}" / name
     if _is_complete(final):
+        _check_version(final)
         return final
     if final.exists():
         raise SyntheticError(f"{final}: incomplete synthetic scene (no synthetic/manifest.json); delete it to regenerate")

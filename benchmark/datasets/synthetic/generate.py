@@ -26,6 +26,7 @@ from benchmark.errors import UserError
 from trase.camera import Camera
 
 from . import formats
+from .fit import calibrate_insets, pixel_footprint
 from .gaussians import build_geometry
 from .rays import camera_rays
 from .rigs import (
@@ -40,7 +41,9 @@ from .rigs import (
 )
 from .world import World, build_world, render
 
-GENERATOR_VERSION = "1"
+# bump whenever generated files change, so cached scenes of an older generator are never reused
+# 2: ground-truth disks sunk by a per-object inset in pixels fitted on the training cameras
+GENERATOR_VERSION = "2"
 SEQUENCE_NAMES = {"tiny": "synthetic-tiny", "small": "synthetic", "medium": "synthetic-medium"}
 TECHNICOLOR_FIRST_FRAME = 1  # publisher frame numbers of the PNGs start here
 
@@ -275,7 +278,10 @@ def _write_truth(scene, out: Path, world: World, seed: int, size: str, budget: i
                 formats.write_png(gt / o.name / f"{idx:05d}.png", ((ids == o.id) * 255).astype(np.uint8))
         report("truth", k + 1, len(views))
     report("geometry", 0, 1)
-    geom = build_geometry(world, scene.times, budget)
+    # silhouettes of the gaussians fitted on the training cameras only (see fit.py)
+    train_cams = [v.camera for v in scene.train]
+    insets, fit_report = calibrate_insets(world, scene.times, budget, train_cams)
+    geom = build_geometry(world, scene.times, budget, inset=insets, footprint=pixel_footprint(train_cams))
     np.savez_compressed(syn / "geometry.npz", **geom)
     report("geometry", 1, 1)
     manifest = {
@@ -291,5 +297,7 @@ def _write_truth(scene, out: Path, world: World, seed: int, size: str, budget: i
         "instances": instances,
         "gt_masks": "gt_masks/{idx:05d}.png (objects of interest merged); gt_masks/<object>/{idx:05d}.png",
         "geometry": "geometry.npz",
+        "geometry_fit": {"unit": "pixels of the training cameras (median depth / focal)",
+                         "objects": fit_report},
     }
     (syn / "manifest.json").write_text(json.dumps(manifest, indent=1) + "\n")

@@ -17,6 +17,7 @@ import pytest
 from benchmark.datasets import load_scene
 from benchmark.datasets.synthetic import (
     DATASET_KEYS,
+    GENERATOR_VERSION,
     SyntheticError,
     build_world,
     ensure_synthetic,
@@ -233,14 +234,15 @@ def test_geometry_npz(scenes, world):
     assert set(np.unique(g["object_ids"])) == set(range(1, world.n_ids + 1))
     assert g["colors"].min() >= 0 and g["colors"].max() <= 1
     # deformed gaussians move with their object: the rolling ball's stay at a fixed distance
-    # from its centre (just under the surface: disks are sunk by a fraction of the radius)
+    # from its centre (under the surface: disks are sunk by a fitted inset of ~1-2 pixels,
+    # a good part of the radius at the tiny size)
     ball = world.by_name("ball")
     sel = g["object_ids"] == ball.id
     r0 = None
     for ti, t in enumerate(g["times"]):
         _, c, S = ball.pose(float(t))
         r = np.linalg.norm(g["means"][sel] + g["d_xyz"][ti][sel] - c, axis=1)
-        assert ((r > 0.7 * S[0]) & (r <= S[0])).all()
+        assert ((r > 0.1 * S[0]) & (r < S[0])).all()  # tiny: a 3-pixel ball sinks deep
         r0 = r if r0 is None else r0
         np.testing.assert_allclose(r, r0, atol=1e-5)
     # the deforming blob: local (undeformed) coordinates of its gaussians never change
@@ -252,12 +254,66 @@ def test_geometry_npz(scenes, world):
         local = ((g["means"][sel] + g["d_xyz"][ti][sel] - c) @ R) / S
         loc0 = local if loc0 is None else loc0
         np.testing.assert_allclose(local, loc0, atol=1e-4)
-        assert (np.linalg.norm(local, axis=1) > 0.7).all() and (np.linalg.norm(local, axis=1) <= 1.0).all()
+        assert (np.linalg.norm(local, axis=1) > 0.1).all() and (np.linalg.norm(local, axis=1) < 1.0).all()
         # rot_t = normalize(q) + d_rot is a unit quaternion
         q = g["quats"][sel] / np.linalg.norm(g["quats"][sel], axis=1, keepdims=True) + g["d_rot"][ti][sel]
         np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1.0, atol=1e-5)
     static = g["object_ids"] == world.by_name("crate").id
     assert np.abs(g["d_xyz"][:, static]).max() == 0 and np.abs(g["d_rot"][:, static]).max() == 0
+
+
+def _object_iou(g: dict, world, name: str, cam, ti: int) -> float:
+    """IoU of one object's gaussians rendered alone (alpha >= 0.5) with its exact silhouette."""
+    from benchmark.datasets.synthetic.fit import _alpha
+    from benchmark.datasets.synthetic.world import World
+
+    obj = world.by_name(name)
+    sel = g["object_ids"] == obj.id
+    sub = {k: (v[:, sel] if k in ("d_xyz", "d_rot", "d_scale") else v[sel]) for k, v in g.items()
+           if k not in ("times",)}
+    pred = _alpha(sub, cam, ti) >= 0.5
+    truth = render(World([obj], world.seed), cam, cam.time)[2] > 0
+    return (pred & truth).sum() / max((pred | truth).sum(), 1)
+
+
+@pytest.mark.parametrize("dataset,floor", [("nerfds", 0.85), ("neu3d", 0.6)])  # tiny neu3d: 48x36 px
+def test_geometry_silhouettes_match_on_test_views(scenes, world, dataset, floor):
+    """Objects of interest rendered from geometry.npz alone match their exact outlines at the
+    *test* cameras (the insets were fitted on training cameras only) far better than disks
+    on the surface do."""
+    from benchmark.datasets.synthetic.fit import pixel_footprint
+    from benchmark.datasets.synthetic.gaussians import build_geometry
+
+    root = scenes[dataset]
+    scene = load_scene(dataset, root)
+    man = json.loads((root / "synthetic" / "manifest.json").read_text())
+    fit = man["geometry_fit"]["objects"]
+    assert set(fit) == {o.name for o in world.objects if o.name != "room"}
+    for rec in fit.values():
+        assert 0.0 <= rec["inset_px"] <= 2.5 and rec["wrong_px"] <= rec["wrong_px_at_0"]
+    with np.load(root / "synthetic" / "geometry.npz") as z:
+        g = {k: z[k] for k in z.files}
+    flat = build_geometry(world, scene.times, len(g["means"]), inset=0.0,
+                          footprint=pixel_footprint([v.camera for v in scene.train]))
+    fitted_iou, flat_iou = [], []
+    for v in scene.test:
+        ti = int(np.argmin(np.abs(g["times"] - v.time)))
+        for name in man["objects_of_interest"]:
+            fitted_iou.append(_object_iou(g, world, name, v.camera, ti))
+            flat_iou.append(_object_iou(flat, world, name, v.camera, ti))
+    assert np.mean(fitted_iou) > floor, np.mean(fitted_iou)
+    assert np.mean(fitted_iou) > np.mean(flat_iou) + 0.1, (np.mean(fitted_iou), np.mean(flat_iou))
+
+
+def test_pixel_footprint():
+    from benchmark.datasets.synthetic.fit import pixel_footprint
+    from trase.camera import Camera, intrinsics, look_at
+
+    cams = [Camera(intrinsics(f, f, 32, 24), look_at(np.array([0.0, -4.0, 0.0]), np.zeros(3)), 64, 48)
+            for f in (50.0, 100.0, 200.0)]
+    fp = pixel_footprint(cams)
+    pts = np.array([[0.0, 0.0, 0.0], [0.0, 2.0, 0.0], [0.0, -10.0, 0.0]])  # the last: behind
+    np.testing.assert_allclose(fp(pts), [4.0 / 100.0, 6.0 / 100.0, 0.0], atol=1e-9)
 
 
 # -- determinism, cache, embedded default ---------------------------------------------------
@@ -307,17 +363,25 @@ def test_generate_refuses_non_empty_dir_and_bad_args(tmp_path):
 
 def test_ensure_synthetic_caches_atomically(tmp_path, capsys):
     p = ensure_synthetic("hypernerf", size=SIZE, cache_dir=tmp_path)
-    assert p == tmp_path / "hypernerf" / SEQ
+    assert p == tmp_path / "hypernerf" / f"v{GENERATOR_VERSION}" / SEQ
     assert "generating" in capsys.readouterr().err
     assert ensure_synthetic("hypernerf", size=SIZE, cache_dir=tmp_path) == p
     assert capsys.readouterr().err == ""  # second call: cached, no notice
     assert sorted(x.name for x in p.parent.iterdir()) == [SEQ]  # no temp dirs left behind
 
 
+def test_ensure_synthetic_refuses_other_generator_version(tmp_path):
+    stale = tmp_path / "hypernerf" / f"v{GENERATOR_VERSION}" / SEQ / "synthetic"
+    stale.mkdir(parents=True)
+    (stale / "manifest.json").write_text(json.dumps({"generator_version": "0"}))
+    with pytest.raises(SyntheticError, match=r"manifest.json: scene from generator version 0.*delete"):
+        ensure_synthetic("hypernerf", size=SIZE, cache_dir=tmp_path)
+
+
 def test_ensure_synthetic_uses_trase_cache(tmp_path, monkeypatch):
     monkeypatch.setenv("TRASE_CACHE", str(tmp_path))
     p = ensure_synthetic("hypernerf", size=SIZE)
-    assert p == tmp_path / "synthetic" / "hypernerf" / SEQ
+    assert p == tmp_path / "synthetic" / "hypernerf" / f"v{GENERATOR_VERSION}" / SEQ
 
 
 def test_find_or_generate(tmp_path, monkeypatch):
@@ -325,7 +389,7 @@ def test_find_or_generate(tmp_path, monkeypatch):
     monkeypatch.delenv("TRASE_DATA", raising=False)
     # no real data: the synthetic default
     d, variant = find_or_generate("hypernerf", "synthetic-tiny", tmp_path / "data")
-    assert variant == "synthetic" and d == tmp_path / "cache" / "synthetic" / "hypernerf" / SEQ
+    assert variant == "synthetic" and d == tmp_path / "cache" / "synthetic" / "hypernerf" / f"v{GENERATOR_VERSION}" / SEQ
     # a named real sequence that is missing: error naming where it looked
     with pytest.raises(SyntheticError, match=r"americano.*data/hypernerf/americano"):
         find_or_generate("hypernerf", "americano", tmp_path / "data")

@@ -70,3 +70,12 @@ def test_missing_masks_is_a_user_error(tmp_path):
     cfg = method.default_config(_Spec(), preset="cpu")
     with pytest.raises(MethodError, match="masks of training view"):
         method.fit(_Scene(views, views), gm, deform, tmp_path, cfg, tmp_path / "fit", progress=False)
+
+
+def test_filter_threshold_paper_values_capped_on_cpu():
+    m = TraseMethod()
+    for thr in (0.4, 0.6, 0.9, 0.98):
+        spec = _Spec(filter_threshold=thr)
+        assert m.default_config(spec, preset="paper")["filter_threshold"] == thr
+        assert m.default_config(spec, preset="cpu")["filter_threshold"] == min(thr, 0.9)
+    assert m.default_config(_Spec(), preset="paper")["render_rule"] == "alone"  # the paper's rule
