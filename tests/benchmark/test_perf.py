@@ -44,3 +44,17 @@ def test_threads_option_sets_and_records_thread_count(tmp_path, monkeypatch):
 def test_registry_entries_resolve():
     for name in SUITES:
         assert callable(get_suite(name))
+
+
+def test_reconstruct_suite_reports_psnr_per_checkpoint(monkeypatch, capsys):
+    from benchmark.perf import reconstruct
+
+    monkeypatch.setattr(reconstruct, "QUICK", {"size": "tiny", "budget_s": 60.0, "iterations": 10, "interval": 5})
+    monkeypatch.setattr(reconstruct, "DOWNSCALES", (2.0,))
+    out = reconstruct.run(quick=True, echo=print)
+    (r,) = out["runs"]
+    assert [c["iteration"] for c in r["curve"]] == [5, 10]
+    for c in r["curve"]:
+        assert 0 < c["seconds"] <= r["wall_s"] + 1 and 5.0 < c["psnr_full"] < 60.0 and c["gaussians"] > 0
+    assert r["final"] == r["curve"][-1]
+    assert "test PSNR" in capsys.readouterr().out
