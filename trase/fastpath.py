@@ -5,7 +5,10 @@ training view the compositing weights w[p, g] = alpha_g(p) T_g(p) never change: 
 feature is a fixed sparse linear map of the gaussian features. ``ViewWeights`` precomputes
 that map once per view (CSR rows, only for pixels inside at least one mask: the only pixels
 training samples) with ``trase.render.pixel_weights``, and renders the sampled pixels' features
-by a sparse gather + ``index_add`` (differentiable w.r.t. the features, no rasterization).
+by a sparse weighted gather (differentiable w.r.t. the features, no rasterization): fused numba
+kernels on CPU float32/float64 (trase.gather.CsrRender; forward a per-row gather, backward a
+column-blocked scatter), ``embedding_bag`` otherwise (``render_rows_reference``, which the
+tests compare against; its CPU backward is ~5x slower).
 
 Cache: one ``.npz`` per view under ``cache_dir`` (written atomically), keyed by a fingerprint
 of the deformed geometry, the camera and the pixel set, so a stale file is never reused.
@@ -29,6 +32,7 @@ import torch.nn.functional as F
 
 from trase.camera import Camera
 from trase.deformation import deformed
+from trase.gather import CsrRender, use_fused
 from trase.io import atomic_path
 from trase.render import PixelWeights, pixel_weights, rasterize
 
@@ -46,11 +50,22 @@ def frozen_geometry(gaussians, deformation, t: float):
         return means.detach(), quats.detach(), scales.detach(), gaussians.opacities.detach()
 
 
-def render_rows(pw: PixelWeights, rows: torch.Tensor, features: torch.Tensor) -> torch.Tensor:
+def render_rows(pw: PixelWeights, rows: torch.Tensor, features: torch.Tensor, impl: str = "auto") -> torch.Tensor:
     """Rendered features [P, D] = sum_k w_k f_{g_k} over the CSR rows ``rows`` [P] of ``pw``.
 
-    Gather of just the sampled rows, then a weighted ``embedding_bag`` sum: cost
-    O(contributors of the sampled pixels * D), independent of image size and of N."""
+    Cost O(contributors of the sampled pixels * D), independent of image size and of N.
+    impl: 'auto' (fused numba kernels on CPU float32/float64, else the reference), 'fused' or
+    'reference'."""
+    if use_fused(features, impl, "render_rows"):
+        if rows.shape[0] == 0:
+            return features.new_zeros(0, features.shape[1])
+        return CsrRender.apply(features, rows.to(torch.int64), pw.indptr, pw.indices, pw.weights)
+    return render_rows_reference(pw, rows, features)
+
+
+def render_rows_reference(pw: PixelWeights, rows: torch.Tensor, features: torch.Tensor) -> torch.Tensor:
+    """render_rows in plain torch: gather the sampled rows' entries, then a weighted
+    ``embedding_bag`` sum per pixel."""
     P = rows.shape[0]
     D = features.shape[1]
     if P == 0:
@@ -63,7 +78,6 @@ def render_rows(pw: PixelWeights, rows: torch.Tensor, features: torch.Tensor) ->
     first = torch.cumsum(lengths, 0) - lengths  # [P] offset of each row in the gathered list
     out_row = torch.repeat_interleave(torch.arange(P, device=rows.device), lengths)  # [nnz_s]
     pos = torch.arange(total, device=rows.device) - first[out_row] + starts[out_row]  # [nnz_s]
-    # one fused weighted bag-sum per pixel (forward and backward are single kernels)
     return F.embedding_bag(pw.indices[pos], features, first, mode="sum",
                            per_sample_weights=pw.weights[pos].to(features.dtype))
 
@@ -108,7 +122,9 @@ class ViewWeights:
         cache_dir: str | Path | None,
         min_weight: float = 0.0,
         max_bytes: int = 1 << 30,
+        impl: str = "auto",
     ) -> None:
+        self.impl = impl  # render_rows implementation: 'auto', 'fused' or 'reference'
         self.gaussians = gaussians
         self.deformation = deformation
         self.cache_dir = Path(cache_dir) if cache_dir is not None else None
@@ -197,7 +213,7 @@ class ViewWeights:
         rows_c = rows.clamp_max(max(len(pw.pixels) - 1, 0))
         if len(pix) and (len(pw.pixels) == 0 or not torch.equal(pw.pixels[rows_c], pix)):
             raise FastPathError(f"view {self._views[key].name}: sampled pixels outside the precomputed mask region")
-        return render_rows(pw, rows_c, features)
+        return render_rows(pw, rows_c, features, self.impl)
 
     def stats(self) -> dict:
         vals = list(self.nbytes.values())

@@ -107,3 +107,54 @@ def test_render_rows_rows_without_contributors():
     torch.testing.assert_close(out, torch.tensor([[0.0, 0.0], [1.5, 3.0], [0.0, 0.0], [1.5, 3.0]]))
     out.sum().backward()
     torch.testing.assert_close(f.grad, torch.tensor([[1.0, 1.0], [0.5, 0.5]]))
+
+
+def _random_pw(n_rows, n_gauss, gen):
+    from trase.render import PixelWeights
+
+    lengths = torch.randint(0, 30, (n_rows,), generator=gen)
+    lengths[::7] = 0  # rows without contributors
+    indptr = torch.cat([torch.zeros(1, dtype=torch.long), torch.cumsum(lengths, 0)])
+    nnz = int(indptr[-1])
+    return PixelWeights(torch.arange(n_rows) * 3, indptr, torch.randint(0, n_gauss, (nnz,), generator=gen),
+                        torch.rand(nnz, generator=gen))
+
+
+@pytest.mark.parametrize("dtype,D,tol", [(torch.float32, 32, 1e-6), (torch.float64, 7, 1e-12), (torch.float32, 1, 1e-6)])
+def test_render_rows_fused_matches_reference(dtype, D, tol):
+    from trase.fastpath import render_rows_reference
+
+    gen = torch.Generator().manual_seed(3)
+    pw = _random_pw(500, 200, gen)
+    rows = torch.randint(0, 500, (900,), generator=gen)  # repeated rows too
+    f0 = torch.randn(200, D, generator=gen, dtype=dtype)
+    gout = torch.randn(900, D, generator=gen, dtype=dtype)
+    res = []
+    for fn in (render_rows_reference, lambda p, r, f: render_rows(p, r, f, "fused")):
+        f = f0.clone().requires_grad_(True)
+        out = fn(pw, rows, f)
+        out.backward(gout)
+        res.append((out.detach(), f.grad))
+    assert res[1][0].dtype == dtype
+    torch.testing.assert_close(res[1][0], res[0][0], rtol=0, atol=tol * float(res[0][0].abs().max()))
+    torch.testing.assert_close(res[1][1], res[0][1], rtol=0, atol=tol * float(res[0][1].abs().max()))
+
+
+def test_render_rows_fused_threads_identical():
+    gen = torch.Generator().manual_seed(4)
+    pw = _random_pw(4000, 3000, gen)
+    rows = torch.randint(0, 4000, (3000,), generator=gen)
+    f0 = torch.randn(3000, 32, generator=gen)
+    gout = torch.randn(3000, 32, generator=gen)
+    old = torch.get_num_threads()
+    res = []
+    try:
+        for nt in (1, 2):
+            torch.set_num_threads(nt)
+            f = f0.clone().requires_grad_(True)
+            out = render_rows(pw, rows, f, "fused")
+            out.backward(gout)
+            res.append((out.detach(), f.grad))
+    finally:
+        torch.set_num_threads(old)
+    assert torch.equal(res[0][0], res[1][0]) and torch.equal(res[0][1], res[1][1])
