@@ -2,7 +2,7 @@
 precomputed sparse pixel -> gaussian weights) against the same step through the rasterizer
 (trase.fastpath.RasterizerPath, numba backend), and the objective both paths share.
 
-Three parts, side by side in one run:
+Three parts (and a real-scale row of part 1), side by side in one run:
 
 1. Whole step on the default synthetic scene (the issue's goal: Np = 5000, synthetic NeRF-DS,
    ground-truth geometry, synthetic masks, the dataset's M'; ``--quick``: the random scene of
@@ -14,6 +14,9 @@ Three parts, side by side in one run:
    the step ratio is about (R + O + X) / (F + O + X); "O for 10x" = (R - 10 F - 9 X) / 9 is the
    objective time a 10x step would need. The loss of the two paths and of the two objective
    implementations is compared. Repeated at 1 and 2 threads (``step_threads``).
+1b. The same whole step at real-data scale: the random scene of part 3 with 100k gaussians at
+   960x536 (the HyperNeRF benchmark resolution), 40 random elliptical masks (M' = 25), Np = 5000,
+   first thread count only. "ceiling" = (R + X) / (F + X) is the step ratio with a free objective.
 2. The objective alone at Np = 5000 and 10000 (D = 32 rendered features, M' = 25 of 40 random
    elliptical masks): fused kernels vs dense reference, |loss diff|, max relative gradient diff.
 3. Render grid (D x Np) on a random scene (gaussians in a unit ball seen from distance 3,
@@ -38,10 +41,12 @@ from benchmark.perf.common import fmt, load_average, table, time_repeats, versio
 
 QUICK = {"gaussians": 1_000, "width": 64, "height": 48, "n_pixels": [500], "dims": [16], "repeats": 2,
          "budget_s": 5.0, "objective_pixels": [500], "step_pixels": 500, "step_threads": [1],
-         "synthetic": None}
+         "synthetic": None, "real_scale": {"gaussians": 2_000, "width": 96, "height": 54, "label": "quick stand-in"}}
 DEFAULT = {"gaussians": 50_000, "width": 480, "height": 272, "n_pixels": [1000, 5000, 10000],
            "dims": [16, 32, 64, 128], "repeats": 5, "budget_s": 10.0, "objective_pixels": [5000, 10000],
-           "step_pixels": 5000, "step_threads": [1, 2], "synthetic": {"dataset": "nerfds", "size": "small"}}
+           "step_pixels": 5000, "step_threads": [1, 2], "synthetic": {"dataset": "nerfds", "size": "small"},
+           "real_scale": {"gaussians": 100_000, "width": 960, "height": 536,
+                          "label": "HyperNeRF benchmark resolution"}}
 N_MASKS = 40
 M_PRIME = 25
 STEP_DIM = 32  # the paper's feature dimension
@@ -233,6 +238,7 @@ def whole_step(scene: dict, n_pixels: int, reps: int, budget_s: float, threads: 
             ratio_bound=(R + O + X) / max(F + O + X, 1e-12),
             ratio_bound_reference_objective=(R + Oref + X) / max(F + Oref + X, 1e-12),
             objective_for_10x_s=(R - 10 * F - 9 * X) / 9,
+            ceiling_free_objective=(R + X) / max(F + X, 1e-12),
         )
         out["threads"][str(nt)] = entry
         rows.append([f"threads={nt}", fmt(t["step_raster"]), fmt(t["step_fast"]), f"{entry['step_speedup']:.2f}x",
@@ -246,6 +252,12 @@ def whole_step(scene: dict, n_pixels: int, reps: int, budget_s: float, threads: 
         c = e["objective_vs_reference"]
         echo(f"threads={nt}: fused vs dense objective on the same features: |loss diff| {c['loss_abs_diff']:.1e}, "
              f"max rel grad diff {c['grad_max_rel_diff']:.1e}, n_pos/n_neg/n_valid equal: {c['stats_equal']}")
+    for nt, e in out["threads"].items():
+        m = {k: e[k]["median"] * 1e3 for k in ("render_raster", "render_fast", "smoothing", "objective")}
+        echo(f"threads={nt}: bound (R+O+X)/(F+O+X) = ({m['render_raster']:.1f}+{m['objective']:.1f}+"
+             f"{m['smoothing']:.1f})/({m['render_fast']:.1f}+{m['objective']:.1f}+{m['smoothing']:.1f}) ms = "
+             f"{e['ratio_bound']:.2f}x; ceiling with O = 0: (R+X)/(F+X) = {e['ceiling_free_objective']:.2f}x; "
+             f"rendered feature max |diff| {out['feature_max_abs_diff']:.1e}")
     echo("step = smoothing + render + objective + backward; R, F = render + backward from a leaf; X = smoothing "
          "forward + backward; O = objective forward + backward; X and O are the same for both paths, so a 10x "
          "step needs O <= (R - 10 F - 9 X) / 9 (negative: impossible even with O = 0)")
@@ -302,6 +314,16 @@ def run(quick: bool = False, echo: Callable[[str], None] = print) -> dict:
         scene = {"name": "random scene (part 3)", "gaussians": gm, "deformation": None, "camera": cam,
                  "masks": ms, "m_prime": M_PRIME}
     step = whole_step(scene, cfg["step_pixels"], reps, cfg["budget_s"], cfg["step_threads"], echo)
+
+    # 1b. the same step at real-data scale (random geometry, HyperNeRF benchmark resolution)
+    rs = cfg["real_scale"]
+    gm_r, cam_r = make_gaussians(rs["gaussians"], rs["width"], rs["height"])
+    real_scene = {"name": f"random scene {rs['gaussians'] // 1000}k gaussians {rs['width']}x{rs['height']} "
+                          f"({rs['label']}), {N_MASKS} random elliptical masks",
+                  "gaussians": gm_r, "deformation": None, "camera": cam_r, "masks": make_masks(rs["width"], rs["height"]),
+                  "m_prime": M_PRIME}
+    step_real = whole_step(real_scene, cfg["step_pixels"], reps, cfg["budget_s"], cfg["step_threads"][:1], echo)
+    del gm_r, real_scene
 
     def prepare() -> ViewWeights:  # one view's weights from scratch (no disk cache)
         vw = ViewWeights(gm, None, cache_dir=None)
@@ -371,7 +393,9 @@ def run(quick: bool = False, echo: Callable[[str], None] = print) -> dict:
     echo("render = smoothing + render of the Np pixels + backward; objective = TRASE loss forward + backward "
          "(the same for both paths); step x = (rasterizer render + objective) / (fast render + objective)")
     t1 = step["threads"][str(cfg["step_threads"][0])]
+    tr = step_real["threads"][str(cfg["step_threads"][0])]
     summary = {"step_speedup": t1["step_speedup"], "ratio_bound": t1["ratio_bound"],
+               "real_scale_step_speedup": tr["step_speedup"], "real_scale_ratio_bound": tr["ratio_bound"],
                "objective_speedup_vs_dense": statistics.median(e["speedup"] for e in objective_cmp)}
     return {
         "description": __doc__.strip().splitlines()[0],
@@ -380,6 +404,7 @@ def run(quick: bool = False, echo: Callable[[str], None] = print) -> dict:
                      "knn": 16, "knn_keep": 8, "torch_threads": torch.get_num_threads()},
         "versions": versions("torch", "numba", "numpy"),
         "whole_step": step,
+        "whole_step_real_scale": step_real,
         "objective_alone": objective_cmp,
         "operators": operators,
         "steps": results,

@@ -34,6 +34,9 @@ def test_all_suites_quick(tmp_path, monkeypatch, capsys):
     assert any("skipped" in c for c in cl["configs"].values())  # 25% of 8000 > the quick cap of 1500
 
     ft = s["features"]
+    real = ft["whole_step_real_scale"]["threads"]["1"]
+    assert real["loss_abs_diff"] < 1e-5 and ft["whole_step_real_scale"]["feature_max_abs_diff"] < 1e-5
+    assert real["ceiling_free_objective"] >= real["ratio_bound"] > 0
     assert ft["operators"]["bytes_per_view"] > 0
     step = ft["steps"][0]
     assert step["max_abs_rendered_diff"] < 1e-4 and step["loss_abs_diff"] < 1e-4
