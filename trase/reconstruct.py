@@ -421,6 +421,7 @@ def _reconstruct(views, points, point_colors, config, out_dir, resume, progress,
         view_stack = []
         ema_loss, ema_psnr = 0.0, 0.0
 
+    from trase.render.numba_projection import project_gaussians_numba
     from trase.render.projection import project_gaussians
 
     def save(it: int) -> None:
@@ -483,7 +484,9 @@ def _reconstruct(views, points, point_colors, config, out_dir, resume, progress,
                 # densification statistics and steps
                 if it < cfg.densify_until:
                     mt = means_t.detach()
-                    proj = project_gaussians(mt, gaussians.rotations.detach(), gaussians.scales.detach(), cam)
+                    # visibility (radius > 0) only: the numba twin gives the same radii, ~10x faster
+                    project = project_gaussians_numba if mt.device.type == "cpu" else project_gaussians
+                    proj = project(mt, gaussians.rotations.detach(), gaussians.scales.detach(), cam)
                     vis = proj.radii > 0
                     if means_t.grad is not None:
                         gn = _screen_grad_norm(means_t.grad, mt, cam)
