@@ -15,12 +15,12 @@ same order whatever the thread count (results are bit-identical at 1 and 2 threa
 
 from __future__ import annotations
 
-import contextlib
 
-import numba
 import numpy as np
 import torch
 from numba import njit, prange
+
+from trase.threads import numba_threads
 
 COLUMN_BLOCK = 8  # at least this many columns per thread in a scatter (one AVX register of float32)
 PARALLEL_MIN_WORK = 1 << 16  # rows * cols below which one thread runs (waking numba's pool costs more)
@@ -43,25 +43,6 @@ def use_fused(t: torch.Tensor, impl: str, what: str) -> bool:
     if impl == "reference":
         return False
     raise GatherImplError(f"{what}: unknown impl {impl!r} (expected 'auto', 'fused' or 'reference')")
-
-
-@contextlib.contextmanager
-def numba_threads(work: int):
-    """Run the parallel kernels on as many threads as torch uses (at most numba's pool), or on
-    one (the serial compilation, numba's pool untouched) for small work. Yields that count.
-    Numba's OpenMP layer shares the runtime with torch: torch's count is restored on exit."""
-    torch_n = torch.get_num_threads()
-    n = max(1, min(torch_n, numba.config.NUMBA_NUM_THREADS))
-    if n == 1 or work < PARALLEL_MIN_WORK:
-        yield 1
-        return
-    old = numba.get_num_threads()
-    numba.set_num_threads(n)
-    try:
-        yield n
-    finally:
-        numba.set_num_threads(old)
-        torch.set_num_threads(torch_n)
 
 
 def column_split(D: int, threads: int) -> int:
@@ -174,7 +155,7 @@ class SmoothMean(torch.autograd.Function):
         fhat = torch.empty_like(f)
         denom = torch.empty(N, dtype=f.dtype)
         out = torch.empty_like(f)
-        with numba_threads(N * D) as nt:
+        with numba_threads(N * D, PARALLEL_MIN_WORK) as nt:
             par = int(nt > 1)
             NORMALISE[par](f.numpy(), eps, _one(f), fhat.numpy(), denom.numpy())
             BAG_MEAN[par](fhat.numpy(), sl, out.numpy())
@@ -188,7 +169,7 @@ class SmoothMean(torch.autograd.Function):
         g = (gy.detach().to(fhat.dtype) * (1.0 / k)).contiguous()  # [N, D] mean's 1 / k first
         N, D = fhat.shape
         grad = torch.zeros_like(fhat)
-        with numba_threads(N * D) as nt:
+        with numba_threads(N * D, PARALLEL_MIN_WORK) as nt:
             par = int(nt > 1)
             nb = column_split(D, nt)
             BAG_MEAN_BACKWARD[par](g.numpy().reshape(N, nb, D // nb), slots.contiguous().numpy(),
@@ -246,7 +227,7 @@ class CsrRender(torch.autograd.Function):
         P, D = r.shape[0], f.shape[1]
         out = torch.empty(P, D, dtype=f.dtype)
         nnz = int((ip[r + 1] - ip[r]).sum()) if P else 0
-        with numba_threads(nnz * D) as nt:
+        with numba_threads(nnz * D, PARALLEL_MIN_WORK) as nt:
             CSR_ROWS[int(nt > 1)](r.numpy(), ip.numpy(), ix.numpy(), w.numpy(), f.numpy(), out.numpy())
         ctx.save_for_backward(r, ip, ix, w)
         ctx.shape = (f.shape[0], D, nnz)
@@ -258,7 +239,7 @@ class CsrRender(torch.autograd.Function):
         N, D, nnz = ctx.shape
         g = gout.detach().to(w.dtype).contiguous()
         grad = torch.zeros(N, D, dtype=w.dtype)
-        with numba_threads(nnz * D) as nt:
+        with numba_threads(nnz * D, PARALLEL_MIN_WORK) as nt:
             nb = column_split(D, nt)
             CSR_ROWS_BACKWARD[int(nt > 1)](r.numpy(), ip.numpy(), ix.numpy(), w.numpy(),
                                            g.numpy().reshape(-1, nb, D // nb), grad.numpy().reshape(N, nb, D // nb))

@@ -30,15 +30,14 @@ W in float32 with the reference's exact rounding (no FMA contraction).
 
 from __future__ import annotations
 
-import contextlib
 
-import numba
 import numpy as np
 import torch
 import torch.nn.functional as F
 from numba import njit, prange
 
 from trase.objectives.base import W_MAX, PixelSample, check_features
+from trase.threads import numba_threads
 
 # Reassociation lets numba vectorise the sums over pairs; no FMA contraction, so each pair's
 # W is rounded exactly as the reference's float32 ops round it (bit-identical W).
@@ -46,27 +45,6 @@ FASTMATH = {"reassoc", "nsz", "nnan", "ninf"}
 BLOCK_BYTES = 4 << 20  # target size of one [B, V] block of C_F (and of S)
 PARALLEL_MIN_PIXELS = 2048  # below this V, one thread (waking numba's pool costs more than it saves)
 SIDES = {"column": 0, "row": 1, "either": 2}
-
-
-@contextlib.contextmanager
-def numba_threads():
-    """Run numba's parallel kernels on as many threads as torch uses (at most numba's pool).
-
-    One thread never touches numba's pool (the serial driver runs instead). Numba's OpenMP
-    layer shares the OpenMP runtime with torch, so setting numba's count also changes
-    ``torch.get_num_threads()`` (measured): torch's count is restored on exit."""
-    torch_n = torch.get_num_threads()
-    n = max(1, min(torch_n, numba.config.NUMBA_NUM_THREADS))
-    if n == 1:
-        yield 1
-        return
-    old = numba.get_num_threads()
-    numba.set_num_threads(n)
-    try:
-        yield n
-    finally:
-        numba.set_num_threads(old)
-        torch.set_num_threads(torch_n)
 
 
 def pack_membership(member: np.ndarray) -> np.ndarray:
@@ -393,11 +371,11 @@ class _Plan:
         B = int(min(V, max(32, BLOCK_BYTES // max(V * fn.element_size(), 1))))
         wc, wr, qpos, posA, negA = self._selection(dt)
         rows = np.zeros((V, 5), dt)
-        with numba_threads() as T:
+        with numba_threads(V, PARALLEL_MIN_PIXELS) as T:
             crow = np.zeros((T, V), dt)
             cols = np.zeros((T, n_cols, V), dt)
             qbuf = np.zeros((T, (V + 7) // 8 + 1), np.uint64)
-            run = _rows_serial if T == 1 or V < PARALLEL_MIN_PIXELS else _rows_parallel
+            run = _rows_serial if T == 1 else _rows_parallel
             buf = torch.empty(B * V, dtype=fn.dtype)  # one block of C_F or S, reused
             for i0 in range(0, V, B):
                 i1 = min(V, i0 + B)

@@ -1,0 +1,30 @@
+"""How many threads numba's parallel kernels get, shared by every numba module of trase."""
+
+from __future__ import annotations
+
+import contextlib
+
+import numba
+import torch
+
+
+@contextlib.contextmanager
+def numba_threads(work: int = 0, min_work: int = 0):
+    """Run numba's parallel kernels on as many threads as torch uses (at most numba's pool),
+    or on one (callers then run their serial driver; numba's pool untouched) when
+    ``work < min_work``: waking the pool costs more than small work saves. Yields the count.
+
+    Numba's OpenMP layer shares the OpenMP runtime with torch, so setting numba's count also
+    changes ``torch.get_num_threads()`` (measured): torch's count is restored on exit."""
+    torch_n = torch.get_num_threads()
+    n = max(1, min(torch_n, numba.config.NUMBA_NUM_THREADS))
+    if n == 1 or work < min_work:
+        yield 1
+        return
+    old = numba.get_num_threads()
+    numba.set_num_threads(n)
+    try:
+        yield n
+    finally:
+        numba.set_num_threads(old)
+        torch.set_num_threads(torch_n)
