@@ -45,7 +45,7 @@ class _Composite(torch.autograd.Function):
         t_final = np.ones(height * width, np.float64)
         n_done = np.zeros(height * width, np.int64)
         with numba.parallel_chunksize(TILE_CHUNK):
-            nk.forward(m2, co, op, ch, tile_off, entries, width, height, ts, gx, gy, _power_min(op), out, t_final, n_done)
+            nk.forward(m2, co, op, ch, tile_off, entries, width, height, ts, gx, gy, out, t_final, n_done)
         ctx.state = (m2, co, op, ch, tile_off, entries, g_ptr, g_pos, t_final, n_done, width, height, ts, gx, gy)
         ctx.dtype = chans.dtype
         alpha = (1.0 - t_final).astype(np.float32)
@@ -65,7 +65,7 @@ class _Composite(torch.autograd.Function):
         buf_geo = np.zeros((E, 6), np.float64)
         buf_chan = np.zeros((E, C), np.float32)
         with numba.parallel_chunksize(TILE_CHUNK):
-            nk.backward(m2, co, op, ch, tile_off, entries, width, height, ts, gx, gy, _power_min(op),
+            nk.backward(m2, co, op, ch, tile_off, entries, width, height, ts, gx, gy,
                         t_final, n_done, go, ga, buf_geo, buf_chan)
         grad_geo = np.zeros((n, 6), np.float64)
         grad_chan = np.zeros((n, C), np.float32)

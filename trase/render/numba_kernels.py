@@ -167,10 +167,11 @@ POWER_FLOOR = -8.0  # exp(-8) * opacity < 1/255: below it a gaussian never contr
 
 
 @njit(inline="always")
-def _block_alphas(pk, ids, blk, n, x0, y0, alph, gbuf):
+def _block_alphas(pk, ids, blk, n, x0, y0, alph):
     """alph[j, q] = raw alpha o * G of the block's j-th listed gaussian at its q-th pixel
-    (q = row * SUB + col), 0 where the gaussian is skipped (power > 0); gbuf[j, q] = G.
-    Branch-free over the SUB*SUB pixels so the loop vectorises."""
+    (q = row * SUB + col), 0 where the gaussian is skipped (power > 0). Branch-free over the
+    SUB*SUB pixels so the loop vectorises. (The backward's G is alph / o: listed gaussians
+    have o >= 1/255.)"""
     for j in range(n):
         i = ids[blk, j]
         u, v, ca, cb, cc, o = pk[i, 0], pk[i, 1], pk[i, 2], pk[i, 3], pk[i, 4], pk[i, 5]
@@ -179,13 +180,25 @@ def _block_alphas(pk, ids, blk, n, x0, y0, alph, gbuf):
             dy = y0 + (q // SUB) + 0.5 - v
             power = -0.5 * (ca * dx * dx + cc * dy * dy) - cb * dx * dy
             G = exp_nonpositive(min(max(power, POWER_FLOOR), 0.0))
-            G = G if power <= 0.0 else 0.0
-            gbuf[j, q] = G
-            alph[j, q] = o * G
+            alph[j, q] = o * G if power <= 0.0 else 0.0
+
+
+@njit(inline="always")
+def _tile_setup(t, tile_off, entries, means2d, conics, opac, width, height, ts, gx):
+    """Tile t's origin, pixel bounds, packed gaussians, culled block lists and an alpha buffer
+    for one block: -> (tx, ty, start, x_end, y_end, pk, ids, nsub, alph [K, SUB*SUB])."""
+    tx = t % gx
+    ty = t // gx
+    start = tile_off[t]
+    end = tile_off[t + 1]
+    pk = _pack_tile(start, end, entries, means2d, conics, opac)
+    ids, nsub = _sub_lists(pk, tx, ty, ts)
+    alph = np.empty((max(1, end - start), SUB * SUB), np.float64)
+    return tx, ty, start, min((tx + 1) * ts, width), min((ty + 1) * ts, height), pk, ids, nsub, alph
 
 
 @njit(parallel=True, cache=True)
-def forward(means2d, conics, opac, chans, tile_off, entries, width, height, ts, gx, gy, p_min, out, t_final, n_done):
+def forward(means2d, conics, opac, chans, tile_off, entries, width, height, ts, gx, gy, out, t_final, n_done):
     """out [H*W, C] = sum_i w_i chans_i; t_final [H*W] float64; n_done [H*W] = number of
     positions of the pixel's sub-block list walked (where the backward starts).
 
@@ -197,17 +210,8 @@ def forward(means2d, conics, opac, chans, tile_off, entries, width, height, ts, 
     nbx = (ts + SUB - 1) // SUB
     L = SUB * SUB
     for t in prange(gx * gy):
-        tx = t % gx
-        ty = t // gx
-        start = tile_off[t]
-        end = tile_off[t + 1]
-        x_end = min((tx + 1) * ts, width)
-        y_end = min((ty + 1) * ts, height)
-        pk = _pack_tile(start, end, entries, means2d, conics, opac)
-        ids, nsub = _sub_lists(pk, tx, ty, ts)
-        kmax = max(1, end - start)
-        alph = np.empty((kmax, L), np.float64)
-        gbuf = np.empty((kmax, L), np.float64)
+        tx, ty, start, x_end, y_end, pk, ids, nsub, alph = _tile_setup(
+            t, tile_off, entries, means2d, conics, opac, width, height, ts, gx)
         T = np.empty(L, np.float64)
         w = np.empty(L, np.float64)
         act = np.empty(L, np.int64)
@@ -219,7 +223,7 @@ def forward(means2d, conics, opac, chans, tile_off, entries, width, height, ts, 
             if x0 >= x_end or y0 >= y_end:
                 continue
             n = nsub[blk]
-            _block_alphas(pk, ids, blk, n, x0, y0, alph, gbuf)
+            _block_alphas(pk, ids, blk, n, x0, y0, alph)
             for q in range(L):
                 act[q] = 1 if (x0 + q % SUB < x_end and y0 + q // SUB < y_end) else 0
                 T[q] = 1.0
@@ -262,7 +266,7 @@ def forward(means2d, conics, opac, chans, tile_off, entries, width, height, ts, 
 
 @njit(parallel=True, cache=True, fastmath={"reassoc", "contract"})
 def backward(
-    means2d, conics, opac, chans, tile_off, entries, width, height, ts, gx, gy, p_min,
+    means2d, conics, opac, chans, tile_off, entries, width, height, ts, gx, gy,
     t_final, n_done, g_out, g_alpha, buf_geo, buf_chan,
 ):
     """Back to front, the block's pixels in lock-step as in ``forward``. g_out [H*W, C],
@@ -272,17 +276,8 @@ def backward(
     nbx = (ts + SUB - 1) // SUB
     L = SUB * SUB
     for t in prange(gx * gy):
-        tx = t % gx
-        ty = t // gx
-        start = tile_off[t]
-        end = tile_off[t + 1]
-        x_end = min((tx + 1) * ts, width)
-        y_end = min((ty + 1) * ts, height)
-        pk = _pack_tile(start, end, entries, means2d, conics, opac)
-        ids, nsub = _sub_lists(pk, tx, ty, ts)
-        kmax = max(1, end - start)
-        alph = np.empty((kmax, L), np.float64)
-        gbuf = np.empty((kmax, L), np.float64)
+        tx, ty, start, x_end, y_end, pk, ids, nsub, alph = _tile_setup(
+            t, tile_off, entries, means2d, conics, opac, width, height, ts, gx)
         T = np.empty(L, np.float64)
         tf = np.empty(L, np.float64)
         ga = np.empty(L, np.float64)
@@ -318,7 +313,7 @@ def backward(
                 jmax = max(jmax, nd[q])
             if jmax == 0:
                 continue
-            _block_alphas(pk, ids, blk, jmax, x0, y0, alph, gbuf)
+            _block_alphas(pk, ids, blk, jmax, x0, y0, alph)
             for j in range(jmax - 1, -1, -1):
                 i = ids[blk, j]
                 e = start + i
@@ -338,6 +333,7 @@ def backward(
                             sq += chans[g, c] * gblk[q, c]
                     fg[q] = sq
                 o = pk[i, 5]
+                inv_o = 1.0 / o
                 ca, cb, cc = pk[i, 2], pk[i, 3], pk[i, 4]
                 u, v = pk[i, 0], pk[i, 1]
                 s0 = 0.0
@@ -359,7 +355,7 @@ def backward(
                     w[q] = wq
                     # a clamped alpha passes no gradient to opacity or geometry
                     live = a > 0.0 and alph[j, q] <= ALPHA_MAX
-                    d_op = gbuf[j, q] * d_a if live else 0.0
+                    d_op = alph[j, q] * inv_o * d_a if live else 0.0  # G d_a
                     dp = o * d_op
                     dx = x0 + q % SUB + 0.5 - u
                     dy = y0 + q // SUB + 0.5 - v
