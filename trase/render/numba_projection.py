@@ -21,7 +21,7 @@ import torch
 from numba import njit, prange
 
 from trase.camera import Camera
-from trase.render.projection import EPS2D, Projected, screen_rects
+from trase.render.projection import EPS2D, Projected, jacobian_clamp, screen_rects
 
 
 @njit(inline="always")
@@ -222,14 +222,10 @@ def project_backward(means, quats, scales, Rw, tw, near, fx, fy, cx, cy, skew, x
 
 
 def _camera_args(camera: Camera, near: float):
-    fx, fy, cx, cy, skew = camera.fx, camera.fy, camera.cx, camera.cy, float(camera.K[0, 1])
-    W, H = camera.width, camera.height
-    tan_x, tan_y = 0.5 * W / fx, 0.5 * H / fy
     Rw = np.ascontiguousarray(camera.w2c[:3, :3], dtype=np.float64)
     tw = np.ascontiguousarray(camera.w2c[:3, 3], dtype=np.float64)
-    return (Rw, tw, float(near), float(fx), float(fy), float(cx), float(cy), skew,
-            -(cx / fx + 0.3 * tan_x), (W - cx) / fx + 0.3 * tan_x,
-            -(cy / fy + 0.3 * tan_y), (H - cy) / fy + 0.3 * tan_y)
+    return (Rw, tw, float(near), float(camera.fx), float(camera.fy), float(camera.cx), float(camera.cy),
+            float(camera.K[0, 1]), *jacobian_clamp(camera))
 
 
 def _np64(t: torch.Tensor) -> np.ndarray:

@@ -48,6 +48,15 @@ def tile_grid(camera: Camera, tile_size: int) -> tuple[int, int]:
     return (camera.width + tile_size - 1) // tile_size, (camera.height + tile_size - 1) // tile_size
 
 
+def jacobian_clamp(camera: Camera) -> tuple[float, float, float, float]:
+    """(x/z low, high, y/z low, high) at which the EWA Jacobian is evaluated: the field of view
+    widened by 0.3x its half-tangent on each side of the principal point (3DGS, gsplat)."""
+    fx, fy, cx, cy = camera.fx, camera.fy, camera.cx, camera.cy
+    tan_x, tan_y = 0.5 * camera.width / fx, 0.5 * camera.height / fy
+    return (-(cx / fx + 0.3 * tan_x), (camera.width - cx) / fx + 0.3 * tan_x,
+            -(cy / fy + 0.3 * tan_y), (camera.height - cy) / fy + 0.3 * tan_y)
+
+
 def screen_rects(
     means2d: torch.Tensor,  # [N, 2] (no grad)
     lam: torch.Tensor,  # [N] largest eigenvalue of the dilated 2D covariance
@@ -99,15 +108,14 @@ def project_gaussians(
     z_safe = torch.where(in_front, z, torch.ones_like(z))  # keeps culled gradients finite
 
     fx, fy, cx, cy, skew = camera.fx, camera.fy, camera.cx, camera.cy, float(camera.K[0, 1])
-    W, H = camera.width, camera.height
     xn, yn = p[:, 0] / z_safe, p[:, 1] / z_safe
     u = fx * xn + skew * yn + cx
     v = fy * yn + cy
 
     # Jacobian of the projection at the (FOV-clamped) point
-    tan_x, tan_y = 0.5 * W / fx, 0.5 * H / fy
-    xc = xn.clamp(-(cx / fx + 0.3 * tan_x), (W - cx) / fx + 0.3 * tan_x)
-    yc = yn.clamp(-(cy / fy + 0.3 * tan_y), (H - cy) / fy + 0.3 * tan_y)
+    xlo, xhi, ylo, yhi = jacobian_clamp(camera)
+    xc = xn.clamp(xlo, xhi)
+    yc = yn.clamp(ylo, yhi)
     zero = torch.zeros_like(z)
     J = torch.stack(
         [fx / z_safe, skew / z_safe, -(fx * xc + skew * yc) / z_safe, zero, fy / z_safe, -fy * yc / z_safe],
