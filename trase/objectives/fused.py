@@ -121,6 +121,24 @@ def _pack_row(q8, q64, n, out):
 ANCHOR, HARD, SELECT, COEF = 0, 1, 2, 3
 
 
+@njit(inline="always")
+def _row_setup(mat, r, i0, bits, b, cr_all):
+    """Row i = i0 + r against columns j >= j0 = i + 1: -> (i, j0, cr = C[i, j0:] as 0/1,
+    v_ = the row's block entries from j0, b_ = b[j0:], b[i])."""
+    i = i0 + r
+    j0 = i + 1
+    cr = cr_all[j0:]
+    _c_row(bits, i, j0, cr)
+    return i, j0, cr, mat[r, j0 - i0:], b[j0:], b[i]
+
+
+@njit(inline="always")
+def _pair_weight(bi, bj, kw, one):
+    """W_ij from the closed form of base.pair_weights: 1 + kw (a_i a_j - 1), 1 where an area is 0."""
+    p = bi * bj
+    return one + kw * (p - one) if p > 0 else one
+
+
 @njit(fastmath=FASTMATH, cache=True, nogil=True)
 def _anchor_row(mat, r, i0, bits, b, kw, tp, tn, cr_all, col, rows, qbits, qoff, q64):
     """Soft/all mining scan. Adds to row i (``rows[i]``) and to each column j (``col[:, j]``)
@@ -131,15 +149,9 @@ def _anchor_row(mat, r, i0, bits, b, kw, tp, tn, cr_all, col, rows, qbits, qoff,
     one = b.dtype.type(1.0)
     zero = mat.dtype.type(0.0)
     q8 = q64.view(np.uint8)
-    i = i0 + r
-    j0 = i + 1
+    i, j0, cr, v_, b_, bi = _row_setup(mat, r, i0, bits, b, cr_all)
     n = V - j0
-    cr = cr_all[j0:]
-    _c_row(bits, i, j0, cr)
-    v_ = mat[r, j0 - i0:]
-    b_ = b[j0:]
     p0, p1, p2, p3, p4 = col[0, j0:], col[1, j0:], col[2, j0:], col[3, j0:], col[4, j0:]
-    bi = b[i]
     s0 = zero
     s1 = zero
     s2 = zero
@@ -148,8 +160,7 @@ def _anchor_row(mat, r, i0, bits, b, kw, tp, tn, cr_all, col, rows, qbits, qoff,
     for k in range(n):
         v = v_[k]
         c = cr[k]
-        p = bi * b_[k]
-        wt = one + kw * (p - one) if p > 0 else one
+        wt = _pair_weight(bi, b_[k], kw, one)
         wv = wt * v
         pv = c * wv
         nv = wv - pv if v > zero else zero
@@ -183,14 +194,8 @@ def _hard_row(mat, r, i0, bits, b, kw, tp, tn, cr_all, rows, qbits, qoff, q64):
     one = b.dtype.type(1.0)
     zero = mat.dtype.type(0.0)
     q8 = q64.view(np.uint8)
-    i = i0 + r
-    j0 = i + 1
+    i, j0, cr, v_, b_, bi = _row_setup(mat, r, i0, bits, b, cr_all)
     n = V - j0
-    cr = cr_all[j0:]
-    _c_row(bits, i, j0, cr)
-    v_ = mat[r, j0 - i0:]
-    b_ = b[j0:]
-    bi = b[i]
     s0 = zero
     s1 = zero
     s2 = zero
@@ -198,8 +203,7 @@ def _hard_row(mat, r, i0, bits, b, kw, tp, tn, cr_all, rows, qbits, qoff, q64):
     for k in range(n):
         v = v_[k]
         c = cr[k]
-        p = bi * b_[k]
-        wt = one + kw * (p - one) if p > 0 else one
+        wt = _pair_weight(bi, b_[k], kw, one)
         sp = c if v < tp else zero
         sn = (1 - c) if v > tn else zero
         rl = sn if v > zero else zero
@@ -222,15 +226,9 @@ def _select_row(mat, r, i0, bits, b, kw, posA, negA, wc, wr, cr_all, rows):
     1 - (1 - wc A_j)(1 - wr A_i) (column side: wc = 1; row: wr = 1; either: both)."""
     one = b.dtype.type(1.0)
     zero = mat.dtype.type(0.0)
-    i = i0 + r
-    j0 = i + 1
-    cr = cr_all[j0:]
-    _c_row(bits, i, j0, cr)
-    v_ = mat[r, j0 - i0:]
-    b_ = b[j0:]
+    i, j0, cr, v_, b_, bi = _row_setup(mat, r, i0, bits, b, cr_all)
     pa = posA[j0:]
     na = negA[j0:]
-    bi = b[i]
     rp = 1 - wr * posA[i]
     rn = 1 - wr * negA[i]
     s0 = zero
@@ -240,8 +238,7 @@ def _select_row(mat, r, i0, bits, b, kw, posA, negA, wc, wr, cr_all, rows):
     for k in range(cr.shape[0]):
         v = v_[k]
         c = cr[k]
-        p = bi * b_[k]
-        wt = one + kw * (p - one) if p > 0 else one
+        wt = _pair_weight(bi, b_[k], kw, one)
         sp = c * (1 - (1 - wc * pa[k]) * rp)
         sn = (1 - c) * (1 - (1 - wc * na[k]) * rn)
         s0 += sp * wt * v
@@ -287,8 +284,7 @@ def _coef_row(mat, r, i0, bits, b, kw, posA, negA, wc, wr, qpos, cpos, cneg, cr_
     for k in range(n):
         c = cr[k]
         q = mat.dtype.type(q8[k])
-        p = bi * b_[k]
-        wt = one + kw * (p - one) if p > 0 else one
+        wt = _pair_weight(bi, b_[k], kw, one)
         sp = c * (1 - (1 - wc * pa[k]) * rp) * (qpos * q + (1 - qpos))
         sn = (1 - c) * (1 - (1 - wc * na[k]) * rn) * q
         s_[k] = wt * (cpos * sp + cneg * sn)
