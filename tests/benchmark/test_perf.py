@@ -57,4 +57,7 @@ def test_reconstruct_suite_reports_psnr_per_checkpoint(monkeypatch, capsys):
     for c in r["curve"]:
         assert 0 < c["seconds"] <= r["wall_s"] + 1 and 5.0 < c["psnr_full"] < 60.0 and c["gaussians"] > 0
     assert r["final"] == r["curve"][-1]
+    assert r["finished"] and r["iterations_planned"] == 10
+    # the runner's settings for this scene (the tiny scene trains at full resolution)
+    assert out["train_config"]["image_downscale"] == 1.0 and out["train_config"]["deform_preset"] == "small"
     assert "test PSNR" in capsys.readouterr().out

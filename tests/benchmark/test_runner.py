@@ -103,3 +103,22 @@ def test_paper_preset_takes_the_registry_schedule():
     train = cfg["geometry"]["train"]
     assert (train["warm_up"], train["densify_until"]) == (spec.warm_up, spec.densify_until) == (1500, 9000)
     assert train["iterations"] == 20_000 and train["image_downscale"] == 1.0
+
+
+def test_cpu_preset_training_resolution_follows_the_images():
+    from benchmark.datasets import get_dataset
+    from benchmark.methods import get_method
+    from benchmark.runner import cpu_train_downscale, default_config
+
+    assert cpu_train_downscale(None) == 1.0
+    assert cpu_train_downscale((160, 120)) == 1.0  # synthetic scenes train at full resolution
+    assert cpu_train_downscale((480, 270)) == 1.0
+    assert cpu_train_downscale((960, 536)) == 2.0  # HyperNeRF
+    assert cpu_train_downscale((1352, 1014)) == 4.0  # Neu3D
+    spec = get_dataset("hypernerf")
+    cfg = default_config(get_method("trase"), spec, "synthetic", {"geometry": {"preset": "cpu"}}, (160, 120))
+    train = cfg["geometry"]["train"]
+    assert train["image_downscale"] == 1.0 and train["iterations"] == 2000
+    assert train["position_lr_max_steps"] == 2000  # the schedule scaled to the run
+    cfg = default_config(get_method("trase"), spec, "real", {"geometry": {"preset": "cpu"}}, (960, 536))
+    assert cfg["geometry"]["train"]["image_downscale"] == 2.0
