@@ -7,7 +7,9 @@ medians over repeats (numba after one untimed warm-up that loads/compiles its ke
 "spread" is max - min over the repeats. Process CPU time (all threads) is recorded beside the
 wall time: on a shared, loaded machine it is the steadier of the two. Differences: max |output_numba - output_torch| over
 colour, features, depth and alpha; gradient difference per input is
-max |g_numba - g_torch| / max |g_torch|, the worst input reported.
+max |g_numba - g_torch| / max |g_torch|, the worst input reported. "state saved for the
+backward" is what the numba forward keeps beyond its inputs and the tile binning (per-block
+gaussian lists and lane masks, final transmittance; numba_backend.saved_state_bytes).
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ from collections.abc import Callable
 import torch
 
 from trase.camera import Camera, intrinsics, look_at
-from trase.render import rasterize
+from trase.render import numba_backend, rasterize
 
 # (gaussians, width, height, feature channels D (total channels = 3 + D), run torch?)
 QUICK = [(5_000, 128, 96, 32, True)]
@@ -107,9 +109,13 @@ def run(quick: bool = False, echo: Callable[[str], None] = print) -> dict:
         row = {"gaussians": n, "width": w, "height": h, "channels": 3 + d, "feature_dim": d}
         num, out_n, g_n = _time_backend("numba", scene, cam, reps_numba, warmup=True)
         row["numba"] = num
+        saved = dict(numba_backend.LAST_SAVED)  # what the latest numba forward kept for its backward
+        row["numba_saved_bytes"] = {**saved, "total": sum(saved.values())}
         row["mean_alpha"] = float(out_n["alpha"].mean())
         echo(f"{label}: numba  forward {_fmt(num['forward_s'])}  backward {_fmt(num['backward_s'])}  "
              f"total {_fmt(num['total_s'])}  [cpu total {num['total_cpu_s']['median']:.3f}s]")
+        echo(f"{label}: numba  state saved for the backward {_mib(row['numba_saved_bytes']['total'])} ("
+             + ", ".join(f"{k} {_mib(v)}" for k, v in saved.items()) + ")")
         if with_torch:
             ref, out_t, g_t = _time_backend("torch", scene, cam, reps_torch, warmup=False)
             row["torch"] = ref
@@ -134,6 +140,10 @@ def run(quick: bool = False, echo: Callable[[str], None] = print) -> dict:
         "settings": rows,
         "load_average_end": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
     }
+
+
+def _mib(b: int) -> str:
+    return f"{b / 2**20:.1f} MiB"
 
 
 def _fmt(s: dict) -> str:

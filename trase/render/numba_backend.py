@@ -5,7 +5,7 @@ stays in torch (sh.py), shared with the reference."""
 
 from __future__ import annotations
 
-import math
+import contextlib
 
 import numba
 import numpy as np
@@ -19,16 +19,38 @@ from trase.render import numba_kernels as nk
 TILE_CHUNK = 2
 
 
+@contextlib.contextmanager
+def slp_compile():
+    """Compile (on first call) with LLVM's SLP vectoriser on, which numba leaves off by default
+    (NUMBA_SLP_VECTORIZE): the kernels' 16-lane channel loops are fully unrolled, and only SLP
+    turns them back into vector instructions. Calls to already compiled kernels are unaffected."""
+    old = numba.config.SLP_VECTORIZE
+    numba.config.SLP_VECTORIZE = 1
+    try:
+        yield
+    finally:
+        numba.config.SLP_VECTORIZE = old
+
+
 def _np32(t: torch.Tensor) -> np.ndarray:
     return np.ascontiguousarray(t.detach().to("cpu", torch.float32).numpy())
 
 
-def _power_min(op: np.ndarray) -> float:
-    """Smallest exponent that can still give alpha >= 1/255 (with a margin for rounding)."""
-    top = float(op.max()) if op.size else 0.0
-    if top <= 0.0:
-        return 0.0  # nothing can contribute
-    return math.log(nk.ALPHA_MIN / top) - 1e-3
+def saved_state_bytes(n_entries: int, n_tiles: int, n_pixels: int, tile_size: int) -> dict[str, int]:
+    """Bytes the forward keeps for the backward beyond the projected inputs and the binning:
+    per block-list slot (nb * E slots, allocated with np.empty so only the slots a block's list
+    reaches are touched) an int32 id and a uint16 lane mask, a per-block length, and the final
+    transmittance per pixel. Bounded by 6 * nb * E + 4 * nb * T + 4 * P (nb = 16 for 16 px tiles)."""
+    nb = nk.blocks_per_tile(tile_size)
+    return {
+        "block_lists": 4 * nb * n_entries,
+        "block_masks": 2 * nb * n_entries,
+        "block_lengths": 4 * nb * n_tiles,
+        "t_final": 4 * n_pixels,
+    }
+
+
+LAST_SAVED: dict[str, int] = {}  # saved_state_bytes of the latest forward (read by perf raster)
 
 
 class _Composite(torch.autograd.Function):
@@ -41,14 +63,22 @@ class _Composite(torch.autograd.Function):
             np.ascontiguousarray(rects.numpy()), depths.detach().to(torch.float64).numpy(), gx, gy
         )
         C = ch.shape[1]
+        E = entries.shape[0]
+        nb = nk.blocks_per_tile(ts)
         out = np.zeros((height * width, C), np.float32)
-        t_final = np.ones(height * width, np.float64)
-        n_done = np.zeros(height * width, np.int64)
-        with numba.parallel_chunksize(TILE_CHUNK):
-            nk.forward(m2, co, op, ch, tile_off, entries, width, height, ts, gx, gy, out, t_final, n_done)
-        ctx.state = (m2, co, op, ch, tile_off, entries, g_ptr, g_pos, t_final, n_done, width, height, ts, gx, gy)
+        t_final = np.ones(height * width, np.float32)
+        alpha = np.zeros(height * width, np.float32)
+        bl_ids = np.empty(nb * E, np.int32)
+        bl_mask = np.empty(nb * E, np.uint16)
+        bl_n = np.empty(nb * gx * gy, np.int32)
+        with numba.parallel_chunksize(TILE_CHUNK), slp_compile():
+            nk.forward(m2, co, op, ch, tile_off, entries, width, height, ts, gx, gy, out, alpha, t_final,
+                       bl_ids, bl_mask, bl_n, nk.LANES)
+        LAST_SAVED.clear()
+        LAST_SAVED.update(saved_state_bytes(E, gx * gy, height * width, ts))
+        ctx.state = (m2, co, op, ch, tile_off, entries, g_ptr, g_pos, t_final, bl_ids, bl_mask, bl_n,
+                     width, height, ts, gx, gy)
         ctx.dtype = chans.dtype
-        alpha = (1.0 - t_final).astype(np.float32)
         dt = chans.dtype
         return (
             torch.from_numpy(out).reshape(height, width, C).to(dt),
@@ -57,18 +87,19 @@ class _Composite(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, g_out, g_alpha):
-        m2, co, op, ch, tile_off, entries, g_ptr, g_pos, t_final, n_done, width, height, ts, gx, gy = ctx.state
+        (m2, co, op, ch, tile_off, entries, g_ptr, g_pos, t_final, bl_ids, bl_mask, bl_n,
+         width, height, ts, gx, gy) = ctx.state
         n, C = ch.shape
         E = entries.shape[0]
         go = np.ascontiguousarray(g_out.detach().to(torch.float32).reshape(height * width, C).numpy())
-        ga = np.ascontiguousarray(g_alpha.detach().to(torch.float64).reshape(height * width).numpy())
-        buf_geo = np.zeros((E, 6), np.float64)
-        buf_chan = np.zeros((E, C), np.float32)
-        with numba.parallel_chunksize(TILE_CHUNK):
+        ga = np.ascontiguousarray(g_alpha.detach().to(torch.float32).reshape(height * width).numpy())
+        buf_geo = np.empty((E, 6), np.float64)  # every row is zeroed by its tile in the kernel
+        buf_chan = np.empty((E, C), np.float32)
+        with numba.parallel_chunksize(TILE_CHUNK), slp_compile():
             nk.backward(m2, co, op, ch, tile_off, entries, width, height, ts, gx, gy,
-                        t_final, n_done, go, ga, buf_geo, buf_chan)
-        grad_geo = np.zeros((n, 6), np.float64)
-        grad_chan = np.zeros((n, C), np.float32)
+                        t_final, bl_ids, bl_mask, bl_n, go, ga, buf_geo, buf_chan, nk.LANES)
+        grad_geo = np.empty((n, 6), np.float64)
+        grad_chan = np.empty((n, C), np.float32)
         nk.reduce_grads(g_ptr, g_pos, buf_geo, buf_chan, grad_geo, grad_chan)
         dt = ctx.dtype
         gg = torch.from_numpy(grad_geo).to(dt)
@@ -91,10 +122,10 @@ def pixel_weights_numba(means2d, conics, opac, depths, rects, width, height, til
     )
     pix = np.ascontiguousarray(pixels.numpy())
     counts = np.zeros(pix.shape[0], np.int64)
-    nk.pixel_weight_counts(pix, width, ts, gx, m2, co, op, tile_off, entries, _power_min(op), min_weight, counts)
+    nk.pixel_weight_counts(pix, width, ts, gx, m2, co, op, tile_off, entries, min_weight, counts)
     indptr = np.zeros(pix.shape[0] + 1, np.int64)
     np.cumsum(counts, out=indptr[1:])
     idx = np.empty(indptr[-1], np.int64)
     w = np.empty(indptr[-1], np.float32)
-    nk.pixel_weight_fill(pix, width, ts, gx, m2, co, op, tile_off, entries, _power_min(op), min_weight, indptr, idx, w)
+    nk.pixel_weight_fill(pix, width, ts, gx, m2, co, op, tile_off, entries, min_weight, indptr, idx, w)
     return torch.from_numpy(indptr), torch.from_numpy(idx), torch.from_numpy(w)

@@ -8,11 +8,14 @@ t's slice. ``g_ptr``/``g_pos`` list, for each gaussian, the entry positions it o
 backward writes per-entry gradients race-free (each tile owns its slice) and then reduces them
 per gaussian in parallel, deterministically.
 
-Numbers: inputs float32; per-pixel transmittance and geometry gradients in float64 (the
-backward recovers T_k = T_{k+1} / (1 - alpha_k) back to front, which float32 would drift on).
-Compositing evaluates exp with ``exp_nonpositive`` (vectorisable, relative error < 1e-12);
-``pixel_weights`` replays pixels one at a time with math.exp: the two can only disagree on a
-gaussian whose alpha lies within 1e-12 of the 1/255 cut (tests compare them to 1e-5).
+Compositing works on SUB x SUB pixel blocks, one float32 lane per pixel (16 lanes), in the
+torch reference's float32 arithmetic. The forward saves each block's culled gaussian list and,
+per list slot, which lanes used the gaussian (a 16-bit mask): the backward replays exactly the
+forward's decisions without recomputing culling or thresholds. The backward recovers
+T_k = T_{k+1} / (1 - alpha_k) back to front in float32 (relative error grows by ~1e-7 per
+step: ~3e-5 after 300 gaussians, well inside the 1e-3 gradient tolerance) and sums geometry
+gradients per entry in float64. exp is ``exp_nonpositive32`` (vectorisable); ``pixel_weights``
+replays pixels one at a time with the same ``alpha32`` expression, so it matches ``forward``.
 """
 
 from __future__ import annotations
@@ -20,7 +23,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import carray, njit, prange, types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 ALPHA_MIN = 1.0 / 255.0
 ALPHA_MAX = 0.99
@@ -64,27 +69,77 @@ def bin_gaussians(rects, depths, gx, gy):
     return tile_off, entries, g_ptr, g_pos
 
 
+F32 = np.float32
+A_MIN32 = np.float32(ALPHA_MIN)
+A_MAX32 = np.float32(ALPHA_MAX)
+T_MIN32 = np.float32(T_MIN)
+SUB = 4  # sub-block side in pixels: a tile's gaussians are culled per SUB x SUB block
+LANES = SUB * SUB  # one lane per pixel of a block (16 float32 = one AVX-512 register)
+POWER_MARGIN = 1e-3  # culling is widened by this much exponent (and 1e-3 px) against rounding
+POWER_FLOOR = np.float32(-8.0)  # exp(-8) * opacity < 1/255: below it a gaussian never contributes
+
+
+def blocks_per_tile(ts: int) -> int:
+    nbx = (ts + SUB - 1) // SUB
+    return nbx * nbx
+
+
+@intrinsic
+def _stack_lanes(typingctx):
+    """Pointer to LANES float32 of stack scratch (one alloca in the function's entry block).
+
+    Why: LLVM can prove a stack slot aliases no array argument, so channel loops that read
+    lane values from it (``acc[c, q] += w[q] * ch``) are vectorised across the 16 lanes by the
+    SLP vectoriser (see numba_backend.slp_compile); from a heap array they stay scalar."""
+    sig = types.CPointer(types.float32)()
+
+    def codegen(context, builder, signature, args):
+        return cgutils.alloca_once(builder, context.get_value_type(types.float32), size=LANES)
+
+    return sig, codegen
+
+
 @njit(inline="always")
-def _alpha_at(fx, fy, means2d, conics, opac, g, p_min):
-    """-> (power, G = exp(power), raw alpha o*G, dx, dy); power > 0 means skip. ``p_min`` =
-    log(ALPHA_MIN / max opacity): below it alpha < 1/255 for sure, so exp is not evaluated
-    and power is reported as +1 (skip)."""
-    dx = fx - means2d[g, 0]
-    dy = fy - means2d[g, 1]
-    a, b, c = conics[g, 0], conics[g, 1], conics[g, 2]
-    power = -0.5 * (a * dx * dx + c * dy * dy) - b * dx * dy
-    if power > 0.0 or power < p_min:
-        return 1.0, 0.0, 0.0, dx, dy
-    G = math.exp(power)
-    return power, G, opac[g] * G, dx, dy
+def lane_scratch():
+    """A [LANES] float32 array on the stack (see _stack_lanes); contents undefined."""
+    return carray(_stack_lanes(), (LANES,))
+
+
+@njit(inline="always")
+def exp_nonpositive32(x):
+    """exp(x) in float32 for -8 <= x <= 0 as plain arithmetic (relative error ~1e-6, from
+    float32 rounding amplified by the squarings; truncation < 1e-8).
+
+    Why not math.exp: LLVM lowers it to a libm call, which stops the lane loops from being
+    vectorised. exp(x) = exp(x / 16) ** 16, a degree-8 Taylor polynomial on [-0.5, 0] and four
+    squarings."""
+    y = x * F32(0.0625)
+    p = F32(1.0) + y * (F32(1.0) + y * (F32(0.5) + y * (F32(1.0 / 6.0) + y * (F32(1.0 / 24.0) + y * (
+        F32(1.0 / 120.0) + y * (F32(1.0 / 720.0) + y * (F32(1.0 / 5040.0) + y * F32(1.0 / 40320.0))))))))
+    p = p * p
+    p = p * p
+    p = p * p
+    return p * p
+
+
+@njit(inline="always")
+def alpha32(fx, fy, u, v, ca, cb, cc, o):
+    """Raw alpha o * exp(power) of one gaussian at pixel centre (fx, fy), all float32, with the
+    reference's operation order; 0 where power > 0 (skipped). The forward lanes, the backward
+    and pixel_weights all call this one expression, so they agree bit for bit."""
+    dx = fx - u
+    dy = fy - v
+    power = F32(-0.5) * (ca * (dx * dx) + cc * (dy * dy)) - (cb * dx) * dy
+    G = exp_nonpositive32(min(max(power, POWER_FLOOR), F32(0.0)))
+    return o * G if power <= F32(0.0) else F32(0.0)
 
 
 @njit(inline="always")
 def _pack_tile(start, end, entries, means2d, conics, opac):
-    """Gather a tile's gaussians into one contiguous [K, 6] float64 block (u, v, a, b, c, o):
-    the per-pixel loops then stream through it instead of gathering."""
+    """Gather a tile's gaussians into one contiguous [K, 6] float32 block (u, v, a, b, c, o):
+    the lane loops then stream through it instead of gathering."""
     k = end - start
-    pk = np.empty((k, 6), np.float64)
+    pk = np.empty((k, 6), np.float32)
     for i in range(k):
         g = entries[start + i]
         pk[i, 0] = means2d[g, 0]
@@ -96,31 +151,27 @@ def _pack_tile(start, end, entries, means2d, conics, opac):
     return pk
 
 
-SUB = 4  # sub-block side in pixels: a tile's gaussians are culled per SUB x SUB block
-POWER_MARGIN = 1e-3  # culling is widened by this much exponent (and 1e-3 px) against rounding
-
-
 @njit(inline="always")
-def _sub_lists(pk, tx, ty, ts):
+def _sub_lists(pk, tx, ty, ts, bl_ids, base, n):
     """Per SUB x SUB block of the tile, the positions (into the tile's depth-sorted list) of the
-    gaussians that can reach alpha >= 1/255 at one of the block's pixel centres, in order.
+    gaussians that can reach alpha >= 1/255 at one of the block's pixel centres, in order:
+    block b's list is bl_ids[base + b * K : base + b * K + n[b]] (K = the tile's list length).
 
     Why: most of a tile's gaussians miss most of its pixels; walking every one at every pixel
     was most of the compositing time. The test is the axis-aligned box of the ellipse
     power >= log(ALPHA_MIN / opacity), where alpha < 1/255 and the gaussian is skipped anyway,
-    widened by a margin, so culling never changes a result. -> (ids [nb, K] int32, n [nb])."""
+    widened by a margin, so culling never changes a result."""
     k = pk.shape[0]
     nbx = (ts + SUB - 1) // SUB
-    nb = nbx * nbx
-    ids = np.empty((nb, max(k, 1)), np.int32)
-    n = np.zeros(nb, np.int64)
     x_base = tx * ts
     y_base = ty * ts
+    for j in range(nbx * nbx):
+        n[j] = 0
     for i in range(k):
-        o = pk[i, 5]
+        o = float(pk[i, 5])
         if o < ALPHA_MIN:
             continue  # alpha = o * G < 1/255 everywhere
-        a, b, c = pk[i, 2], pk[i, 3], pk[i, 4]
+        a, b, c = float(pk[i, 2]), float(pk[i, 3]), float(pk[i, 4])
         det = a * c - b * b
         kk = -2.0 * (math.log(ALPHA_MIN / o) - POWER_MARGIN)
         if det > 0.0 and math.isfinite(det):
@@ -129,7 +180,7 @@ def _sub_lists(pk, tx, ty, ts):
         else:
             rx = 1e30
             ry = 1e30
-        u, v = pk[i, 0], pk[i, 1]
+        u, v = float(pk[i, 0]), float(pk[i, 1])
         # pixel centres px + 0.5 inside [u - rx, u + rx] (clamped to the tile before int())
         px_lo = math.ceil(min(max(u - rx - 0.5, x_base - 1.0), x_base + ts + 1.0))
         px_hi = math.floor(min(max(u + rx - 0.5, x_base - 1.0), x_base + ts + 1.0))
@@ -142,248 +193,249 @@ def _sub_lists(pk, tx, ty, ts):
         for by in range(by0, by1 + 1):
             for bx in range(bx0, bx1 + 1):
                 j = by * nbx + bx
-                ids[j, n[j]] = i
+                bl_ids[base + j * k + n[j]] = i
                 n[j] += 1
-    return ids, n
 
 
 @njit(inline="always")
-def exp_nonpositive(x):
-    """exp(x) for -8 <= x <= 0 as plain arithmetic (relative error < 1e-12).
-
-    Why not math.exp: LLVM lowers it to a libm call, which stops the per-block alpha loop
-    below from being vectorised. exp(x) = exp(x / 16) ** 16 with a degree-10 Taylor polynomial
-    on [-0.5, 0] (truncation < 3e-14) and four squarings."""
-    y = x * 0.0625
-    p = 1.0 + y * (1.0 + y * (0.5 + y * (1.0 / 6.0 + y * (1.0 / 24.0 + y * (1.0 / 120.0 + y * (
-        1.0 / 720.0 + y * (1.0 / 5040.0 + y * (1.0 / 40320.0 + y * (1.0 / 362880.0 + y * (1.0 / 3628800.0))))))))))
-    p = p * p
-    p = p * p
-    p = p * p
-    return p * p
-
-
-POWER_FLOOR = -8.0  # exp(-8) * opacity < 1/255: below it a gaussian never contributes
-
-
-@njit(inline="always")
-def _block_alphas(pk, ids, blk, n, x0, y0, alph):
-    """alph[j, q] = raw alpha o * G of the block's j-th listed gaussian at its q-th pixel
-    (q = row * SUB + col), 0 where the gaussian is skipped (power > 0). Branch-free over the
-    SUB*SUB pixels so the loop vectorises. (The backward's G is alph / o: listed gaussians
-    have o >= 1/255.)"""
-    for j in range(n):
-        i = ids[blk, j]
-        u, v, ca, cb, cc, o = pk[i, 0], pk[i, 1], pk[i, 2], pk[i, 3], pk[i, 4], pk[i, 5]
-        for q in range(SUB * SUB):
-            dx = x0 + (q % SUB) + 0.5 - u
-            dy = y0 + (q // SUB) + 0.5 - v
-            power = -0.5 * (ca * dx * dx + cc * dy * dy) - cb * dx * dy
-            G = exp_nonpositive(min(max(power, POWER_FLOOR), 0.0))
-            alph[j, q] = o * G if power <= 0.0 else 0.0
-
-
-@njit(inline="always")
-def _tile_setup(t, tile_off, entries, means2d, conics, opac, width, height, ts, gx):
-    """Tile t's origin, pixel bounds, packed gaussians, culled block lists and an alpha buffer
-    for one block: -> (tx, ty, start, x_end, y_end, pk, ids, nsub, alph [K, SUB*SUB])."""
-    tx = t % gx
-    ty = t // gx
-    start = tile_off[t]
-    end = tile_off[t + 1]
-    pk = _pack_tile(start, end, entries, means2d, conics, opac)
-    ids, nsub = _sub_lists(pk, tx, ty, ts)
-    alph = np.empty((max(1, end - start), SUB * SUB), np.float64)
-    return tx, ty, start, min((tx + 1) * ts, width), min((ty + 1) * ts, height), pk, ids, nsub, alph
+def _lane_centres(x0, y0, fxq, fyq):
+    """Pixel centres (float32) of the block's lanes, q = row * SUB + col."""
+    for q in range(LANES):
+        fxq[q] = F32(x0 + q % SUB) + F32(0.5)
+        fyq[q] = F32(y0 + q // SUB) + F32(0.5)
 
 
 @njit(parallel=True, cache=True)
-def forward(means2d, conics, opac, chans, tile_off, entries, width, height, ts, gx, gy, out, t_final, n_done):
-    """out [H*W, C] = sum_i w_i chans_i; t_final [H*W] float64; n_done [H*W] = number of
-    positions of the pixel's sub-block list walked (where the backward starts).
+def forward(means2d, conics, opac, chans, tile_off, entries, width, height, ts, gx, gy,
+            out, alpha, t_final, bl_ids, bl_mask, bl_n, row):
+    """out [H*W, C] = sum_i w_i chans_i; alpha [H*W] = sum_i w_i (summed, as the reference does:
+    1 - T_final in float32 would lose most digits of a small alpha); t_final [H*W] float32.
+    Saved for the backward, per
+    SUB x SUB block of each tile: the culled depth-ordered list (bl_ids, tile-local positions,
+    block b of tile t at nb * tile_off[t] + b * K), a 16-bit lane mask per list slot telling
+    which of the block's pixels used that gaussian (bl_mask), and bl_n [T * nb] = the list
+    length up to the last slot used anywhere in the block.
 
-    Per tile: culled sub-block lists (_sub_lists); per sub-block all alphas at once
-    (_block_alphas), then the 3DGS front-to-back rule run for the block's SUB*SUB pixels in
-    lock-step (one lane per pixel, branch-free, so it vectorises; a lane stops where that
-    pixel's sequential loop would break)."""
+    Per tile: culled block lists (_sub_lists); per block the 3DGS front-to-back rule run for
+    its SUB*SUB pixels in lock-step (one float32 lane per pixel, branch-free, so it
+    vectorises; a lane stops where that pixel's sequential loop would break).
+
+    ``row`` must be LANES: the channel-major accumulator's row length, taken at run time on
+    purpose. Known at compile time, LLVM vectorises the channel loop across channels with
+    interleaved shuffles (3x slower) instead of one 16-lane FMA per channel."""
     C = chans.shape[1]
     nbx = (ts + SUB - 1) // SUB
-    L = SUB * SUB
+    nb = nbx * nbx
     for t in prange(gx * gy):
-        tx, ty, start, x_end, y_end, pk, ids, nsub, alph = _tile_setup(
-            t, tile_off, entries, means2d, conics, opac, width, height, ts, gx)
-        T = np.empty(L, np.float64)
-        w = np.empty(L, np.float64)
-        act = np.empty(L, np.int64)
-        walked = np.empty(L, np.int64)
-        acc = np.empty((L, C), np.float32)
-        for blk in range(nbx * nbx):
+        tx = t % gx
+        ty = t // gx
+        start = tile_off[t]
+        end = tile_off[t + 1]
+        K = end - start
+        x_end = min((tx + 1) * ts, width)
+        y_end = min((ty + 1) * ts, height)
+        pk = _pack_tile(start, end, entries, means2d, conics, opac)
+        nsub = np.empty(nb, np.int64)
+        base = nb * start
+        _sub_lists(pk, tx, ty, ts, bl_ids, base, nsub)
+        T = np.empty(LANES, np.float32)
+        asum = np.empty(LANES, np.float32)
+        w = lane_scratch()
+        al = np.empty(LANES, np.float32)
+        act = np.empty(LANES, np.int32)
+        fxq = np.empty(LANES, np.float32)
+        fyq = np.empty(LANES, np.float32)
+        acc = np.empty((C, row), np.float32)  # the block's output, channel-major
+        for blk in range(nb):
             x0 = tx * ts + (blk % nbx) * SUB
             y0 = ty * ts + (blk // nbx) * SUB
+            bl_n[t * nb + blk] = 0
             if x0 >= x_end or y0 >= y_end:
                 continue
-            n = nsub[blk]
-            _block_alphas(pk, ids, blk, n, x0, y0, alph)
-            for q in range(L):
+            _lane_centres(x0, y0, fxq, fyq)
+            for q in range(LANES):
                 act[q] = 1 if (x0 + q % SUB < x_end and y0 + q // SUB < y_end) else 0
                 T[q] = 1.0
-                walked[q] = 0
-                for c in range(C):
-                    acc[q, c] = 0.0
+                asum[q] = 0.0
+            for c in range(C):
+                for q in range(LANES):
+                    acc[c, q] = 0.0
+            n = nsub[blk]
+            off = base + blk * K
+            last = 0
             for j in range(n):
+                i = bl_ids[off + j]
+                u, v, ca, cb, cc, o = pk[i, 0], pk[i, 1], pk[i, 2], pk[i, 3], pk[i, 4], pk[i, 5]
+                for q in range(LANES):  # a separate loop: fused with the next, it does not vectorise
+                    al[q] = min(alpha32(fxq[q], fyq[q], u, v, ca, cb, cc, o), A_MAX32)
                 n_act = 0
-                n_use = 0
-                for q in range(L):
-                    a = min(alph[j, q], ALPHA_MAX)
-                    tt = T[q] * (1.0 - a)
-                    ok = act[q] == 1 and a >= ALPHA_MIN
-                    use = ok and tt >= T_MIN
-                    w[q] = a * T[q] if use else 0.0
+                mask = 0
+                for q in range(LANES):
+                    a = al[q]
+                    tt = T[q] * (F32(1.0) - a)
+                    ok = act[q] == 1 and a >= A_MIN32
+                    use = ok and tt >= T_MIN32
+                    w[q] = a * T[q] if use else F32(0.0)
                     T[q] = tt if use else T[q]
-                    walked[q] = j + 1 if use else walked[q]
-                    act[q] = 0 if (ok and tt < T_MIN) else act[q]
+                    act[q] = 0 if (ok and tt < T_MIN32) else act[q]
+                    asum[q] += w[q]
                     n_act += act[q]
-                    n_use += 1 if use else 0
-                if n_use > 0:
-                    g = entries[start + ids[blk, j]]
-                    for q in range(L):
-                        wf = np.float32(w[q])
-                        if wf != 0.0:
-                            for c in range(C):
-                                acc[q, c] += wf * chans[g, c]
+                    mask |= (1 if use else 0) << q
+                bl_mask[off + j] = mask
+                if mask != 0:
+                    last = j + 1
+                    g = entries[start + i]
+                    for c in range(C):  # channel-major: one 16-lane FMA per channel (SLP)
+                        ch = chans[g, c]
+                        for q in range(LANES):
+                            acc[c, q] += w[q] * ch
                 if n_act == 0:
                     break
-            for q in range(L):
+            bl_n[t * nb + blk] = last
+            for q in range(LANES):
                 px = x0 + q % SUB
                 py = y0 + q // SUB
                 if px < x_end and py < y_end:
                     pix = py * width + px
                     for c in range(C):
-                        out[pix, c] = acc[q, c]
+                        out[pix, c] = acc[c, q]
                     t_final[pix] = T[q]
-                    n_done[pix] = walked[q]
+                    alpha[pix] = asum[q]
 
 
-@njit(parallel=True, cache=True, fastmath={"reassoc", "contract"})
+@njit(parallel=True, cache=True, fastmath={"reassoc", "contract", "arcp", "nsz"})
 def backward(
     means2d, conics, opac, chans, tile_off, entries, width, height, ts, gx, gy,
-    t_final, n_done, g_out, g_alpha, buf_geo, buf_chan,
+    t_final, bl_ids, bl_mask, bl_n, g_out, g_alpha, buf_geo, buf_chan, row,
 ):
-    """Back to front, the block's pixels in lock-step as in ``forward``. g_out [H*W, C],
-    g_alpha [H*W] (alpha = 1 - T_final). Writes per entry: buf_geo [E, 6] (d mean_u,
-    d mean_v, d conic a, b, c, d opacity), buf_chan [E, C]."""
+    """Back to front over each block's saved list, the block's pixels in lock-step as in
+    ``forward``; the saved lane masks say which pixels used each gaussian, so the backward
+    never re-decides a threshold (fastmath here cannot flip one). g_out [H*W, C],
+    g_alpha [H*W] (alpha = 1 - T_final). Writes per entry (rows of the tile zeroed first):
+    buf_geo [E, 6] (d mean_u, d mean_v, d conic a, b, c, d opacity), buf_chan [E, C].
+    ``row`` = LANES, at run time for the reason given in ``forward``."""
     C = chans.shape[1]
     nbx = (ts + SUB - 1) // SUB
-    L = SUB * SUB
+    nb = nbx * nbx
     for t in prange(gx * gy):
-        tx, ty, start, x_end, y_end, pk, ids, nsub, alph = _tile_setup(
-            t, tile_off, entries, means2d, conics, opac, width, height, ts, gx)
-        T = np.empty(L, np.float64)
-        tf = np.empty(L, np.float64)
-        ga = np.empty(L, np.float64)
-        acc = np.empty(L, np.float64)  # per pixel: sum over gaussians behind of w (chans . g_out)
-        nd = np.empty(L, np.int64)
-        w = np.empty(L, np.float64)
-        fg = np.empty(L, np.float32)
-        gblk = np.empty((L, C), np.float32)  # the block's output gradients
-        for blk in range(nbx * nbx):
+        tx = t % gx
+        ty = t // gx
+        start = tile_off[t]
+        end = tile_off[t + 1]
+        K = end - start
+        x_end = min((tx + 1) * ts, width)
+        y_end = min((ty + 1) * ts, height)
+        for e in range(start, end):
+            for k in range(6):
+                buf_geo[e, k] = 0.0
+            for c in range(C):
+                buf_chan[e, c] = 0.0
+        pk = _pack_tile(start, end, entries, means2d, conics, opac)
+        base = nb * start
+        T = np.empty(LANES, np.float32)
+        tf = np.empty(LANES, np.float32)
+        ga = np.empty(LANES, np.float32)
+        acc = np.empty(LANES, np.float32)  # per pixel: sum over gaussians behind of w (chans . g_out)
+        w = lane_scratch()
+        ar = np.empty(LANES, np.float32)
+        fg = lane_scratch()
+        fxq = np.empty(LANES, np.float32)
+        fyq = np.empty(LANES, np.float32)
+        gT = np.empty((C, row), np.float32)  # the block's output gradients, channel-major
+        for blk in range(nb):
+            jn = bl_n[t * nb + blk]
+            if jn == 0:
+                continue
             x0 = tx * ts + (blk % nbx) * SUB
             y0 = ty * ts + (blk // nbx) * SUB
-            if x0 >= x_end or y0 >= y_end:
-                continue
-            jmax = 0
-            for q in range(L):
+            _lane_centres(x0, y0, fxq, fyq)
+            for q in range(LANES):
                 px = x0 + q % SUB
                 py = y0 + q // SUB
                 if px < x_end and py < y_end:
                     pix = py * width + px
                     T[q] = t_final[pix]
                     ga[q] = g_alpha[pix]
-                    nd[q] = n_done[pix]
                     for c in range(C):
-                        gblk[q, c] = g_out[pix, c]
+                        gT[c, q] = g_out[pix, c]
                 else:
                     T[q] = 1.0
                     ga[q] = 0.0
-                    nd[q] = 0
                     for c in range(C):
-                        gblk[q, c] = 0.0
+                        gT[c, q] = 0.0
                 tf[q] = T[q]
                 acc[q] = 0.0
-                jmax = max(jmax, nd[q])
-            if jmax == 0:
-                continue
-            _block_alphas(pk, ids, blk, jmax, x0, y0, alph)
-            for j in range(jmax - 1, -1, -1):
-                i = ids[blk, j]
+            off = base + blk * K
+            for j in range(jn - 1, -1, -1):
+                mask = bl_mask[off + j]
+                if mask == 0:
+                    continue
+                i = bl_ids[off + j]
                 e = start + i
                 g = entries[e]
-                n_use = 0
-                for q in range(L):
-                    a = min(alph[j, q], ALPHA_MAX)
-                    use = j < nd[q] and a >= ALPHA_MIN
-                    w[q] = a if use else 0.0
-                    n_use += 1 if use else 0
-                if n_use == 0:
-                    continue
-                for q in range(L):
-                    sq = np.float32(0.0)
-                    if w[q] > 0.0:  # only lanes this gaussian reaches (about half of them)
-                        for c in range(C):  # a reduction: vectorised thanks to "reassoc"
-                            sq += chans[g, c] * gblk[q, c]
-                    fg[q] = sq
-                o = pk[i, 5]
-                inv_o = 1.0 / o
-                ca, cb, cc = pk[i, 2], pk[i, 3], pk[i, 4]
-                u, v = pk[i, 0], pk[i, 1]
-                s0 = 0.0
-                s1 = 0.0
-                s2 = 0.0
-                s3 = 0.0
-                s4 = 0.0
-                s5 = 0.0
-                for q in range(L):
+                u, v, ca, cb, cc, o = pk[i, 0], pk[i, 1], pk[i, 2], pk[i, 3], pk[i, 4], pk[i, 5]
+                for q in range(LANES):
+                    araw = alpha32(fxq[q], fyq[q], u, v, ca, cb, cc, o)
+                    use = (mask >> q) & 1
+                    ar[q] = araw if use else F32(0.0)
+                    w[q] = min(araw, A_MAX32) if use else F32(0.0)
+                    fg[q] = 0.0
+                for c in range(C):  # fg[q] = chans[g] . g_out[pixel q]: one 16-lane FMA per channel
+                    ch = chans[g, c]
+                    for q in range(LANES):
+                        fg[q] += ch * gT[c, q]
+                inv_o = F32(1.0) / o
+                s0 = F32(0.0)
+                s1 = F32(0.0)
+                s2 = F32(0.0)
+                s3 = F32(0.0)
+                s4 = F32(0.0)
+                s5 = F32(0.0)
+                for q in range(LANES):
                     # branch-free: an unused lane has a = 0, so T and acc stay as they are
                     a = w[q]
-                    inv = 1.0 / (1.0 - a)
+                    inv = F32(1.0) / (F32(1.0) - a)
                     Tq = T[q] * inv  # transmittance in front of this gaussian
                     wq = a * Tq
-                    f = float(fg[q])
+                    f = fg[q]
                     d_a = Tq * f - (acc[q] - ga[q] * tf[q]) * inv
                     acc[q] += wq * f
                     T[q] = Tq
                     w[q] = wq
                     # a clamped alpha passes no gradient to opacity or geometry
-                    live = a > 0.0 and alph[j, q] <= ALPHA_MAX
-                    d_op = alph[j, q] * inv_o * d_a if live else 0.0  # G d_a
-                    dp = o * d_op
-                    dx = x0 + q % SUB + 0.5 - u
-                    dy = y0 + q // SUB + 0.5 - v
+                    dp = ar[q] * d_a if ar[q] <= A_MAX32 else F32(0.0)  # o G d_a
+                    dx = fxq[q] - u
+                    dy = fyq[q] - v
                     s0 += dp * (ca * dx + cb * dy)
                     s1 += dp * (cc * dy + cb * dx)
-                    s2 += dp * (-0.5 * dx * dx)
+                    s2 += dp * (F32(-0.5) * dx * dx)
                     s3 += dp * (-dx * dy)
-                    s4 += dp * (-0.5 * dy * dy)
-                    s5 += d_op
-                for q in range(L):
-                    wf = np.float32(w[q])
-                    if wf != 0.0:
-                        for c in range(C):
-                            buf_chan[e, c] += wf * gblk[q, c]
+                    s4 += dp * (F32(-0.5) * dy * dy)
+                    s5 += dp
+                for c in range(C):  # d chans[g, c] = sum over lanes of w * g_out (a 16-lane reduction)
+                    sc = F32(0.0)
+                    for q in range(LANES):
+                        sc += w[q] * gT[c, q]
+                    buf_chan[e, c] += sc
                 buf_geo[e, 0] += s0
                 buf_geo[e, 1] += s1
                 buf_geo[e, 2] += s2
                 buf_geo[e, 3] += s3
                 buf_geo[e, 4] += s4
-                buf_geo[e, 5] += s5
+                buf_geo[e, 5] += s5 * inv_o
 
 
 @njit(parallel=True, cache=True)
 def reduce_grads(g_ptr, g_pos, buf_geo, buf_chan, grad_geo, grad_chan):
-    """Sum per-entry gradients into per-gaussian grad_geo [N, 6] and grad_chan [N, C]."""
+    """Sum per-entry gradients into per-gaussian grad_geo [N, 6] and grad_chan [N, C]
+    (written, not accumulated: they may be uninitialised)."""
     n = grad_geo.shape[0]
     C = grad_chan.shape[1]
     for g in prange(n):
+        for k in range(6):
+            grad_geo[g, k] = 0.0
+        for c in range(C):
+            grad_chan[g, c] = 0.0
         for j in range(g_ptr[g], g_ptr[g + 1]):
             e = g_pos[j]
             for k in range(6):
@@ -393,27 +445,27 @@ def reduce_grads(g_ptr, g_pos, buf_geo, buf_chan, grad_geo, grad_chan):
 
 
 @njit(inline="always")
-def _replay(pix, width, ts, gx, means2d, conics, opac, tile_off, entries, p_min, min_weight, idx_out, w_out, base):
-    """Run the forward rule at one pixel; store (gaussian, weight) from ``base`` if idx_out has
-    room (count pass passes empty arrays). -> number of stored contributors."""
+def _replay(pix, width, ts, gx, means2d, conics, opac, tile_off, entries, min_weight, idx_out, w_out, base):
+    """Run the forward rule at one pixel with the forward's float32 arithmetic (alpha32, the
+    same transmittance updates), so weights and decisions match ``forward`` exactly; store
+    (gaussian, weight) from ``base`` if idx_out has room (count pass passes empty arrays).
+    -> number of stored contributors."""
     py = pix // width
     px = pix - py * width
     t = (py // ts) * gx + px // ts
-    fx = px + 0.5
-    fy = py + 0.5
-    T = 1.0
+    fx = F32(px) + F32(0.5)
+    fy = F32(py) + F32(0.5)
+    T = F32(1.0)
     k = 0
     store = idx_out.shape[0] > 0
     for e in range(tile_off[t], tile_off[t + 1]):
         g = entries[e]
-        power, _G, a, _dx, _dy = _alpha_at(fx, fy, means2d, conics, opac, g, p_min)
-        if power > 0.0:
+        a = min(alpha32(fx, fy, means2d[g, 0], means2d[g, 1], conics[g, 0], conics[g, 1], conics[g, 2], opac[g]),
+                A_MAX32)
+        if a < A_MIN32:
             continue
-        a = min(a, ALPHA_MAX)
-        if a < ALPHA_MIN:
-            continue
-        test_t = T * (1.0 - a)
-        if test_t < T_MIN:
+        test_t = T * (F32(1.0) - a)
+        if test_t < T_MIN32:
             break
         w = a * T
         if w >= min_weight:
@@ -426,16 +478,16 @@ def _replay(pix, width, ts, gx, means2d, conics, opac, tile_off, entries, p_min,
 
 
 @njit(parallel=True, cache=True)
-def pixel_weight_counts(pixels, width, ts, gx, means2d, conics, opac, tile_off, entries, p_min, min_weight, counts):
+def pixel_weight_counts(pixels, width, ts, gx, means2d, conics, opac, tile_off, entries, min_weight, counts):
     empty_i = np.empty(0, np.int64)
     empty_w = np.empty(0, np.float32)
     for i in prange(pixels.shape[0]):
-        counts[i] = _replay(pixels[i], width, ts, gx, means2d, conics, opac, tile_off, entries, p_min,
+        counts[i] = _replay(pixels[i], width, ts, gx, means2d, conics, opac, tile_off, entries,
                             min_weight, empty_i, empty_w, 0)
 
 
 @njit(parallel=True, cache=True)
-def pixel_weight_fill(pixels, width, ts, gx, means2d, conics, opac, tile_off, entries, p_min, min_weight, indptr, idx_out, w_out):
+def pixel_weight_fill(pixels, width, ts, gx, means2d, conics, opac, tile_off, entries, min_weight, indptr, idx_out, w_out):
     for i in prange(pixels.shape[0]):
-        _replay(pixels[i], width, ts, gx, means2d, conics, opac, tile_off, entries, p_min,
+        _replay(pixels[i], width, ts, gx, means2d, conics, opac, tile_off, entries,
                 min_weight, idx_out, w_out, indptr[i])
