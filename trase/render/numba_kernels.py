@@ -151,36 +151,53 @@ def _pack_tile(start, end, entries, means2d, conics, opac):
     return pk
 
 
+@njit(parallel=True, cache=True)
+def cull_radii(conics, opac, radii):
+    """radii [N, 2] float64: half-widths (rx, ry) of the axis-aligned box of the ellipse
+    power >= log(ALPHA_MIN / opacity), outside which alpha < 1/255 and a gaussian is skipped
+    anyway; widened by a margin (in exponent and pixels) so culling never changes a result.
+    -1 marks a gaussian that never reaches 1/255 (opacity below it); 1e30 a degenerate conic.
+    Once per gaussian, not per tile entry (the log and square roots were a third of the
+    forward's tile setup)."""
+    for g in prange(conics.shape[0]):
+        o = float(opac[g])
+        if not o >= ALPHA_MIN:
+            radii[g, 0] = -1.0
+            radii[g, 1] = -1.0
+            continue
+        a, b, c = float(conics[g, 0]), float(conics[g, 1]), float(conics[g, 2])
+        det = a * c - b * b
+        kk = -2.0 * (math.log(ALPHA_MIN / o) - POWER_MARGIN)
+        if det > 0.0 and math.isfinite(det):
+            radii[g, 0] = math.sqrt(kk * c / det) + 1e-3
+            radii[g, 1] = math.sqrt(kk * a / det) + 1e-3
+        else:
+            radii[g, 0] = 1e30
+            radii[g, 1] = 1e30
+
+
 @njit(inline="always")
-def _sub_lists(pk, tx, ty, ts, bl_ids, base, n):
+def _sub_lists(start, end, entries, means2d, radii, tx, ty, ts, bl_ids, base, n):
     """Per SUB x SUB block of the tile, the positions (into the tile's depth-sorted list) of the
     gaussians that can reach alpha >= 1/255 at one of the block's pixel centres, in order:
     block b's list is bl_ids[base + b * K : base + b * K + n[b]] (K = the tile's list length).
 
     Why: most of a tile's gaussians miss most of its pixels; walking every one at every pixel
-    was most of the compositing time. The test is the axis-aligned box of the ellipse
-    power >= log(ALPHA_MIN / opacity), where alpha < 1/255 and the gaussian is skipped anyway,
-    widened by a margin, so culling never changes a result."""
-    k = pk.shape[0]
+    was most of the compositing time. The test is the gaussian's cull_radii box, so culling
+    never changes a result."""
+    k = end - start
     nbx = (ts + SUB - 1) // SUB
     x_base = tx * ts
     y_base = ty * ts
     for j in range(nbx * nbx):
         n[j] = 0
     for i in range(k):
-        o = float(pk[i, 5])
-        if o < ALPHA_MIN:
+        g = entries[start + i]
+        rx = radii[g, 0]
+        ry = radii[g, 1]
+        if rx < 0.0:
             continue  # alpha = o * G < 1/255 everywhere
-        a, b, c = float(pk[i, 2]), float(pk[i, 3]), float(pk[i, 4])
-        det = a * c - b * b
-        kk = -2.0 * (math.log(ALPHA_MIN / o) - POWER_MARGIN)
-        if det > 0.0 and math.isfinite(det):
-            rx = math.sqrt(kk * c / det) + 1e-3
-            ry = math.sqrt(kk * a / det) + 1e-3
-        else:
-            rx = 1e30
-            ry = 1e30
-        u, v = float(pk[i, 0]), float(pk[i, 1])
+        u, v = float(means2d[g, 0]), float(means2d[g, 1])
         # pixel centres px + 0.5 inside [u - rx, u + rx] (clamped to the tile before int())
         px_lo = math.ceil(min(max(u - rx - 0.5, x_base - 1.0), x_base + ts + 1.0))
         px_hi = math.floor(min(max(u + rx - 0.5, x_base - 1.0), x_base + ts + 1.0))
@@ -206,7 +223,7 @@ def _lane_centres(x0, y0, fxq, fyq):
 
 
 @njit(parallel=True, cache=True)
-def forward(means2d, conics, opac, chans, tile_off, entries, width, height, ts, gx, gy,
+def forward(means2d, conics, opac, radii, chans, tile_off, entries, width, height, ts, gx, gy,
             out, alpha, t_final, bl_ids, bl_mask, bl_n, row):
     """out [H*W, C] = sum_i w_i chans_i; alpha [H*W] = sum_i w_i (summed, as the reference does:
     1 - T_final in float32 would lose most digits of a small alpha); t_final [H*W] float32.
@@ -237,7 +254,7 @@ def forward(means2d, conics, opac, chans, tile_off, entries, width, height, ts, 
         pk = _pack_tile(start, end, entries, means2d, conics, opac)
         nsub = np.empty(nb, np.int64)
         base = nb * start
-        _sub_lists(pk, tx, ty, ts, bl_ids, base, nsub)
+        _sub_lists(start, end, entries, means2d, radii, tx, ty, ts, bl_ids, base, nsub)
         T = np.empty(LANES, np.float32)
         asum = np.empty(LANES, np.float32)
         w = lane_scratch()
