@@ -5,7 +5,6 @@ stays in torch (sh.py), shared with the reference."""
 
 from __future__ import annotations
 
-import contextlib
 import threading
 
 import numba
@@ -18,19 +17,6 @@ from trase.render import numba_kernels as nk
 # gaussians than border ones, and on a shared machine a descheduled thread would otherwise
 # hold back the whole parallel loop with its fixed half of the tiles.
 TILE_CHUNK = 2
-
-
-@contextlib.contextmanager
-def slp_compile():
-    """Compile (on first call) with LLVM's SLP vectoriser on, which numba leaves off by default
-    (NUMBA_SLP_VECTORIZE): the kernels' 16-lane channel loops are fully unrolled, and only SLP
-    turns them back into vector instructions. Calls to already compiled kernels are unaffected."""
-    old = numba.config.SLP_VECTORIZE
-    numba.config.SLP_VECTORIZE = 1
-    try:
-        yield
-    finally:
-        numba.config.SLP_VECTORIZE = old
 
 
 class _Scratch(threading.local):
@@ -99,10 +85,10 @@ class _Composite(torch.autograd.Function):
         bl_ids = np.empty(nb * E, np.int32)
         bl_mask = np.empty(nb * E, np.uint16)
         bl_n = np.empty(nb * gx * gy, np.int32)
-        with numba.parallel_chunksize(TILE_CHUNK), slp_compile():
+        with numba.parallel_chunksize(TILE_CHUNK):
             nk.cull_radii(co, op, radii)
             nk.forward(m2, co, op, radii, ch, tile_off, entries, width, height, ts, gx, gy, out, alpha, t_final,
-                       bl_ids, bl_mask, bl_n, nk.LANES)
+                       bl_ids, bl_mask, bl_n)
         LAST_SAVED.clear()
         LAST_SAVED.update(saved_state_bytes(E, gx * gy, height * width, ts))
         ctx.state = (m2, co, op, ch, tile_off, entries, g_ptr, g_pos, t_final, bl_ids, bl_mask, bl_n,
@@ -125,9 +111,9 @@ class _Composite(torch.autograd.Function):
         # every row is zeroed by its tile in the kernel
         buf_geo = _SCRATCH.get("buf_geo", (E, 6), np.float64)
         buf_chan = _SCRATCH.get("buf_chan", (E, C), np.float32)
-        with numba.parallel_chunksize(TILE_CHUNK), slp_compile():
+        with numba.parallel_chunksize(TILE_CHUNK):
             nk.backward(m2, co, op, ch, tile_off, entries, width, height, ts, gx, gy,
-                        t_final, bl_ids, bl_mask, bl_n, go, ga, buf_geo, buf_chan, nk.LANES)
+                        t_final, bl_ids, bl_mask, bl_n, go, ga, buf_geo, buf_chan)
         grad_geo = np.empty((n, 6), np.float64)
         grad_chan = np.empty((n, C), np.float32)
         nk.reduce_grads(g_ptr, g_pos, buf_geo, buf_chan, grad_geo, grad_chan)

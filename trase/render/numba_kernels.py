@@ -16,6 +16,10 @@ T_k = T_{k+1} / (1 - alpha_k) back to front in float32 (relative error grows by 
 step: ~3e-5 after 300 gaussians, well inside the 1e-3 gradient tolerance) and sums geometry
 gradients per entry in float64. exp is ``exp_nonpositive32`` (vectorisable); ``pixel_weights``
 replays pixels one at a time with the same ``alpha32`` expression, so it matches ``forward``.
+
+The channel work (forward: out += w * chans; backward: chans . g_out and d chans) is a small
+matrix product per block, done by three LLVM-IR helpers on <16 x float> vectors
+(``lanes_times_rows``, ``rows_dot_lanes``, ``lanes_dot_rows``), tested against numpy.
 """
 
 from __future__ import annotations
@@ -23,7 +27,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import carray, njit, prange, types
+from numba import njit, prange, types
+from llvmlite import ir
 from numba.core import cgutils
 from numba.extending import intrinsic
 
@@ -84,25 +89,182 @@ def blocks_per_tile(ts: int) -> int:
     return nbx * nbx
 
 
-@intrinsic
-def _stack_lanes(typingctx):
-    """Pointer to LANES float32 of stack scratch (one alloca in the function's entry block).
+# --- 16-lane vector helpers, written as LLVM IR --------------------------------------------
+# Why: the channel loops are small matrix products (per pixel block: 16 lanes x C channels x
+# the block's gaussians). Written in numba, LLVM keeps the accumulators in memory (or in 16
+# scalar registers) whatever the loop order; here they are <16 x float> values that stay in
+# vector registers across the gaussian loop. Each helper is checked against plain loops in
+# tests/trase/render/test_numba_simd.py.
 
-    Why: LLVM can prove a stack slot aliases no array argument, so channel loops that read
-    lane values from it (``acc[c, q] += w[q] * ch``) are vectorised across the 16 lanes by the
-    SLP vectoriser (see numba_backend.slp_compile); from a heap array they stay scalar."""
-    sig = types.CPointer(types.float32)()
+_V16 = ir.VectorType(ir.FloatType(), LANES)
+
+
+def _array(context, builder, aryty, ary):
+    """-> (pointer to the first element, [shape entries]) of a C-contiguous array argument."""
+    a = context.make_array(aryty)(context, builder, ary)
+    return a.data, cgutils.unpack_tuple(builder, a.shape)
+
+
+def _vload(builder, ptr, idx):
+    return builder.load(builder.bitcast(builder.gep(ptr, [idx]), _V16.as_pointer()), align=4)
+
+
+def _vstore(builder, val, ptr, idx):
+    builder.store(val, builder.bitcast(builder.gep(ptr, [idx]), _V16.as_pointer()), align=4)
+
+
+def _splat(builder, x):
+    v = builder.insert_element(ir.Constant(_V16, ir.Undefined), x, ir.Constant(ir.IntType(32), 0))
+    return builder.shuffle_vector(v, ir.Constant(_V16, ir.Undefined),
+                                  ir.Constant(ir.VectorType(ir.IntType(32), LANES), [0] * LANES))
+
+
+def _fma(builder, a, b, c):
+    return builder.fadd(builder.fmul(a, b, flags=("contract",)), c, flags=("contract",))
+
+
+@intrinsic
+def lanes_times_rows(typingctx, acc, wl, ids, n, rows):
+    """acc[c, :] += sum_j wl[j, :] * rows[ids[j], c] for j < n and every column c of rows.
+
+    acc [C, >=16] float32 (channel-major lanes), wl [>=n, >=16] float32 (lane weights per
+    gaussian), ids [>=n] int, rows [N, C] float32. The channels go 16 at a time: 16 vector
+    accumulators, one vector load of the weights and 16 broadcast FMAs per gaussian."""
+    sig = types.void(acc, wl, ids, n, rows)
 
     def codegen(context, builder, signature, args):
-        return cgutils.alloca_once(builder, context.get_value_type(types.float32), size=LANES)
+        a_ty, w_ty, i_ty, _, r_ty = signature.args
+        acc_p, acc_sh = _array(context, builder, a_ty, args[0])
+        w_p, w_sh = _array(context, builder, w_ty, args[1])
+        i_p, _ = _array(context, builder, i_ty, args[2])
+        r_p, r_sh = _array(context, builder, r_ty, args[4])
+        cnt = args[3]
+        i64 = ir.IntType(64)
+        C = r_sh[1]
+
+        def chunk(c0, k):  # channels c0 .. c0 + k - 1
+            slots = [cgutils.alloca_once(builder, _V16) for _ in range(k)]
+            for m in range(k):
+                idx = builder.mul(builder.add(c0, ir.Constant(i64, m)), acc_sh[1])
+                builder.store(_vload(builder, acc_p, idx), slots[m])
+            with cgutils.for_range(builder, cnt) as loop:
+                j = loop.index
+                wv = _vload(builder, w_p, builder.mul(j, w_sh[1]))
+                g = builder.sext(builder.load(builder.gep(i_p, [j])), i64)
+                rp = builder.gep(r_p, [builder.add(builder.mul(g, C), c0)])
+                for m in range(k):
+                    x = builder.load(builder.gep(rp, [ir.Constant(i64, m)]))
+                    builder.store(_fma(builder, wv, _splat(builder, x), builder.load(slots[m])), slots[m])
+            for m in range(k):
+                idx = builder.mul(builder.add(c0, ir.Constant(i64, m)), acc_sh[1])
+                _vstore(builder, builder.load(slots[m]), acc_p, idx)
+
+        n16 = builder.udiv(C, ir.Constant(i64, LANES))
+        with cgutils.for_range(builder, n16) as loop:
+            chunk(builder.mul(loop.index, ir.Constant(i64, LANES)), LANES)
+        with cgutils.for_range_slice(builder, builder.mul(n16, ir.Constant(i64, LANES)), C, ir.Constant(i64, 1)) as (c, _):
+            chunk(c, 1)
+        return context.get_dummy_value()
 
     return sig, codegen
 
 
-@njit(inline="always")
-def lane_scratch():
-    """A [LANES] float32 array on the stack (see _stack_lanes); contents undefined."""
-    return carray(_stack_lanes(), (LANES,))
+def _hsum(builder, v):
+    """Sum of a <16 x float> by halving (4 shuffle + add steps)."""
+    width = LANES
+    while width > 1:
+        half = width // 2
+        lo = builder.shuffle_vector(v, v, ir.Constant(ir.VectorType(ir.IntType(32), half), list(range(half))))
+        hi = builder.shuffle_vector(v, v, ir.Constant(ir.VectorType(ir.IntType(32), half), list(range(half, width))))
+        v = builder.fadd(lo, hi)
+        width = half
+    return builder.extract_element(v, ir.Constant(ir.IntType(32), 0))
+
+
+@intrinsic
+def rows_dot_lanes(typingctx, out, ids, n, rows, gt):
+    """out[j, :] = sum_c rows[ids[j], c] * gt[c, :] for j < n (16 lanes each).
+
+    out [>=n, >=16], ids [>=n] int, rows [N, C], gt [C, >=16] (channel-major lanes), all
+    float32. Four vector accumulators (channels c mod 4) hide the FMA latency."""
+    sig = types.void(out, ids, n, rows, gt)
+
+    def codegen(context, builder, signature, args):
+        o_ty, i_ty, _, r_ty, g_ty = signature.args
+        o_p, o_sh = _array(context, builder, o_ty, args[0])
+        i_p, _ = _array(context, builder, i_ty, args[1])
+        r_p, r_sh = _array(context, builder, r_ty, args[3])
+        g_p, g_sh = _array(context, builder, g_ty, args[4])
+        i64 = ir.IntType(64)
+        C = r_sh[1]
+        slots = [cgutils.alloca_once(builder, _V16) for _ in range(4)]
+        zero = ir.Constant(_V16, [0.0] * LANES)
+        with cgutils.for_range(builder, args[2]) as loop:
+            j = loop.index
+            g = builder.sext(builder.load(builder.gep(i_p, [j])), i64)
+            rp = builder.gep(r_p, [builder.mul(g, C)])
+            for m in range(4):
+                builder.store(zero, slots[m])
+            n4 = builder.udiv(C, ir.Constant(i64, 4))
+            with cgutils.for_range(builder, n4) as inner:
+                c0 = builder.mul(inner.index, ir.Constant(i64, 4))
+                for m in range(4):
+                    c = builder.add(c0, ir.Constant(i64, m))
+                    x = builder.load(builder.gep(rp, [c]))
+                    gv = _vload(builder, g_p, builder.mul(c, g_sh[1]))
+                    builder.store(_fma(builder, gv, _splat(builder, x), builder.load(slots[m])), slots[m])
+            with cgutils.for_range_slice(builder, builder.mul(n4, ir.Constant(i64, 4)), C, ir.Constant(i64, 1)) as (c, _):
+                x = builder.load(builder.gep(rp, [c]))
+                gv = _vload(builder, g_p, builder.mul(c, g_sh[1]))
+                builder.store(_fma(builder, gv, _splat(builder, x), builder.load(slots[0])), slots[0])
+            tot = builder.fadd(builder.fadd(builder.load(slots[0]), builder.load(slots[1])),
+                               builder.fadd(builder.load(slots[2]), builder.load(slots[3])))
+            _vstore(builder, tot, o_p, builder.mul(j, o_sh[1]))
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+@intrinsic
+def lanes_dot_rows(typingctx, buf, eids, n, wl, gl, gt):
+    """buf[eids[j], c] += sum_q wl[j, q] * gl[q, c] for j < n and every column c of buf.
+
+    buf [E, C], eids [>=n] int, wl [>=n, >=16], gl [16, >=C] (the same values as gt, lane-major),
+    gt [C, >=16] (channel-major), all float32. Channels go 16 at a time as vectors (16 FMAs
+    per gaussian and chunk); the last C mod 16 channels as 16-lane dot products of gt rows."""
+    sig = types.void(buf, eids, n, wl, gl, gt)
+
+    def codegen(context, builder, signature, args):
+        b_ty, e_ty, _, w_ty, l_ty, t_ty = signature.args
+        b_p, b_sh = _array(context, builder, b_ty, args[0])
+        e_p, _ = _array(context, builder, e_ty, args[1])
+        w_p, w_sh = _array(context, builder, w_ty, args[3])
+        l_p, l_sh = _array(context, builder, l_ty, args[4])
+        t_p, t_sh = _array(context, builder, t_ty, args[5])
+        i64 = ir.IntType(64)
+        C = b_sh[1]
+        n16 = builder.udiv(C, ir.Constant(i64, LANES))
+        with cgutils.for_range(builder, args[2]) as loop:
+            j = loop.index
+            e = builder.sext(builder.load(builder.gep(e_p, [j])), i64)
+            bp = builder.gep(b_p, [builder.mul(e, C)])
+            wp = builder.gep(w_p, [builder.mul(j, w_sh[1])])
+            wv = _vload(builder, wp, ir.Constant(i64, 0))
+            ws = [builder.load(builder.gep(wp, [ir.Constant(i64, q)])) for q in range(LANES)]
+            with cgutils.for_range(builder, n16) as inner:
+                c0 = builder.mul(inner.index, ir.Constant(i64, LANES))
+                v = _vload(builder, bp, c0)
+                for q in range(LANES):
+                    gv = _vload(builder, l_p, builder.add(builder.mul(ir.Constant(i64, q), l_sh[1]), c0))
+                    v = _fma(builder, gv, _splat(builder, ws[q]), v)
+                _vstore(builder, v, bp, c0)
+            with cgutils.for_range_slice(builder, builder.mul(n16, ir.Constant(i64, LANES)), C, ir.Constant(i64, 1)) as (c, _):
+                prod = builder.fmul(wv, _vload(builder, t_p, builder.mul(c, t_sh[1])))
+                cp = builder.gep(bp, [c])
+                builder.store(builder.fadd(builder.load(cp), _hsum(builder, prod)), cp)
+        return context.get_dummy_value()
+
+    return sig, codegen
 
 
 @njit(inline="always")
@@ -224,7 +386,7 @@ def _lane_centres(x0, y0, fxq, fyq):
 
 @njit(parallel=True, cache=True)
 def forward(means2d, conics, opac, radii, chans, tile_off, entries, width, height, ts, gx, gy,
-            out, alpha, t_final, bl_ids, bl_mask, bl_n, row):
+            out, alpha, t_final, bl_ids, bl_mask, bl_n):
     """out [H*W, C] = sum_i w_i chans_i; alpha [H*W] = sum_i w_i (summed, as the reference does:
     1 - T_final in float32 would lose most digits of a small alpha); t_final [H*W] float32.
     Saved for the backward, per
@@ -235,11 +397,8 @@ def forward(means2d, conics, opac, radii, chans, tile_off, entries, width, heigh
 
     Per tile: culled block lists (_sub_lists); per block the 3DGS front-to-back rule run for
     its SUB*SUB pixels in lock-step (one float32 lane per pixel, branch-free, so it
-    vectorises; a lane stops where that pixel's sequential loop would break).
-
-    ``row`` must be LANES: the channel-major accumulator's row length, taken at run time on
-    purpose. Known at compile time, LLVM vectorises the channel loop across channels with
-    interleaved shuffles (3x slower) instead of one 16-lane FMA per channel."""
+    vectorises; a lane stops where that pixel's sequential loop would break), then the
+    block's channels in one lanes_times_rows call."""
     C = chans.shape[1]
     nbx = (ts + SUB - 1) // SUB
     nb = nbx * nbx
@@ -257,12 +416,13 @@ def forward(means2d, conics, opac, radii, chans, tile_off, entries, width, heigh
         _sub_lists(start, end, entries, means2d, radii, tx, ty, ts, bl_ids, base, nsub)
         T = np.empty(LANES, np.float32)
         asum = np.empty(LANES, np.float32)
-        w = lane_scratch()
         al = np.empty(LANES, np.float32)
         act = np.empty(LANES, np.int32)
         fxq = np.empty(LANES, np.float32)
         fyq = np.empty(LANES, np.float32)
-        acc = np.empty((C, row), np.float32)  # the block's output, channel-major
+        acc = np.empty((C, LANES), np.float32)  # the block's output, channel-major
+        wl = np.empty((max(K, 1), LANES), np.float32)  # lane weights of the block's used gaussians
+        gl = np.empty(max(K, 1), np.int64)  # and their ids
         for blk in range(nb):
             x0 = tx * ts + (blk % nbx) * SUB
             y0 = ty * ts + (blk // nbx) * SUB
@@ -280,6 +440,7 @@ def forward(means2d, conics, opac, radii, chans, tile_off, entries, width, heigh
             n = nsub[blk]
             off = base + blk * K
             last = 0
+            nu = 0  # used gaussians so far (rows of wl / gl)
             for j in range(n):
                 i = bl_ids[off + j]
                 u, v, ca, cb, cc, o = pk[i, 0], pk[i, 1], pk[i, 2], pk[i, 3], pk[i, 4], pk[i, 5]
@@ -292,23 +453,22 @@ def forward(means2d, conics, opac, radii, chans, tile_off, entries, width, heigh
                     tt = T[q] * (F32(1.0) - a)
                     ok = act[q] == 1 and a >= A_MIN32
                     use = ok and tt >= T_MIN32
-                    w[q] = a * T[q] if use else F32(0.0)
+                    wq = a * T[q] if use else F32(0.0)
+                    wl[nu, q] = wq
                     T[q] = tt if use else T[q]
                     act[q] = 0 if (ok and tt < T_MIN32) else act[q]
-                    asum[q] += w[q]
+                    asum[q] += wq
                     n_act += act[q]
                     mask |= (1 if use else 0) << q
                 bl_mask[off + j] = mask
                 if mask != 0:
                     last = j + 1
-                    g = entries[start + i]
-                    for c in range(C):  # channel-major: one 16-lane FMA per channel (SLP)
-                        ch = chans[g, c]
-                        for q in range(LANES):
-                            acc[c, q] += w[q] * ch
+                    gl[nu] = entries[start + i]
+                    nu += 1
                 if n_act == 0:
                     break
             bl_n[t * nb + blk] = last
+            lanes_times_rows(acc, wl, gl, nu, chans)
             for q in range(LANES):
                 px = x0 + q % SUB
                 py = y0 + q // SUB
@@ -323,14 +483,13 @@ def forward(means2d, conics, opac, radii, chans, tile_off, entries, width, heigh
 @njit(parallel=True, cache=True, fastmath={"reassoc", "contract", "arcp", "nsz"})
 def backward(
     means2d, conics, opac, chans, tile_off, entries, width, height, ts, gx, gy,
-    t_final, bl_ids, bl_mask, bl_n, g_out, g_alpha, buf_geo, buf_chan, row,
+    t_final, bl_ids, bl_mask, bl_n, g_out, g_alpha, buf_geo, buf_chan,
 ):
     """Back to front over each block's saved list, the block's pixels in lock-step as in
     ``forward``; the saved lane masks say which pixels used each gaussian, so the backward
     never re-decides a threshold (fastmath here cannot flip one). g_out [H*W, C],
     g_alpha [H*W] (alpha = 1 - T_final). Writes per entry (rows of the tile zeroed first):
-    buf_geo [E, 6] (d mean_u, d mean_v, d conic a, b, c, d opacity), buf_chan [E, C].
-    ``row`` = LANES, at run time for the reason given in ``forward``."""
+    buf_geo [E, 6] (d mean_u, d mean_v, d conic a, b, c, d opacity), buf_chan [E, C]."""
     C = chans.shape[1]
     nbx = (ts + SUB - 1) // SUB
     nb = nbx * nbx
@@ -353,12 +512,18 @@ def backward(
         tf = np.empty(LANES, np.float32)
         ga = np.empty(LANES, np.float32)
         acc = np.empty(LANES, np.float32)  # per pixel: sum over gaussians behind of w (chans . g_out)
-        w = lane_scratch()
         ar = np.empty(LANES, np.float32)
-        fg = lane_scratch()
+        wa = np.empty(LANES, np.float32)
         fxq = np.empty(LANES, np.float32)
         fyq = np.empty(LANES, np.float32)
-        gT = np.empty((C, row), np.float32)  # the block's output gradients, channel-major
+        gT = np.empty((C, LANES), np.float32)  # the block's output gradients, channel-major
+        gL = np.empty((LANES, C), np.float32)  # the same, lane-major
+        kk = max(K, 1)
+        sl = np.empty(kk, np.int64)  # the block's used list slots, back to front
+        el = np.empty(kk, np.int64)  # their entries
+        gl = np.empty(kk, np.int64)  # their gaussians
+        fgl = np.empty((kk, LANES), np.float32)  # chans[g] . g_out[pixel] per used gaussian and lane
+        wl = np.empty((kk, LANES), np.float32)  # their weights w = alpha T per lane
         for blk in range(nb):
             jn = bl_n[t * nb + blk]
             if jn == 0:
@@ -374,33 +539,36 @@ def backward(
                     T[q] = t_final[pix]
                     ga[q] = g_alpha[pix]
                     for c in range(C):
-                        gT[c, q] = g_out[pix, c]
+                        gL[q, c] = g_out[pix, c]
                 else:
                     T[q] = 1.0
                     ga[q] = 0.0
                     for c in range(C):
-                        gT[c, q] = 0.0
+                        gL[q, c] = 0.0
                 tf[q] = T[q]
                 acc[q] = 0.0
+            for c in range(C):
+                for q in range(LANES):
+                    gT[c, q] = gL[q, c]
             off = base + blk * K
+            nu = 0
             for j in range(jn - 1, -1, -1):
-                mask = bl_mask[off + j]
-                if mask == 0:
-                    continue
-                i = bl_ids[off + j]
-                e = start + i
-                g = entries[e]
+                if bl_mask[off + j] != 0:
+                    sl[nu] = off + j
+                    el[nu] = start + bl_ids[off + j]
+                    gl[nu] = entries[el[nu]]
+                    nu += 1
+            rows_dot_lanes(fgl, gl, nu, chans, gT)
+            for k in range(nu):
+                mask = bl_mask[sl[k]]
+                i = bl_ids[sl[k]]
+                e = el[k]
                 u, v, ca, cb, cc, o = pk[i, 0], pk[i, 1], pk[i, 2], pk[i, 3], pk[i, 4], pk[i, 5]
                 for q in range(LANES):
                     araw = alpha32(fxq[q], fyq[q], u, v, ca, cb, cc, o)
                     use = (mask >> q) & 1
                     ar[q] = araw if use else F32(0.0)
-                    w[q] = min(araw, A_MAX32) if use else F32(0.0)
-                    fg[q] = 0.0
-                for c in range(C):  # fg[q] = chans[g] . g_out[pixel q]: one 16-lane FMA per channel
-                    ch = chans[g, c]
-                    for q in range(LANES):
-                        fg[q] += ch * gT[c, q]
+                    wa[q] = min(araw, A_MAX32) if use else F32(0.0)
                 inv_o = F32(1.0) / o
                 s0 = F32(0.0)
                 s1 = F32(0.0)
@@ -410,15 +578,15 @@ def backward(
                 s5 = F32(0.0)
                 for q in range(LANES):
                     # branch-free: an unused lane has a = 0, so T and acc stay as they are
-                    a = w[q]
+                    a = wa[q]
                     inv = F32(1.0) / (F32(1.0) - a)
                     Tq = T[q] * inv  # transmittance in front of this gaussian
                     wq = a * Tq
-                    f = fg[q]
+                    f = fgl[k, q]
                     d_a = Tq * f - (acc[q] - ga[q] * tf[q]) * inv
                     acc[q] += wq * f
                     T[q] = Tq
-                    w[q] = wq
+                    wl[k, q] = wq
                     # a clamped alpha passes no gradient to opacity or geometry
                     dp = ar[q] * d_a if ar[q] <= A_MAX32 else F32(0.0)  # o G d_a
                     dx = fxq[q] - u
@@ -429,17 +597,13 @@ def backward(
                     s3 += dp * (-dx * dy)
                     s4 += dp * (F32(-0.5) * dy * dy)
                     s5 += dp
-                for c in range(C):  # d chans[g, c] = sum over lanes of w * g_out (a 16-lane reduction)
-                    sc = F32(0.0)
-                    for q in range(LANES):
-                        sc += w[q] * gT[c, q]
-                    buf_chan[e, c] += sc
                 buf_geo[e, 0] += s0
                 buf_geo[e, 1] += s1
                 buf_geo[e, 2] += s2
                 buf_geo[e, 3] += s3
                 buf_geo[e, 4] += s4
                 buf_geo[e, 5] += s5 * inv_o
+            lanes_dot_rows(buf_chan, el, nu, wl, gL, gT)  # d chans[g] += sum over lanes of w g_out
 
 
 @njit(parallel=True, cache=True)
