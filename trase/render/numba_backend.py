@@ -110,7 +110,8 @@ class _Composite(torch.autograd.Function):
         ga = np.ascontiguousarray(g_alpha.detach().to(torch.float32).reshape(height * width).numpy())
         # every row is zeroed by its tile in the kernel
         buf_geo = _SCRATCH.get("buf_geo", (E, 6), np.float64)
-        buf_chan = _SCRATCH.get("buf_chan", (E, C), np.float32)
+        cp = -(-C // nk.LANES) * nk.LANES  # channels padded to whole 16-lane vectors
+        buf_chan = _SCRATCH.get("buf_chan", (E, cp), np.float32)
         with numba.parallel_chunksize(TILE_CHUNK):
             nk.backward(m2, co, op, ch, tile_off, entries, width, height, ts, gx, gy,
                         t_final, bl_ids, bl_mask, bl_n, go, ga, buf_geo, buf_chan)

@@ -162,23 +162,17 @@ def lanes_times_rows(typingctx, acc, wl, ids, n, rows):
         n16 = builder.udiv(C, ir.Constant(i64, LANES))
         with cgutils.for_range(builder, n16) as loop:
             chunk(builder.mul(loop.index, ir.Constant(i64, LANES)), LANES)
-        with cgutils.for_range_slice(builder, builder.mul(n16, ir.Constant(i64, LANES)), C, ir.Constant(i64, 1)) as (c, _):
-            chunk(c, 1)
+        # the last C mod 16 channels as chunks of 8, 4, 2, 1 (one pass over the list each)
+        c0 = builder.mul(n16, ir.Constant(i64, LANES))
+        rest = builder.sub(C, c0)
+        for k in (8, 4, 2, 1):
+            kc = ir.Constant(i64, k)
+            has = builder.icmp_unsigned("!=", builder.and_(rest, kc), ir.Constant(i64, 0))
+            with builder.if_then(has):
+                chunk(builder.add(c0, builder.and_(rest, ir.Constant(i64, 16 - 2 * k))), k)
         return context.get_dummy_value()
 
     return sig, codegen
-
-
-def _hsum(builder, v):
-    """Sum of a <16 x float> by halving (4 shuffle + add steps)."""
-    width = LANES
-    while width > 1:
-        half = width // 2
-        lo = builder.shuffle_vector(v, v, ir.Constant(ir.VectorType(ir.IntType(32), half), list(range(half))))
-        hi = builder.shuffle_vector(v, v, ir.Constant(ir.VectorType(ir.IntType(32), half), list(range(half, width))))
-        v = builder.fadd(lo, hi)
-        width = half
-    return builder.extract_element(v, ir.Constant(ir.IntType(32), 0))
 
 
 @intrinsic
@@ -226,42 +220,38 @@ def rows_dot_lanes(typingctx, out, ids, n, rows, gt):
 
 
 @intrinsic
-def lanes_dot_rows(typingctx, buf, eids, n, wl, gl, gt):
+def lanes_dot_rows(typingctx, buf, eids, n, wl, gl):
     """buf[eids[j], c] += sum_q wl[j, q] * gl[q, c] for j < n and every column c of buf.
 
-    buf [E, C], eids [>=n] int, wl [>=n, >=16], gl [16, >=C] (the same values as gt, lane-major),
-    gt [C, >=16] (channel-major), all float32. Channels go 16 at a time as vectors (16 FMAs
-    per gaussian and chunk); the last C mod 16 channels as 16-lane dot products of gt rows."""
-    sig = types.void(buf, eids, n, wl, gl, gt)
+    buf [E, CP], eids [>=n] int, wl [>=n, >=16], gl [16, >=CP], all float32; CP (buf's row
+    length) must be a multiple of 16 (callers pad their channels). Per gaussian and 16-channel
+    chunk: 16 FMAs into four accumulators (lanes q mod 4), so the chain is 4 deep, not 16."""
+    sig = types.void(buf, eids, n, wl, gl)
 
     def codegen(context, builder, signature, args):
-        b_ty, e_ty, _, w_ty, l_ty, t_ty = signature.args
+        b_ty, e_ty, _, w_ty, l_ty = signature.args
         b_p, b_sh = _array(context, builder, b_ty, args[0])
         e_p, _ = _array(context, builder, e_ty, args[1])
         w_p, w_sh = _array(context, builder, w_ty, args[3])
         l_p, l_sh = _array(context, builder, l_ty, args[4])
-        t_p, t_sh = _array(context, builder, t_ty, args[5])
         i64 = ir.IntType(64)
         C = b_sh[1]
         n16 = builder.udiv(C, ir.Constant(i64, LANES))
+        zero = ir.Constant(_V16, [0.0] * LANES)
         with cgutils.for_range(builder, args[2]) as loop:
             j = loop.index
             e = builder.sext(builder.load(builder.gep(e_p, [j])), i64)
             bp = builder.gep(b_p, [builder.mul(e, C)])
             wp = builder.gep(w_p, [builder.mul(j, w_sh[1])])
-            wv = _vload(builder, wp, ir.Constant(i64, 0))
             ws = [builder.load(builder.gep(wp, [ir.Constant(i64, q)])) for q in range(LANES)]
             with cgutils.for_range(builder, n16) as inner:
                 c0 = builder.mul(inner.index, ir.Constant(i64, LANES))
-                v = _vload(builder, bp, c0)
+                parts = [_vload(builder, bp, c0), zero, zero, zero]
                 for q in range(LANES):
                     gv = _vload(builder, l_p, builder.add(builder.mul(ir.Constant(i64, q), l_sh[1]), c0))
-                    v = _fma(builder, gv, _splat(builder, ws[q]), v)
-                _vstore(builder, v, bp, c0)
-            with cgutils.for_range_slice(builder, builder.mul(n16, ir.Constant(i64, LANES)), C, ir.Constant(i64, 1)) as (c, _):
-                prod = builder.fmul(wv, _vload(builder, t_p, builder.mul(c, t_sh[1])))
-                cp = builder.gep(bp, [c])
-                builder.store(builder.fadd(builder.load(cp), _hsum(builder, prod)), cp)
+                    parts[q % 4] = _fma(builder, gv, _splat(builder, ws[q]), parts[q % 4])
+                tot = builder.fadd(builder.fadd(parts[0], parts[1]), builder.fadd(parts[2], parts[3]))
+                _vstore(builder, tot, bp, c0)
         return context.get_dummy_value()
 
     return sig, codegen
@@ -489,7 +479,8 @@ def backward(
     ``forward``; the saved lane masks say which pixels used each gaussian, so the backward
     never re-decides a threshold (fastmath here cannot flip one). g_out [H*W, C],
     g_alpha [H*W] (alpha = 1 - T_final). Writes per entry (rows of the tile zeroed first):
-    buf_geo [E, 6] (d mean_u, d mean_v, d conic a, b, c, d opacity), buf_chan [E, C]."""
+    buf_geo [E, 6] (d mean_u, d mean_v, d conic a, b, c, d opacity), buf_chan [E, CP] (CP = C
+    rounded up to a multiple of 16; columns past C are scratch)."""
     C = chans.shape[1]
     nbx = (ts + SUB - 1) // SUB
     nb = nbx * nbx
@@ -504,7 +495,7 @@ def backward(
         for e in range(start, end):
             for k in range(6):
                 buf_geo[e, k] = 0.0
-            for c in range(C):
+            for c in range(buf_chan.shape[1]):
                 buf_chan[e, c] = 0.0
         pk = _pack_tile(start, end, entries, means2d, conics, opac)
         base = nb * start
@@ -517,7 +508,8 @@ def backward(
         fxq = np.empty(LANES, np.float32)
         fyq = np.empty(LANES, np.float32)
         gT = np.empty((C, LANES), np.float32)  # the block's output gradients, channel-major
-        gL = np.empty((LANES, C), np.float32)  # the same, lane-major
+        CP = buf_chan.shape[1]  # >= C, a multiple of 16 (lanes_dot_rows)
+        gL = np.zeros((LANES, CP), np.float32)  # the same, lane-major, zero past C
         kk = max(K, 1)
         sl = np.empty(kk, np.int64)  # the block's used list slots, back to front
         el = np.empty(kk, np.int64)  # their entries
@@ -603,7 +595,7 @@ def backward(
                 buf_geo[e, 3] += s3
                 buf_geo[e, 4] += s4
                 buf_geo[e, 5] += s5 * inv_o
-            lanes_dot_rows(buf_chan, el, nu, wl, gL, gT)  # d chans[g] += sum over lanes of w g_out
+            lanes_dot_rows(buf_chan, el, nu, wl, gL)  # d chans[g] += sum over lanes of w g_out
 
 
 @njit(parallel=True, cache=True)
