@@ -116,11 +116,11 @@ class _Composite(torch.autograd.Function):
             nk.backward(m2, co, op, ch, tile_off, entries, width, height, ts, gx, gy,
                         t_final, bl_ids, bl_mask, bl_n, go, ga, buf_geo, buf_chan)
         grad_geo = np.empty((n, 6), np.float64)
-        grad_chan = np.empty((n, C), np.float32)
+        grad_chan = np.empty((n, cp), np.float32)  # padded like buf_chan; sliced to C below
         nk.reduce_grads(g_ptr, g_pos, buf_geo, buf_chan, grad_geo, grad_chan)
         dt = ctx.dtype
         gg = torch.from_numpy(grad_geo).to(dt)
-        return gg[:, 0:2], gg[:, 2:5], gg[:, 5], torch.from_numpy(grad_chan).to(dt), None, None, None, None, None
+        return gg[:, 0:2], gg[:, 2:5], gg[:, 5], torch.from_numpy(grad_chan)[:, :C].to(dt), None, None, None, None, None
 
 
 def composite_numba(means2d, conics, opac, chans, depths, rects, width, height, tile_size):

@@ -305,6 +305,35 @@ def lanes_dot_rows(typingctx, buf, eids, n, wl, gl):
     return sig, codegen
 
 
+@intrinsic
+def sum_rows(typingctx, out, r, pos, lo, hi, buf):
+    """out[r, :] = sum of buf[pos[j], :] over lo <= j < hi, 16 columns at a time.
+
+    out [R, CP], buf [E, CP] float32 with CP a multiple of 16 (padded channels), pos int."""
+    sig = types.void(out, r, pos, lo, hi, buf)
+
+    def codegen(context, builder, signature, args):
+        o_ty, _, p_ty, _, _, b_ty = signature.args
+        o_p, o_sh = _array(context, builder, o_ty, args[0])
+        p_p, _ = _array(context, builder, p_ty, args[2])
+        b_p, b_sh = _array(context, builder, b_ty, args[5])
+        i64 = ir.IntType(64)
+        C = o_sh[1]
+        op = builder.gep(o_p, [builder.mul(args[1], C)])
+        slot = cgutils.alloca_once(builder, _V16)
+        with cgutils.for_range(builder, builder.udiv(C, ir.Constant(i64, LANES))) as chunk:
+            c0 = builder.mul(chunk.index, ir.Constant(i64, LANES))
+            builder.store(ir.Constant(_V16, [0.0] * LANES), slot)
+            with cgutils.for_range_slice(builder, args[3], args[4], ir.Constant(i64, 1)) as (j, _):
+                e = builder.sext(builder.load(builder.gep(p_p, [j])), i64)
+                v = _vload(builder, b_p, builder.add(builder.mul(e, b_sh[1]), c0))
+                builder.store(builder.fadd(builder.load(slot), v), slot)
+            _vstore(builder, builder.load(slot), op, c0)
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
 @njit(inline="always")
 def exp_nonpositive32(x):
     """exp(x) in float32 for -8 <= x <= 0 as plain arithmetic (relative error ~1e-6, from
@@ -332,6 +361,131 @@ def alpha32(fx, fy, u, v, ca, cb, cc, o):
     power = F32(-0.5) * (ca * (dx * dx) + cc * (dy * dy)) - (cb * dx) * dy
     G = exp_nonpositive32(min(max(power, POWER_FLOOR), F32(0.0)))
     return o * G if power <= F32(0.0) else F32(0.0)
+
+
+def _f32c(x):
+    """A float32 constant (the float32 rounding of x, as F32(x) gives in numba code)."""
+    return ir.Constant(ir.FloatType(), float(np.float32(x)))
+
+
+def _vconst(xs):
+    return ir.Constant(_V16, [float(np.float32(x)) for x in xs])
+
+
+_EXP_COEF = [1.0, 1.0, 0.5, 1.0 / 6.0, 1.0 / 24.0, 1.0 / 120.0, 1.0 / 720.0, 1.0 / 5040.0, 1.0 / 40320.0]
+
+
+@intrinsic
+def composite_block(typingctx, pk, ids, off, n, x0, y0, live, T, asum, wl, gl, bl_mask, res):
+    """The forward's front-to-back walk of one SUB x SUB block, lanes as <16 x float> values.
+
+    Walks list slots j < n (tile-local gaussian ids[off + j], rows of pk [K, 6] = u, v, a, b,
+    c, opacity) over the block at pixel (x0, y0); ``live`` has bit q set for lanes inside the
+    image. Per slot it computes ``alpha32`` at the 16 pixel centres with the same float32
+    operations in the same order (no FMA contraction, so bit-identical to the scalar
+    pixel_weights replay) and applies the 3DGS rule; stores the lane mask of users in
+    bl_mask[off + j], and for slots with a user the lane weights in wl[nu] and the id in
+    gl[nu]. Stops once every lane is done. Writes T [16] and asum [16] (transmittance, alpha)
+    and res [2] = (list length up to the last used slot, nu).
+
+    Why IR: in numba the lane state (T, active lanes, alpha sum) lives in memory between slots
+    and each slot waits on store-to-load forwarding; here it stays in vector registers."""
+    sig = types.void(pk, ids, off, n, x0, y0, live, T, asum, wl, gl, bl_mask, res)
+
+    def codegen(context, builder, signature, args):
+        pk_ty, id_ty, _, _, _, _, _, t_ty, s_ty, w_ty, g_ty, m_ty, r_ty = signature.args
+        pk_p, pk_sh = _array(context, builder, pk_ty, args[0])
+        id_p, _ = _array(context, builder, id_ty, args[1])
+        off_, n_, x0_, y0_, live_ = args[2], args[3], args[4], args[5], args[6]
+        t_p, _ = _array(context, builder, t_ty, args[7])
+        s_p, _ = _array(context, builder, s_ty, args[8])
+        w_p, w_sh = _array(context, builder, w_ty, args[9])
+        g_p, _ = _array(context, builder, g_ty, args[10])
+        m_p, _ = _array(context, builder, m_ty, args[11])
+        r_p, _ = _array(context, builder, r_ty, args[12])
+        i64, i16 = ir.IntType(64), ir.IntType(16)
+        b16 = ir.VectorType(ir.IntType(1), LANES)
+        c64 = lambda v: ir.Constant(i64, v)  # noqa: E731
+        zero_v = _vconst([0.0] * LANES)
+        fx = builder.fadd(builder.fadd(_splat(builder, builder.sitofp(x0_, ir.FloatType())),
+                                       _vconst([q % SUB for q in range(LANES)])), _vconst([0.5] * LANES))
+        fy = builder.fadd(builder.fadd(_splat(builder, builder.sitofp(y0_, ir.FloatType())),
+                                       _vconst([q // SUB for q in range(LANES)])), _vconst([0.5] * LANES))
+        # loop state in allocas (promoted to registers by mem2reg)
+        s_T = cgutils.alloca_once(builder, _V16)
+        s_sum = cgutils.alloca_once(builder, _V16)
+        s_act = cgutils.alloca_once(builder, i16)
+        s_j = cgutils.alloca_once(builder, i64)
+        s_nu = cgutils.alloca_once(builder, i64)
+        s_last = cgutils.alloca_once(builder, i64)
+        builder.store(_vconst([1.0] * LANES), s_T)
+        builder.store(zero_v, s_sum)
+        builder.store(builder.trunc(live_, i16), s_act)
+        for slot in (s_j, s_nu, s_last):
+            builder.store(c64(0), slot)
+        fn = builder.function
+        head = fn.append_basic_block("cb_head")
+        body = fn.append_basic_block("cb_body")
+        done = fn.append_basic_block("cb_done")
+        builder.branch(head)
+        builder.position_at_end(head)
+        j = builder.load(s_j)
+        act16 = builder.load(s_act)
+        more = builder.and_(builder.icmp_signed("<", j, n_), builder.icmp_unsigned("!=", act16, ir.Constant(i16, 0)))
+        builder.cbranch(more, body, done)
+        builder.position_at_end(body)
+        slot_ix = builder.add(off_, j)
+        i = builder.sext(builder.load(builder.gep(id_p, [slot_ix])), i64)
+        row = builder.gep(pk_p, [builder.mul(i, pk_sh[1])])
+        u, v, ca, cb, cc, o = (builder.load(builder.gep(row, [c64(k)])) for k in range(6))
+        sp = lambda x: _splat(builder, x)  # noqa: E731
+        # alpha32, operation for operation
+        dx = builder.fsub(fx, sp(u))
+        dy = builder.fsub(fy, sp(v))
+        quad = builder.fadd(builder.fmul(sp(ca), builder.fmul(dx, dx)), builder.fmul(sp(cc), builder.fmul(dy, dy)))
+        power = builder.fsub(builder.fmul(_vconst([-0.5] * LANES), quad), builder.fmul(builder.fmul(sp(cb), dx), dy))
+        floor = _vconst([float(POWER_FLOOR)] * LANES)
+        x = builder.select(builder.fcmp_ordered(">", power, floor), power, floor)
+        x = builder.select(builder.fcmp_ordered("<", x, zero_v), x, zero_v)
+        y = builder.fmul(x, _vconst([0.0625] * LANES))
+        poly = _vconst([_EXP_COEF[8]] * LANES)
+        for k in range(7, -1, -1):
+            poly = builder.fadd(_vconst([_EXP_COEF[k]] * LANES), builder.fmul(y, poly))
+        for _ in range(4):
+            poly = builder.fmul(poly, poly)
+        alpha = builder.select(builder.fcmp_ordered("<=", power, zero_v), builder.fmul(sp(o), poly), zero_v)
+        amax = _vconst([ALPHA_MAX] * LANES)
+        a = builder.select(builder.fcmp_ordered("<", alpha, amax), alpha, amax)
+        # the 3DGS rule, all lanes at once
+        Tv = builder.load(s_T)
+        tt = builder.fmul(Tv, builder.fsub(_vconst([1.0] * LANES), a))
+        actv = builder.bitcast(act16, b16)
+        ok = builder.and_(actv, builder.fcmp_ordered(">=", a, _vconst([ALPHA_MIN] * LANES)))
+        keep = builder.fcmp_ordered(">=", tt, _vconst([T_MIN] * LANES))
+        use = builder.and_(ok, keep)
+        w = builder.select(use, builder.fmul(a, Tv), zero_v)
+        builder.store(builder.select(use, tt, Tv), s_T)
+        stop = builder.and_(ok, builder.not_(keep))
+        builder.store(builder.bitcast(builder.and_(actv, builder.not_(stop)), i16), s_act)
+        builder.store(builder.fadd(builder.load(s_sum), w), s_sum)
+        mask = builder.bitcast(use, i16)
+        builder.store(mask, builder.gep(m_p, [slot_ix]))
+        nu = builder.load(s_nu)
+        _vstore(builder, w, w_p, builder.mul(nu, w_sh[1]))
+        with builder.if_then(builder.icmp_unsigned("!=", mask, ir.Constant(i16, 0))):
+            builder.store(i, builder.gep(g_p, [nu]))
+            builder.store(builder.add(nu, c64(1)), s_nu)
+            builder.store(builder.add(j, c64(1)), s_last)
+        builder.store(builder.add(j, c64(1)), s_j)
+        builder.branch(head)
+        builder.position_at_end(done)
+        _vstore(builder, builder.load(s_T), t_p, c64(0))
+        _vstore(builder, builder.load(s_sum), s_p, c64(0))
+        builder.store(builder.load(s_last), builder.gep(r_p, [c64(0)]))
+        builder.store(builder.load(s_nu), builder.gep(r_p, [c64(1)]))
+        return context.get_dummy_value()
+
+    return sig, codegen
 
 
 @njit(inline="always")
@@ -454,10 +608,7 @@ def forward(means2d, conics, opac, radii, chans, tile_off, entries, width, heigh
         _sub_lists(start, end, entries, means2d, radii, tx, ty, ts, bl_ids, base, nsub)
         T = np.empty(LANES, np.float32)
         asum = np.empty(LANES, np.float32)
-        al = np.empty(LANES, np.float32)
-        act = np.empty(LANES, np.int32)
-        fxq = np.empty(LANES, np.float32)
-        fyq = np.empty(LANES, np.float32)
+        res = np.empty(2, np.int64)
         acc = np.empty((C, LANES), np.float32)  # the block's output, channel-major
         wl = np.empty((max(K, 1), LANES), np.float32)  # lane weights of the block's used gaussians
         gl = np.empty(max(K, 1), np.int64)  # and their ids
@@ -467,45 +618,20 @@ def forward(means2d, conics, opac, radii, chans, tile_off, entries, width, heigh
             bl_n[t * nb + blk] = 0
             if x0 >= x_end or y0 >= y_end:
                 continue
-            _lane_centres(x0, y0, fxq, fyq)
+            live = 0
             for q in range(LANES):
-                act[q] = 1 if (x0 + q % SUB < x_end and y0 + q // SUB < y_end) else 0
-                T[q] = 1.0
-                asum[q] = 0.0
+                if x0 + q % SUB < x_end and y0 + q // SUB < y_end:
+                    live |= 1 << q
             for c in range(C):
                 for q in range(LANES):
                     acc[c, q] = 0.0
-            n = nsub[blk]
             off = base + blk * K
-            last = 0
-            nu = 0  # used gaussians so far (rows of wl / gl)
-            for j in range(n):
-                i = bl_ids[off + j]
-                u, v, ca, cb, cc, o = pk[i, 0], pk[i, 1], pk[i, 2], pk[i, 3], pk[i, 4], pk[i, 5]
-                for q in range(LANES):  # a separate loop: fused with the next, it does not vectorise
-                    al[q] = min(alpha32(fxq[q], fyq[q], u, v, ca, cb, cc, o), A_MAX32)
-                n_act = 0
-                mask = 0
-                for q in range(LANES):
-                    a = al[q]
-                    tt = T[q] * (F32(1.0) - a)
-                    ok = act[q] == 1 and a >= A_MIN32
-                    use = ok and tt >= T_MIN32
-                    wq = a * T[q] if use else F32(0.0)
-                    wl[nu, q] = wq
-                    T[q] = tt if use else T[q]
-                    act[q] = 0 if (ok and tt < T_MIN32) else act[q]
-                    asum[q] += wq
-                    n_act += act[q]
-                    mask |= (1 if use else 0) << q
-                bl_mask[off + j] = mask
-                if mask != 0:
-                    last = j + 1
-                    gl[nu] = entries[start + i]
-                    nu += 1
-                if n_act == 0:
-                    break
+            composite_block(pk, bl_ids, off, nsub[blk], x0, y0, live, T, asum, wl, gl, bl_mask, res)
+            last = res[0]
+            nu = res[1]
             bl_n[t * nb + blk] = last
+            for k in range(nu):
+                gl[k] = entries[start + gl[k]]
             lanes_times_rows(acc, wl, gl, nu, chans)
             for q in range(LANES):
                 px = x0 + q % SUB
@@ -648,21 +774,16 @@ def backward(
 
 @njit(parallel=True, cache=True)
 def reduce_grads(g_ptr, g_pos, buf_geo, buf_chan, grad_geo, grad_chan):
-    """Sum per-entry gradients into per-gaussian grad_geo [N, 6] and grad_chan [N, C]
-    (written, not accumulated: they may be uninitialised)."""
-    n = grad_geo.shape[0]
-    C = grad_chan.shape[1]
-    for g in prange(n):
+    """Sum per-entry gradients into per-gaussian grad_geo [N, 6] and grad_chan [N, CP] (CP =
+    buf_chan's padded row length; written, not accumulated: they may be uninitialised)."""
+    for g in prange(grad_geo.shape[0]):
         for k in range(6):
             grad_geo[g, k] = 0.0
-        for c in range(C):
-            grad_chan[g, c] = 0.0
         for j in range(g_ptr[g], g_ptr[g + 1]):
             e = g_pos[j]
             for k in range(6):
                 grad_geo[g, k] += buf_geo[e, k]
-            for c in range(C):
-                grad_chan[g, c] += buf_chan[e, c]
+        sum_rows(grad_chan, g, g_pos, g_ptr[g], g_ptr[g + 1], buf_chan)
 
 
 @njit(inline="always")
