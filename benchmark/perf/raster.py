@@ -9,7 +9,8 @@ wall time: on a shared, loaded machine it is the steadier of the two. Difference
 colour, features, depth and alpha; gradient difference per input is
 max |g_numba - g_torch| / max |g_torch|, the worst input reported. "state saved for the
 backward" is what the numba forward keeps beyond its inputs and the tile binning (per-block
-gaussian lists and lane masks, final transmittance; numba_backend.saved_state_bytes).
+gaussian lists and lane masks, final transmittance; numba_backend.saved_state_bytes);
+"backward scratch" is the per-entry gradient buffers the backend reuses across calls.
 """
 
 from __future__ import annotations
@@ -111,11 +112,13 @@ def run(quick: bool = False, echo: Callable[[str], None] = print) -> dict:
         row["numba"] = num
         saved = dict(numba_backend.LAST_SAVED)  # what the latest numba forward kept for its backward
         row["numba_saved_bytes"] = {**saved, "total": sum(saved.values())}
+        row["numba_scratch_bytes"] = numba_backend.scratch_bytes()  # backward buffers kept for reuse
         row["mean_alpha"] = float(out_n["alpha"].mean())
         echo(f"{label}: numba  forward {_fmt(num['forward_s'])}  backward {_fmt(num['backward_s'])}  "
              f"total {_fmt(num['total_s'])}  [cpu total {num['total_cpu_s']['median']:.3f}s]")
         echo(f"{label}: numba  state saved for the backward {_mib(row['numba_saved_bytes']['total'])} ("
-             + ", ".join(f"{k} {_mib(v)}" for k, v in saved.items()) + ")")
+             + ", ".join(f"{k} {_mib(v)}" for k, v in saved.items())
+             + f"); backward scratch kept between calls {_mib(row['numba_scratch_bytes'])}")
         if with_torch:
             ref, out_t, g_t = _time_backend("torch", scene, cam, reps_torch, warmup=False)
             row["torch"] = ref

@@ -44,6 +44,11 @@ class _Scratch(threading.local):
 _SCRATCH = _Scratch()
 
 
+def scratch_bytes() -> int:
+    """Bytes of backward scratch this thread keeps between calls (see _Scratch)."""
+    return _SCRATCH.nbytes()
+
+
 def _np32(t: torch.Tensor) -> np.ndarray:
     return np.ascontiguousarray(t.detach().to("cpu", torch.float32).numpy())
 
