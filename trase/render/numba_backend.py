@@ -90,8 +90,8 @@ class _Composite(torch.autograd.Function):
         bl_ids = np.empty(nb * E, np.int32)
         bl_mask = np.empty(nb * E, np.uint16)
         bl_n = np.empty(nb * gx * gy, np.int32)
+        nk.cull_radii(co, op, radii)  # outside the tile chunking: 2-gaussian chunks cost ~1 ms
         with numba.parallel_chunksize(TILE_CHUNK):
-            nk.cull_radii(co, op, radii)
             nk.forward(m2, co, op, radii, ch, tile_off, entries, width, height, ts, gx, gy, out, alpha, t_final,
                        bl_ids, bl_mask, bl_n)
         LAST_SAVED.clear()
