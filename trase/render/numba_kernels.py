@@ -14,12 +14,19 @@ per list slot, which lanes used the gaussian (a 16-bit mask): the backward repla
 forward's decisions without recomputing culling or thresholds. The backward recovers
 T_k = T_{k+1} / (1 - alpha_k) back to front in float32 (relative error grows by ~1e-7 per
 step: ~3e-5 after 300 gaussians, well inside the 1e-3 gradient tolerance) and sums geometry
-gradients per entry in float64. exp is ``exp_nonpositive32`` (vectorisable); ``pixel_weights``
-replays pixels one at a time with the same ``alpha32`` expression, so it matches ``forward``.
+gradients per entry in float64. exp is ``exp_nonpositive32`` (plain arithmetic, so it
+vectorises).
 
-The channel work (forward: out += w * chans; backward: chans . g_out and d chans) is a small
-matrix product per block, done by three LLVM-IR helpers on <16 x float> vectors
-(``lanes_times_rows``, ``rows_dot_lanes``, ``lanes_dot_rows``), tested against numpy.
+The per-block work is written as LLVM IR on <16 x float> vectors (numba ``@intrinsic``):
+``composite_block`` (the forward's front-to-back walk), ``backward_block`` (the backward's
+walk), and the channel products ``lanes_times_rows`` (out += w * chans), ``rows_dot_lanes``
+(chans . g_out) and ``lanes_dot_rows`` (d chans += w * g_out). Why: written as numba loops,
+the lane state lived in memory between gaussians and the channel loops were scalar or used
+one reduction per channel; as IR they keep accumulators in vector registers (3x faster).
+The IR evaluates alpha with the same float32 operations in the same order as ``alpha32``
+(no FMA contraction), so ``pixel_weights`` (which replays pixels one at a time with
+``alpha32``) agrees with ``forward`` bit for bit; tests check the saved masks against it and
+the channel helpers against numpy.
 """
 
 from __future__ import annotations
@@ -27,8 +34,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, prange, types
 from llvmlite import ir
+from numba import njit, prange, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
@@ -55,7 +62,7 @@ def stable_argsort(keys):
         b = bits[i]
         if x == 0.0:
             k[i] = top  # -0.0 ties with +0.0
-        elif x != x:
+        elif math.isnan(x):
             k[i] = ~np.uint64(0)  # NaN last, as numpy sorts
         else:
             k[i] = ~b if (b & top) != 0 else (b | top)  # negative: flip all; positive: flip sign
@@ -376,8 +383,8 @@ def exp_nonpositive32(x):
 @njit(inline="always")
 def alpha32(fx, fy, u, v, ca, cb, cc, o):
     """Raw alpha o * exp(power) of one gaussian at pixel centre (fx, fy), all float32, with the
-    reference's operation order; 0 where power > 0 (skipped). The forward lanes, the backward
-    and pixel_weights all call this one expression, so they agree bit for bit."""
+    reference's operation order; 0 where power > 0 (skipped). Used by pixel_weights; the
+    forward's ``composite_block`` emits the same operations as vector IR (_alpha_lanes)."""
     dx = fx - u
     dy = fy - v
     power = F32(-0.5) * (ca * (dx * dx) + cc * (dy * dy)) - (cb * dx) * dy
@@ -395,119 +402,6 @@ def _vconst(xs):
 
 
 _EXP_COEF = [1.0, 1.0, 0.5, 1.0 / 6.0, 1.0 / 24.0, 1.0 / 120.0, 1.0 / 720.0, 1.0 / 5040.0, 1.0 / 40320.0]
-
-
-@intrinsic
-def composite_block(typingctx, pk, ids, off, n, x0, y0, live, T, asum, wl, gl, bl_mask, res):
-    """The forward's front-to-back walk of one SUB x SUB block, lanes as <16 x float> values.
-
-    Walks list slots j < n (tile-local gaussian ids[off + j], rows of pk [K, 6] = u, v, a, b,
-    c, opacity) over the block at pixel (x0, y0); ``live`` has bit q set for lanes inside the
-    image. Per slot it computes ``alpha32`` at the 16 pixel centres with the same float32
-    operations in the same order (no FMA contraction, so bit-identical to the scalar
-    pixel_weights replay) and applies the 3DGS rule; stores the lane mask of users in
-    bl_mask[off + j], and for slots with a user the lane weights in wl[nu] and the id in
-    gl[nu]. Stops once every lane is done. Writes T [16] and asum [16] (transmittance, alpha)
-    and res [2] = (list length up to the last used slot, nu).
-
-    Why IR: in numba the lane state (T, active lanes, alpha sum) lives in memory between slots
-    and each slot waits on store-to-load forwarding; here it stays in vector registers."""
-    sig = types.void(pk, ids, off, n, x0, y0, live, T, asum, wl, gl, bl_mask, res)
-
-    def codegen(context, builder, signature, args):
-        pk_ty, id_ty, _, _, _, _, _, t_ty, s_ty, w_ty, g_ty, m_ty, r_ty = signature.args
-        pk_p, pk_sh = _array(context, builder, pk_ty, args[0])
-        id_p, _ = _array(context, builder, id_ty, args[1])
-        off_, n_, x0_, y0_, live_ = args[2], args[3], args[4], args[5], args[6]
-        t_p, _ = _array(context, builder, t_ty, args[7])
-        s_p, _ = _array(context, builder, s_ty, args[8])
-        w_p, w_sh = _array(context, builder, w_ty, args[9])
-        g_p, _ = _array(context, builder, g_ty, args[10])
-        m_p, _ = _array(context, builder, m_ty, args[11])
-        r_p, _ = _array(context, builder, r_ty, args[12])
-        i64, i16 = ir.IntType(64), ir.IntType(16)
-        b16 = ir.VectorType(ir.IntType(1), LANES)
-        c64 = lambda v: ir.Constant(i64, v)  # noqa: E731
-        zero_v = _vconst([0.0] * LANES)
-        fx = builder.fadd(builder.fadd(_splat(builder, builder.sitofp(x0_, ir.FloatType())),
-                                       _vconst([q % SUB for q in range(LANES)])), _vconst([0.5] * LANES))
-        fy = builder.fadd(builder.fadd(_splat(builder, builder.sitofp(y0_, ir.FloatType())),
-                                       _vconst([q // SUB for q in range(LANES)])), _vconst([0.5] * LANES))
-        # loop state in allocas (promoted to registers by mem2reg)
-        s_T = cgutils.alloca_once(builder, _V16)
-        s_sum = cgutils.alloca_once(builder, _V16)
-        s_act = cgutils.alloca_once(builder, i16)
-        s_j = cgutils.alloca_once(builder, i64)
-        s_nu = cgutils.alloca_once(builder, i64)
-        s_last = cgutils.alloca_once(builder, i64)
-        builder.store(_vconst([1.0] * LANES), s_T)
-        builder.store(zero_v, s_sum)
-        builder.store(builder.trunc(live_, i16), s_act)
-        for slot in (s_j, s_nu, s_last):
-            builder.store(c64(0), slot)
-        fn = builder.function
-        head = fn.append_basic_block("cb_head")
-        body = fn.append_basic_block("cb_body")
-        done = fn.append_basic_block("cb_done")
-        builder.branch(head)
-        builder.position_at_end(head)
-        j = builder.load(s_j)
-        act16 = builder.load(s_act)
-        more = builder.and_(builder.icmp_signed("<", j, n_), builder.icmp_unsigned("!=", act16, ir.Constant(i16, 0)))
-        builder.cbranch(more, body, done)
-        builder.position_at_end(body)
-        slot_ix = builder.add(off_, j)
-        i = builder.sext(builder.load(builder.gep(id_p, [slot_ix])), i64)
-        row = builder.gep(pk_p, [builder.mul(i, pk_sh[1])])
-        u, v, ca, cb, cc, o = (builder.load(builder.gep(row, [c64(k)])) for k in range(6))
-        sp = lambda x: _splat(builder, x)  # noqa: E731
-        # alpha32, operation for operation
-        dx = builder.fsub(fx, sp(u))
-        dy = builder.fsub(fy, sp(v))
-        quad = builder.fadd(builder.fmul(sp(ca), builder.fmul(dx, dx)), builder.fmul(sp(cc), builder.fmul(dy, dy)))
-        power = builder.fsub(builder.fmul(_vconst([-0.5] * LANES), quad), builder.fmul(builder.fmul(sp(cb), dx), dy))
-        floor = _vconst([float(POWER_FLOOR)] * LANES)
-        x = builder.select(builder.fcmp_ordered(">", power, floor), power, floor)
-        x = builder.select(builder.fcmp_ordered("<", x, zero_v), x, zero_v)
-        y = builder.fmul(x, _vconst([0.0625] * LANES))
-        poly = _vconst([_EXP_COEF[8]] * LANES)
-        for k in range(7, -1, -1):
-            poly = builder.fadd(_vconst([_EXP_COEF[k]] * LANES), builder.fmul(y, poly))
-        for _ in range(4):
-            poly = builder.fmul(poly, poly)
-        alpha = builder.select(builder.fcmp_ordered("<=", power, zero_v), builder.fmul(sp(o), poly), zero_v)
-        amax = _vconst([ALPHA_MAX] * LANES)
-        a = builder.select(builder.fcmp_ordered("<", alpha, amax), alpha, amax)
-        # the 3DGS rule, all lanes at once
-        Tv = builder.load(s_T)
-        tt = builder.fmul(Tv, builder.fsub(_vconst([1.0] * LANES), a))
-        actv = builder.bitcast(act16, b16)
-        ok = builder.and_(actv, builder.fcmp_ordered(">=", a, _vconst([ALPHA_MIN] * LANES)))
-        keep = builder.fcmp_ordered(">=", tt, _vconst([T_MIN] * LANES))
-        use = builder.and_(ok, keep)
-        w = builder.select(use, builder.fmul(a, Tv), zero_v)
-        builder.store(builder.select(use, tt, Tv), s_T)
-        stop = builder.and_(ok, builder.not_(keep))
-        builder.store(builder.bitcast(builder.and_(actv, builder.not_(stop)), i16), s_act)
-        builder.store(builder.fadd(builder.load(s_sum), w), s_sum)
-        mask = builder.bitcast(use, i16)
-        builder.store(mask, builder.gep(m_p, [slot_ix]))
-        nu = builder.load(s_nu)
-        _vstore(builder, w, w_p, builder.mul(nu, w_sh[1]))
-        with builder.if_then(builder.icmp_unsigned("!=", mask, ir.Constant(i16, 0))):
-            builder.store(i, builder.gep(g_p, [nu]))
-            builder.store(builder.add(nu, c64(1)), s_nu)
-            builder.store(builder.add(j, c64(1)), s_last)
-        builder.store(builder.add(j, c64(1)), s_j)
-        builder.branch(head)
-        builder.position_at_end(done)
-        _vstore(builder, builder.load(s_T), t_p, c64(0))
-        _vstore(builder, builder.load(s_sum), s_p, c64(0))
-        builder.store(builder.load(s_last), builder.gep(r_p, [c64(0)]))
-        builder.store(builder.load(s_nu), builder.gep(r_p, [c64(1)]))
-        return context.get_dummy_value()
-
-    return sig, codegen
 
 
 def _alpha_lanes(builder, fx, fy, row):
@@ -555,6 +449,100 @@ def _hsum(builder, v):
 
 
 @intrinsic
+def composite_block(typingctx, pk, ids, off, n, x0, y0, live, T, asum, wl, gl, bl_mask, res):
+    """The forward's front-to-back walk of one SUB x SUB block, lanes as <16 x float> values.
+
+    Walks list slots j < n (tile-local gaussian ids[off + j], rows of pk [K, 6] = u, v, a, b,
+    c, opacity) over the block at pixel (x0, y0); ``live`` has bit q set for lanes inside the
+    image. Per slot it computes ``alpha32`` at the 16 pixel centres with the same float32
+    operations in the same order (no FMA contraction, so bit-identical to the scalar
+    pixel_weights replay) and applies the 3DGS rule; stores the lane mask of users in
+    bl_mask[off + j], and for slots with a user the lane weights in wl[nu] and the id in
+    gl[nu]. Stops once every lane is done. Writes T [16] and asum [16] (transmittance, alpha)
+    and res [2] = (list length up to the last used slot, nu).
+
+    Why IR: in numba the lane state (T, active lanes, alpha sum) lives in memory between slots
+    and each slot waits on store-to-load forwarding; here it stays in vector registers."""
+    sig = types.void(pk, ids, off, n, x0, y0, live, T, asum, wl, gl, bl_mask, res)
+
+    def codegen(context, builder, signature, args):
+        pk_ty, id_ty, _, _, _, _, _, t_ty, s_ty, w_ty, g_ty, m_ty, r_ty = signature.args
+        pk_p, pk_sh = _array(context, builder, pk_ty, args[0])
+        id_p, _ = _array(context, builder, id_ty, args[1])
+        off_, n_, x0_, y0_, live_ = args[2], args[3], args[4], args[5], args[6]
+        t_p, _ = _array(context, builder, t_ty, args[7])
+        s_p, _ = _array(context, builder, s_ty, args[8])
+        w_p, w_sh = _array(context, builder, w_ty, args[9])
+        g_p, _ = _array(context, builder, g_ty, args[10])
+        m_p, _ = _array(context, builder, m_ty, args[11])
+        r_p, _ = _array(context, builder, r_ty, args[12])
+        i64, i16 = ir.IntType(64), ir.IntType(16)
+        b16 = ir.VectorType(ir.IntType(1), LANES)
+        c64 = lambda v: ir.Constant(i64, v)
+        zero_v = _vconst([0.0] * LANES)
+        fx, fy = _lane_centres_ir(builder, x0_, y0_)
+        # loop state in allocas (promoted to registers by mem2reg)
+        s_T = cgutils.alloca_once(builder, _V16)
+        s_sum = cgutils.alloca_once(builder, _V16)
+        s_act = cgutils.alloca_once(builder, i16)
+        s_j = cgutils.alloca_once(builder, i64)
+        s_nu = cgutils.alloca_once(builder, i64)
+        s_last = cgutils.alloca_once(builder, i64)
+        builder.store(_vconst([1.0] * LANES), s_T)
+        builder.store(zero_v, s_sum)
+        builder.store(builder.trunc(live_, i16), s_act)
+        for slot in (s_j, s_nu, s_last):
+            builder.store(c64(0), slot)
+        fn = builder.function
+        head = fn.append_basic_block("cb_head")
+        body = fn.append_basic_block("cb_body")
+        done = fn.append_basic_block("cb_done")
+        builder.branch(head)
+        builder.position_at_end(head)
+        j = builder.load(s_j)
+        act16 = builder.load(s_act)
+        more = builder.and_(builder.icmp_signed("<", j, n_), builder.icmp_unsigned("!=", act16, ir.Constant(i16, 0)))
+        builder.cbranch(more, body, done)
+        builder.position_at_end(body)
+        slot_ix = builder.add(off_, j)
+        i = builder.sext(builder.load(builder.gep(id_p, [slot_ix])), i64)
+        row = builder.gep(pk_p, [builder.mul(i, pk_sh[1])])
+        alpha = _alpha_lanes(builder, fx, fy, row)[0]  # alpha32, operation for operation
+        amax = _vconst([ALPHA_MAX] * LANES)
+        a = builder.select(builder.fcmp_ordered("<", alpha, amax), alpha, amax)
+        # the 3DGS rule, all lanes at once
+        Tv = builder.load(s_T)
+        tt = builder.fmul(Tv, builder.fsub(_vconst([1.0] * LANES), a))
+        actv = builder.bitcast(act16, b16)
+        ok = builder.and_(actv, builder.fcmp_ordered(">=", a, _vconst([ALPHA_MIN] * LANES)))
+        keep = builder.fcmp_ordered(">=", tt, _vconst([T_MIN] * LANES))
+        use = builder.and_(ok, keep)
+        w = builder.select(use, builder.fmul(a, Tv), zero_v)
+        builder.store(builder.select(use, tt, Tv), s_T)
+        stop = builder.and_(ok, builder.not_(keep))
+        builder.store(builder.bitcast(builder.and_(actv, builder.not_(stop)), i16), s_act)
+        builder.store(builder.fadd(builder.load(s_sum), w), s_sum)
+        mask = builder.bitcast(use, i16)
+        builder.store(mask, builder.gep(m_p, [slot_ix]))
+        nu = builder.load(s_nu)
+        _vstore(builder, w, w_p, builder.mul(nu, w_sh[1]))
+        with builder.if_then(builder.icmp_unsigned("!=", mask, ir.Constant(i16, 0))):
+            builder.store(i, builder.gep(g_p, [nu]))
+            builder.store(builder.add(nu, c64(1)), s_nu)
+            builder.store(builder.add(j, c64(1)), s_last)
+        builder.store(builder.add(j, c64(1)), s_j)
+        builder.branch(head)
+        builder.position_at_end(done)
+        _vstore(builder, builder.load(s_T), t_p, c64(0))
+        _vstore(builder, builder.load(s_sum), s_p, c64(0))
+        builder.store(builder.load(s_last), builder.gep(r_p, [c64(0)]))
+        builder.store(builder.load(s_nu), builder.gep(r_p, [c64(1)]))
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+@intrinsic
 def backward_block(typingctx, pk, ids, masks, sl, el, nu, x0, y0, T, tf, ga, fgl, wl, buf_geo):
     """The backward's back-to-front walk of one block's used gaussians, lanes as vectors.
 
@@ -578,8 +566,8 @@ def backward_block(typingctx, pk, ids, masks, sl, el, nu, x0, y0, T, tf, ga, fgl
         fg_p, fg_sh = _array(context, builder, tys[11], args[11])
         w_p, w_sh = _array(context, builder, tys[12], args[12])
         bg_p, bg_sh = _array(context, builder, tys[13], args[13])
-        i64, i16 = ir.IntType(64), ir.IntType(16)
-        c64 = lambda v: ir.Constant(i64, v)  # noqa: E731
+        i64 = ir.IntType(64)
+        c64 = lambda v: ir.Constant(i64, v)
         b16 = ir.VectorType(ir.IntType(1), LANES)
         one_v = _vconst([1.0] * LANES)
         zero_v = _vconst([0.0] * LANES)
@@ -610,7 +598,7 @@ def backward_block(typingctx, pk, ids, masks, sl, el, nu, x0, y0, T, tf, ga, fgl
             _vstore(builder, wq, w_p, builder.mul(k, w_sh[1]))
             # a clamped alpha passes no gradient to opacity or geometry; unused lanes have ar = 0
             dp = builder.select(builder.fcmp_ordered("<=", ar, amax), builder.fmul(ar, d_a), zero_v)
-            sp = lambda x: _splat(builder, x)  # noqa: E731
+            sp = lambda x: _splat(builder, x)
             half = _vconst([-0.5] * LANES)
             sums = [
                 _hsum(builder, builder.fmul(dp, _fma(builder, sp(ca), dx, builder.fmul(sp(cb), dy)))),
