@@ -19,12 +19,18 @@ from trase.render import numba_kernels as nk
 TILE_CHUNK = 2
 
 
+SCRATCH_KEEP_MAX = 128 * 2**20  # bytes per buffer kept between calls (larger ones are not kept)
+
+
 class _Scratch(threading.local):
-    """Per-thread scratch buffers reused across backward calls (grown, never shrunk).
+    """Per-thread scratch buffers reused across backward calls (grown as needed; at most
+    SCRATCH_KEEP_MAX bytes each are kept, two buffers).
 
     Why: the backward's per-entry gradient buffers are ~10 MB at 20k gaussians; fresh ones
     cost thousands of page faults per call (a few ms of kernel time, measured with getrusage).
-    Only scratch that dies inside one call lives here, never anything returned or saved."""
+    Only scratch that dies inside one call lives here, never anything returned or saved.
+    Buffers above SCRATCH_KEEP_MAX are allocated per call instead (big scenes: the faults are
+    then small next to the work, and the memory is not held)."""
 
     def __init__(self):
         self.bufs: dict[str, np.ndarray] = {}
@@ -34,7 +40,10 @@ class _Scratch(threading.local):
         buf = self.bufs.get(name)
         if buf is None or buf.dtype != dtype or buf.size < n:
             buf = np.empty(max(n, 1), dtype)
-            self.bufs[name] = buf
+            if buf.nbytes <= SCRATCH_KEEP_MAX:
+                self.bufs[name] = buf
+            else:
+                self.bufs.pop(name, None)  # too big to hold between calls: used once
         return buf[:n].reshape(shape)
 
     def nbytes(self) -> int:
