@@ -6,7 +6,7 @@ import pytest
 
 import masks as masklib
 from benchmark.methods import FittedModel, MethodError, get_method
-from benchmark.methods.trase_method import TraseMethod
+from benchmark.methods.trase_method import CPU_FILTER_THRESHOLD, CPU_MIN_CLUSTER_SIZE, TraseMethod
 from benchmark.scoring import score_masks
 from tests.trase.helpers import exact_masks, tiny_scene
 from trase.prompts import make_benchmark_prompts
@@ -72,10 +72,21 @@ def test_missing_masks_is_a_user_error(tmp_path):
         method.fit(_Scene(views, views), gm, deform, tmp_path, cfg, tmp_path / "fit", progress=False)
 
 
-def test_filter_threshold_paper_values_capped_on_cpu():
+def test_filter_threshold_paper_values_one_value_on_cpu():
     m = TraseMethod()
     for thr in (0.4, 0.6, 0.9, 0.98):
         spec = _Spec(filter_threshold=thr)
         assert m.default_config(spec, preset="paper")["filter_threshold"] == thr
-        assert m.default_config(spec, preset="cpu")["filter_threshold"] == min(thr, 0.9)
+        assert m.default_config(spec, preset="cpu")["filter_threshold"] == CPU_FILTER_THRESHOLD == 0.8
+
+
+def test_cpu_preset_clustering_and_steps():
+    m = TraseMethod()
+    cpu, paper = m.default_config(_Spec(), preset="cpu"), m.default_config(_Spec(), preset="paper")
+    assert cpu["clustering"]["params"]["min_cluster_size"] == CPU_MIN_CLUSTER_SIZE == 25
+    assert paper["clustering"]["params"] == {"min_cluster_size": 10, "cluster_selection_epsilon": 0.01}
+    assert cpu["features"]["iterations"] == 3000 and paper["features"]["iterations"] == 10000
+    assert cpu["features"]["n_pixels"] == 300  # the spec's Np, below the cpu cap
+    assert m.default_config(_Spec(n_pixels=5000), preset="cpu")["features"]["n_pixels"] == 2000
+    assert m.default_config(_Spec(n_pixels=5000), preset="paper")["features"]["n_pixels"] == 5000
     assert m.default_config(_Spec(), preset="paper")["render_rule"] == "alone"  # the paper's rule
