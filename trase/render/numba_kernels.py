@@ -392,11 +392,6 @@ def alpha32(fx, fy, u, v, ca, cb, cc, o):
     return o * G if power <= F32(0.0) else F32(0.0)
 
 
-def _f32c(x):
-    """A float32 constant (the float32 rounding of x, as F32(x) gives in numba code)."""
-    return ir.Constant(ir.FloatType(), float(np.float32(x)))
-
-
 def _vconst(xs):
     return ir.Constant(_V16, [float(np.float32(x)) for x in xs])
 
