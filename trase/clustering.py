@@ -80,7 +80,18 @@ def _cluster_sample(x: np.ndarray, method: str, seed: int, params: dict) -> np.n
             cluster_selection_epsilon=float(params.get("cluster_selection_epsilon", 0.01)),
             copy=True,
         )
-        return hd.fit_predict(x).astype(np.int64)
+        try:
+            return hd.fit_predict(x).astype(np.int64)
+        except TypeError as exc:
+            # scikit-learn issue #33219: with NumPy 2 the epsilon merge (traverse_upwards) fails
+            # on condensed trees with tied distances; without epsilon the code path is not taken
+            if float(params.get("cluster_selection_epsilon", 0.01)) > 0 and "0-dimensional" in str(exc):
+                raise ClusteringError(
+                    "HDBSCAN with cluster_selection_epsilon > 0 failed inside scikit-learn (its issue "
+                    "#33219, tied distances under NumPy 2); set method.clustering.params."
+                    "cluster_selection_epsilon=0 or use another clustering method"
+                ) from None
+            raise
     if method == "dbscan":
         ms = int(params.get("min_samples", 10))
         if S < max(ms, 2) or distinct < 2:

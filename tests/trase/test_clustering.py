@@ -51,3 +51,19 @@ def test_filter_by_similarity():
     assert sim[0] > sim[2] and sim[4] == 0 and np.isfinite(sim).all()
     keep = filter_by_similarity(f, labels, 0.85)
     assert keep.tolist() == [True, True, False, True, False]
+
+
+def test_sklearn_epsilon_bug_becomes_a_one_line_error(monkeypatch):
+    """scikit-learn #33219 (epsilon merge on tied distances under NumPy 2) -> ClusteringError
+    telling the user which setting avoids it; other TypeErrors pass through unchanged."""
+    from sklearn import cluster as skc
+
+    def boom(self, x, y=None):
+        raise TypeError("only 0-dimensional arrays can be converted to Python scalars")
+
+    monkeypatch.setattr(skc.HDBSCAN, "fit_predict", boom)
+    x, _ = _blobs()
+    with pytest.raises(ClusteringError, match="cluster_selection_epsilon=0"):
+        cluster(x, method="hdbscan", fraction=1.0, min_sample=0, cluster_selection_epsilon=0.1)
+    with pytest.raises(TypeError, match="0-dimensional"):  # no epsilon: not that bug, re-raised
+        cluster(x, method="hdbscan", fraction=1.0, min_sample=0, cluster_selection_epsilon=0.0)
