@@ -98,20 +98,6 @@ def test_presets_and_schedule():
     assert np.isfinite(expon_lr(10**9, 1e-3, 1e-5, 100))
 
 
-def test_cpu_preset_schedule_follows_iterations():
-    base = ReconstructionConfig.cpu()
-    assert base.iterations == 3000 and base.position_lr_max_steps == 3000 and base.densify_until == 1500
-    short = ReconstructionConfig.cpu(iterations=2000)
-    # every schedule point scaled by 2/3: the decay ends with the run
-    assert (short.warm_up, short.position_lr_max_steps, short.deform_lr_max_steps) == (200, 2000, 2000)
-    assert (short.densify_until, short.time_noise_steps, short.sh_interval) == (1000, 1333, 667)
-    assert short.densify_interval == base.densify_interval and short.max_gaussians == base.max_gaussians
-    # an explicit schedule setting wins over the scaling
-    assert ReconstructionConfig.cpu(iterations=2000, warm_up=50).warm_up == 50
-    with pytest.raises(ValueError, match="iterations"):
-        ReconstructionConfig.cpu(iterations=0)
-
-
 def test_screen_grad_norm_recovers_pixel_gradient():
     from trase.camera import Camera, intrinsics, look_at
     from trase.reconstruct import _screen_grad_norm
