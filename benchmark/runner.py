@@ -118,8 +118,8 @@ def default_config(method, spec, variant: str, overrides: dict,
     if preset == "paper":
         train = ReconstructionConfig.paper(**sched)
     else:
-        # 2000 steps of the cpu preset's 3000-step schedule keep `make demo` short on two cores
-        # (see ReconstructionConfig.cpu). Training resolution: see cpu_train_downscale.
+        # 2000 steps of the cpu preset keep `make demo` short on two cores (see
+        # ReconstructionConfig.cpu). Training resolution: see cpu_train_downscale.
         train = ReconstructionConfig.cpu(image_downscale=cpu_train_downscale(image_size), iterations=2000)
     base = {
         "masks": {
