@@ -9,6 +9,7 @@ import pytest
 
 import masks as masklib
 from benchmark.methods import get_method
+from benchmark.methods.trase_method import CPU_FILTER_THRESHOLD
 from tests.trase.helpers import exact_masks, tiny_scene
 from trase.prompts import BenchmarkPrompts, Click, interior_points
 
@@ -23,8 +24,9 @@ def test_methods_are_registered_with_their_objective(name):
     assert cfg["features"]["objective"] == name
     if name in ("cgc", "opengaussian"):
         assert cfg["filter_threshold"] is None  # baseline's own selection, no TRASE filter
-    else:
-        assert cfg["filter_threshold"] == 0.5
+    else:  # the cpu preset's one filter for every dataset; the paper preset keeps the dataset's
+        assert cfg["filter_threshold"] == CPU_FILTER_THRESHOLD
+        assert method.default_config(SPEC, preset="paper")["filter_threshold"] == 0.5
     if name == "cgc":
         assert cfg["features"]["objective_params"]["min_mask_pixels"] == "auto"
         assert cfg["cgc"] == {"threshold": 0.7, "patch": 5}
@@ -49,6 +51,9 @@ def _small(cfg):
         dim=8, iterations=60, n_pixels=300, n_masks=3, knn=4, knn_keep=2, lr=0.02
     )
     cfg["clustering"].update(method="kmeans", params={"n_clusters": 2})
+    if cfg.get("filter_threshold") is not None:
+        # the cpu preset's 0.8 assumes its 3000-step features; these train 60 steps
+        cfg["filter_threshold"] = SPEC.filter_threshold
     return cfg
 
 
