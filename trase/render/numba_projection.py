@@ -38,6 +38,12 @@ def _rotmat(qw, qx, qy, qz, R):
 
 
 @njit(inline="always")
+def _work_arrays():
+    """Per-gaussian scratch filled by _setup: T (2x3), Sig, M, R (3x3)."""
+    return np.empty((2, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
+
+
+@njit(inline="always")
 def _setup(n, means, quats, scales, Rw, tw, near, fx, fy, cx, cy, skew, xlo, xhi, ylo, yhi, T, Sig, M, R):
     """Shared forward algebra for gaussian n: fills T (2x3), Sig, M, R (3x3); returns
     (p0, p1, z, in_front, xn, yn, xc, yc, qnorm, qw, qx, qy, qz)."""
@@ -91,10 +97,7 @@ def project_forward(means, quats, scales, Rw, tw, near, fx, fy, cx, cy, skew, xl
     """means/quats/scales float64 -> means2d [N, 2], conics [N, 3], depths [N], ok [N] bool,
     lam_out [N] largest eigenvalue of the dilated 2D covariance (for the screen radius)."""
     for n in prange(means.shape[0]):
-        T = np.empty((2, 3))
-        Sig = np.empty((3, 3))
-        M = np.empty((3, 3))
-        R = np.empty((3, 3))
+        T, Sig, M, R = _work_arrays()
         p0, p1, z, in_front, xn, yn, _xc, _yc, _qn, _qw, _qx, _qy, _qz = _setup(
             n, means, quats, scales, Rw, tw, near, fx, fy, cx, cy, skew, xlo, xhi, ylo, yhi, T, Sig, M, R)
         c00, c01, c11 = _cov2d(T, Sig)
@@ -127,10 +130,7 @@ def project_backward(means, quats, scales, Rw, tw, near, fx, fy, cx, cy, skew, x
                      ok_in, g_m2d, g_con, g_dep, d_means, d_quats, d_scales):
     """Gradients of means2d / conics / depths -> d_means [N, 3], d_quats [N, 4], d_scales [N, 3]."""
     for n in prange(means.shape[0]):
-        T = np.empty((2, 3))
-        Sig = np.empty((3, 3))
-        M = np.empty((3, 3))
-        R = np.empty((3, 3))
+        T, Sig, M, R = _work_arrays()
         p0, p1, z, in_front, xn, yn, xc, yc, qnorm, qw, qx, qy, qz = _setup(
             n, means, quats, scales, Rw, tw, near, fx, fy, cx, cy, skew, xlo, xhi, ylo, yhi, T, Sig, M, R)
         dp0 = 0.0
