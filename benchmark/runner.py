@@ -380,8 +380,9 @@ def run_sequence(opts: RunOptions, sequence: str | None, reporter: Reporter, ind
                         f"(expected gt_masks/ in the scene or {spec.display_name}/{seq}/gt_masks under the data root)")
     method = get_method(opts.method)
     overrides = parse_overrides(opts.overrides)
-    cam = (scene.test or scene.train)[0].camera
-    cfg = default_config(method, spec, variant, overrides, (cam.width, cam.height))
+    views = scene.test or scene.train
+    size = (views[0].camera.width, views[0].camera.height) if views else None
+    cfg = default_config(method, spec, variant, overrides, size)
     cache = StageCache(opts.cache_root)
     scene_key = scene_fingerprint(scene)
     gt_key = sha256_files(list(scene.gt_masks))[:16]
