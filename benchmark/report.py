@@ -127,6 +127,10 @@ def make_report(run_dir: str | Path) -> Path:
         o = record["oracle"]
         notes.append(f"Oracle cluster selection (upper bound, not the method's score): "
                      f"mIoU {fmt(o.get('miou'))}, mAcc {fmt(o.get('macc'))}.")
+    if record.get("ceiling"):
+        c = record["ceiling"]
+        notes.append(f"Geometry ceiling (every gaussian labelled from the training views' instance maps, "
+                     f"same rendering rule; what this geometry allows): mIoU {fmt(c.get('miou'))}.")
     page = f"""<!doctype html><html><head><meta charset="utf-8"><title>{html.escape(title)}</title>
 <style>body{{font-family:sans-serif;max-width:1100px;margin:auto}}figure{{display:inline-block;margin:4px}}
 figure img{{display:block;max-width:260px}}table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:2px 8px}}

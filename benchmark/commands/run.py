@@ -43,5 +43,6 @@ def run(method, dataset, sequences, data_root, out_dir, cache_dir, overrides, jo
         m = r["metrics"]
         fmt = lambda x: "n/a" if x is None else f"{x:.4f}"  # noqa: E731
         oracle = r.get("oracle") or {}
+        ceiling = f", geometry ceiling {fmt(r['ceiling'].get('miou'))}" if r.get("ceiling") else ""
         click.echo(f"{r['method']} {r['dataset']}/{r['sequence']} ({r['variant']}): mIoU {fmt(m['miou'])} "
-                   f"mAcc {fmt(m['macc'])}  [oracle mIoU {fmt(oracle.get('miou'))}]  -> {path}")
+                   f"mAcc {fmt(m['macc'])}  [oracle mIoU {fmt(oracle.get('miou'))}{ceiling}]  -> {path}")

@@ -47,6 +47,10 @@ def test_pipeline_end_to_end(data_root, tmp_path, capsys):
     assert r["seeds"]["features"] == 0 and len(r["checksums"]["pred"]) == 16
     assert r["prompts"]["points"]
     assert (path.parent / "pred" / "00000.png").exists()
+    # synthetic scene: the geometry's ceiling (truth-labelled gaussians) is reported beside the score;
+    # with the ground-truth geometry it is near perfect
+    assert r["ceiling"]["rule"] == r["config"]["method"]["render_rule"]
+    assert r["ceiling"]["n_selected"] > 0 and r["ceiling"]["miou"] > 0.85
 
     # a second method on the same scene reuses masks and geometry
     assert _run(data_root, out, method="trase-hard") == 0

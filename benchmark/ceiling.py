@@ -1,0 +1,119 @@
+"""Label ceiling of a geometry on a synthetic scene: what *perfect per-gaussian labels* score.
+
+Why: a method's mIoU mixes two errors, the geometry's (blurred, semi-transparent or misplaced
+gaussians) and the segmentation's (wrong clusters, wrong prompts). On the built-in synthetic
+scenes every training view has an exact instance map, so each gaussian can be given the
+object it shows most: its compositing weights summed per instance id over all training views
+(rendering is linear in the features, so the gradient of sum_p onehot(id_p) . f(p) with
+respect to per-gaussian features is exactly these votes [N, K]). The gaussians whose largest
+vote is an object of interest, rendered with the method's rule and threshold, give the
+ceiling: a segmentation of this geometry cannot be expected to beat it. The cluster-level
+"oracle" asks the same of the method's own clusters.
+
+Only synthetic scenes have instance maps; real data gets no ceiling.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from benchmark.errors import UserError
+
+
+class CeilingError(UserError):
+    user_facing = True
+
+
+def read_instance_map(path: Path) -> np.ndarray:
+    """[H, W] int64 instance ids from a uint16 PNG."""
+    import cv2
+
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise CeilingError(f"{path}: instance map missing or unreadable")
+    if img.ndim != 2:
+        raise CeilingError(f"{path}: instance map must be one channel, got shape {img.shape}")
+    return img.astype(np.int64)
+
+
+def instance_votes(gaussians, deformation, cameras: Sequence, instance_maps: Sequence[np.ndarray],
+                   n_ids: int) -> np.ndarray:
+    """[N, n_ids] float64: per gaussian, its compositing weight summed over the pixels of each
+    instance id, over all (camera, instance map) pairs. Ids >= n_ids are ignored."""
+    from trase.prompts import geometry_at
+    from trase.render import rasterize
+
+    n = gaussians.num_gaussians
+    votes = np.zeros((n, n_ids), np.float64)
+    if n == 0:
+        return votes
+    for cam, ids in zip(cameras, instance_maps):
+        if ids.shape != (cam.height, cam.width):
+            raise CeilingError(f"instance map of view {cam.name!r} is {ids.shape[1]}x{ids.shape[0]} but the "
+                               f"camera renders {cam.width}x{cam.height} (WxH)")
+        m, q, s, o = geometry_at(gaussians, deformation, cam.time)
+        f = torch.zeros(n, n_ids, dtype=m.dtype, requires_grad=True)
+        with torch.enable_grad():
+            out = rasterize(m, q, s, o, cam, features=f)
+            ids_t = torch.from_numpy(ids)
+            inside = ids_t < n_ids
+            onehot = torch.zeros(ids.shape + (n_ids,), dtype=m.dtype)
+            onehot[inside] = torch.nn.functional.one_hot(ids_t[inside], n_ids).to(m.dtype)
+            (out.features * onehot).sum().backward()
+        votes += f.grad.double().numpy()
+    return votes
+
+
+def truth_selection(votes: np.ndarray, object_ids: Sequence[int]) -> np.ndarray:
+    """[N] bool: gaussians seen at all whose largest vote is one of ``object_ids``."""
+    if votes.shape[0] == 0:
+        return np.zeros(0, bool)
+    seen = votes.sum(1) > 0
+    return seen & np.isin(votes.argmax(1), np.asarray(list(object_ids), dtype=np.int64))
+
+
+def synthetic_truth(scene) -> tuple[list[int], dict[str, Path], int]:
+    """(ids of the objects of interest, instance map path per view name, number of ids) of a
+    synthetic scene, from its manifest."""
+    from benchmark.runner import synthetic_manifest
+
+    path, man = synthetic_manifest(scene)
+    try:
+        objects = man["objects"]
+        wanted = set(man["objects_of_interest"])
+        ids = [int(o["id"]) for o in objects if o["name"] in wanted]
+        maps = {str(k): path.parent / v for k, v in man["instances"].items()}
+        n_ids = max([int(o["id"]) for o in objects] + [0]) + 1
+    except (KeyError, TypeError, ValueError) as exc:
+        raise CeilingError(f"{path}: synthetic manifest lacks objects/instances ({exc})") from None
+    if not ids:
+        raise CeilingError(f"{path}: no objects of interest in the synthetic manifest")
+    return ids, maps, n_ids
+
+
+def label_ceiling(gaussians, deformation, scene, gts: Sequence[np.ndarray], rule: str = "alone",
+                  threshold: float = 0.5, maps: Mapping[str, Path] | None = None):
+    """-> (ScoreResult "v1" of the truth-labelled gaussians on the test views, info dict)."""
+    from benchmark.scoring import score_masks
+    from trase.segment import render_masks
+
+    ids, paths, n_ids = synthetic_truth(scene)
+    paths = dict(maps) if maps is not None else paths
+    views = [v for v in scene.train if v.name in paths]
+    if not views:
+        raise CeilingError(f"{scene.root}: no training view has an instance map; no ceiling")
+    votes = instance_votes(gaussians, deformation, [v.camera for v in views],
+                           [read_instance_map(paths[v.name]) for v in views], n_ids)
+    sel = truth_selection(votes, ids)
+    preds = render_masks(gaussians, deformation, sel, [v.camera for v in scene.test], threshold, rule)
+    names = [f"{i:05d}" for i in range(len(scene.test))]
+    score = score_masks(dict(zip(names, preds)), dict(zip(names, gts)), "v1")
+    return score, {"n_selected": int(sel.sum()), "n_views": len(views), "rule": rule}
+
+
+__all__ = ["CeilingError", "instance_votes", "label_ceiling", "read_instance_map", "synthetic_truth",
+           "truth_selection"]

@@ -1,0 +1,60 @@
+"""The geometry's label ceiling: instance votes are compositing weights, and they recover objects."""
+
+import numpy as np
+import pytest
+import torch
+
+from benchmark.ceiling import CeilingError, instance_votes, truth_selection
+from tests.trase.helpers import exact_masks, tiny_scene
+from trase.deformation import deformed
+from trase.render import rasterize
+
+
+def _instance_map(gm, deform, ids, view) -> np.ndarray:
+    """0 = background, object k -> id k + 1 (as the synthetic generator's maps)."""
+    ms = exact_masks(gm, deform, ids, view)
+    out = np.zeros(ms.masks.shape[1:], np.int64)
+    for k, m in enumerate(ms.masks):
+        out[m] = k + 1
+    return out
+
+
+def test_votes_are_summed_compositing_weights():
+    gm, deform, ids, views = tiny_scene(n_per=20)
+    cam = views[1].camera
+    everywhere_one = np.ones((cam.height, cam.width), np.int64)
+    votes = instance_votes(gm, deform, [cam], [everywhere_one], 3)
+    with torch.no_grad():
+        m, q, s = deformed(gm, deform, cam.time)
+        n = gm.num_gaussians
+        per_gaussian = rasterize(m, q, s, gm.opacities, cam, features=torch.eye(n)).features.sum((0, 1))
+    assert votes.shape == (n, 3)
+    assert np.abs(votes[:, [0, 2]]).max() == 0.0
+    np.testing.assert_allclose(votes[:, 1], per_gaussian.double().numpy(), rtol=1e-4, atol=1e-5)
+    assert votes[:, 1].sum() > 1.0  # something is seen
+
+
+def test_votes_recover_the_objects():
+    gm, deform, ids, views = tiny_scene()
+    maps = [_instance_map(gm, deform, ids, v) for v in views]
+    votes = instance_votes(gm, deform, [v.camera for v in views], maps, 3)
+    seen = votes.sum(1) > 0
+    assert seen.mean() > 0.9
+    agree = (votes[seen].argmax(1) - 1) == ids[seen]
+    assert agree.mean() > 0.95
+    sel = truth_selection(votes, [1])
+    assert sel.sum() > 0 and (ids[sel] == 0).mean() > 0.95
+
+
+def test_truth_selection_skips_unseen_gaussians():
+    votes = np.array([[0.0, 0.0, 0.0], [0.1, 2.0, 0.0], [0.0, 0.3, 0.5], [0.0, 0.0, 0.0]])
+    assert truth_selection(votes, [1]).tolist() == [False, True, False, False]
+    assert truth_selection(votes, [1, 2]).tolist() == [False, True, True, False]
+    assert truth_selection(np.zeros((0, 3)), [1]).shape == (0,)
+
+
+def test_instance_map_of_wrong_size_names_the_view():
+    gm, deform, ids, views = tiny_scene(n_per=5)
+    cam = views[0].camera
+    with pytest.raises(CeilingError, match="cam/00.*WxH"):
+        instance_votes(gm, deform, [cam], [np.zeros((cam.height + 1, cam.width), np.int64)], 2)
