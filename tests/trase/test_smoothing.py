@@ -21,7 +21,10 @@ def test_smooth_is_mean_of_normalised_neighbours():
     knn = torch.tensor([[0, 1], [1, 0], [2, 0]])
     out = smooth_features(f, knn, n_keep=None)
     torch.testing.assert_close(out, torch.tensor([[0.5, 0.5], [0.5, 0.5], [0.5, 0.0]]))
-    assert torch.equal(smooth_features(f, torch.zeros(3, 0, dtype=torch.long)), f)
+    # K = 0: no neighbours, each feature only normalised (= K = 1); zero stays zero
+    none = smooth_features(f, torch.zeros(3, 0, dtype=torch.long))
+    torch.testing.assert_close(none, torch.tensor([[1.0, 0.0], [0.0, 1.0], [0.0, 0.0]]))
+    torch.testing.assert_close(none, smooth_features(f, torch.arange(3)[:, None], n_keep=None))
 
 
 def test_dropout_uses_shared_slots_and_is_seeded():
