@@ -448,7 +448,8 @@ def run_sequence(opts: RunOptions, sequence: str | None, reporter: Reporter, ind
         "ceiling": ({k: ev["ceiling"].to_dict()[k] for k in ("miou", "macc", "pooled_iou")}
                     | ev["ceiling_info"]
                     | {"note": "geometry's ceiling: every gaussian labelled by the object it shows most in "
-                               "the training views' instance maps (synthetic scenes only); not the method's score"})
+                               "the training views' instance maps (synthetic scenes only); an estimate, not a strict "
+                               "bound; not the method's score"})
         if "ceiling" in ev else None,
         "stages": {name: r.to_dict() for name, r in recs.items()},
         "n_gaussians": int(fitted.features.shape[0]),
