@@ -82,7 +82,13 @@ class TraseMethod(Method):
                            "params": {"min_cluster_size": CPU_MIN_CLUSTER_SIZE if preset == "cpu" else 10,
                                       "cluster_selection_epsilon": 0.01}},
             "filter_threshold": _filter_threshold(float(dataset_spec.filter_threshold), preset),
-            "prompts": {"min_alpha": 0.5},
+            # click rule: "weight" = the cluster rendered most under the cursor (3x3 window);
+            # "depth" = the paper's depth -> 3D -> nearest gaussian (trase.prompts.click_to_cluster).
+            # The benchmark's automatic clicks stand in for the paper's manual ones, which a
+            # person corrects on sight; on semi-transparent CPU geometry "depth" chose the
+            # background for an object click (synthetic NeRF-DS / Immersive: mIoU 0.10 with
+            # oracles 0.56 / 0.77); on ground-truth geometry the two choose the same clusters.
+            "prompts": {"min_alpha": 0.5, "click_rule": "weight", "click_radius": 1},
             "alpha_threshold": 0.5,
             # "alone": the paper's rule (selected gaussians rendered without the rest);
             # "visible": their weight in the full render (occluded parts excluded), see trase.segment
@@ -163,10 +169,13 @@ class TraseMethod(Method):
         from trase.prompts import click_to_cluster
 
         view = _find_view(scene, prompts)
-        min_alpha = float(fitted.config.get("prompts", {}).get("min_alpha", 0.5))
+        pcfg = fitted.config.get("prompts", {})
+        min_alpha = float(pcfg.get("min_alpha", 0.5))
+        rule, radius = str(pcfg.get("click_rule", "depth")), int(pcfg.get("click_radius", 1))
         chosen = set()
         for c in prompts.clicks:
-            k = click_to_cluster(fitted.gaussians, fitted.deformation, view.camera, c, fitted.labels, min_alpha)
+            k = click_to_cluster(fitted.gaussians, fitted.deformation, view.camera, c, fitted.labels, min_alpha,
+                                 rule, radius)
             if k >= 0:
                 chosen.add(k)
         return sorted(chosen)

@@ -39,6 +39,7 @@ def test_click_and_mask_prompt_find_object():
         labels = ids  # perfect clustering: cluster = object id
         (u, v), = interior_points(obj, 1)[:1]
         assert click_to_cluster(gm, deform, cam, Click(u, v), labels) == k
+        assert click_to_cluster(gm, deform, cam, Click(u, v), labels, rule="weight") == k
         assert mask_to_clusters(gm, deform, cam, obj, labels) == [k]
     # a click on empty background hits nothing
     alpha = object_alpha(gm, deform, ids, cam, 0) + object_alpha(gm, deform, ids, cam, 1)
@@ -101,3 +102,45 @@ def test_render_rule_visible_drops_occluded_parts():
     assert not render_masks(gm, deform, select_gaussians(ids, []), [cam], rule="visible")[0].any()
     with pytest.raises(SegmentError, match="unknown segmentation rule 'x'"):
         render_masks(gm, deform, sel, [cam], rule="x")
+
+
+def _semi_transparent_front():
+    """A semi-transparent front sheet (cluster 0) at depth 2 before an opaque back sheet
+    (cluster 1) at depth 6, plus one faint cluster-1 floater on the optical axis at depth 3.5,
+    near the expected depth there (weights ~0.6 / 0.4: 0.6 * 2 + 0.4 * 6 ~ 3.6), as
+    reconstructions leave between surfaces."""
+    import torch
+
+    from trase.camera import Camera, intrinsics, look_at
+    from trase.gaussians import GaussianModel, inverse_sigmoid
+
+    g = np.mgrid[-1:1.01:0.25, -1:1.01:0.25].reshape(2, -1).T  # [81, 2] grid in x, z
+    front = np.c_[g[:, 0], np.full(len(g), -2.0), g[:, 1]]
+    back = np.c_[g[:, 0] * 3, np.full(len(g), 2.0), g[:, 1] * 3]
+    means = np.vstack([front, back, [[0.0, -0.5, 0.0]]])
+    n = len(means)
+    labels = np.r_[np.zeros(len(g)), np.ones(len(g)), [1]].astype(np.int64)
+    scales = np.r_[np.full(len(g), 0.2), np.full(len(g), 0.6), [0.05]]
+    opac = np.r_[np.full(len(g), 0.2), np.full(len(g), 0.99), [0.02]]
+    gm = GaussianModel(torch.tensor(means, dtype=torch.float32),
+                       torch.log(torch.tensor(scales, dtype=torch.float32))[:, None].repeat(1, 3),
+                       torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
+                       inverse_sigmoid(torch.tensor(opac, dtype=torch.float32)),
+                       torch.rand(n, 1, 3))
+    cam = Camera(intrinsics(20, 20, 16, 12), look_at([0.0, -4.0, 0.0], [0, 0, 0]), 32, 24, name="c")
+    return gm, labels, cam
+
+
+def test_weight_click_picks_what_is_rendered_under_the_cursor():
+    gm, labels, cam = _semi_transparent_front()
+    click = Click(16.0, 12.0)  # the optical axis
+    assert click_to_cluster(gm, None, cam, click, labels, rule="depth") == 1  # lands on the floater
+    assert click_to_cluster(gm, None, cam, click, labels, rule="weight") == 0
+    assert click_to_cluster(gm, None, cam, click, labels, rule="weight", radius=0) == 0
+    # off the image or on an empty scene: nothing; a bad rule or radius: a clear error
+    assert click_to_cluster(gm, None, cam, Click(-1.0, 3.0), labels, rule="weight") == -1
+    assert click_to_cluster(gm, None, cam, Click(1.0, 1.0), labels, rule="weight", min_alpha=1.01) == -1
+    with pytest.raises(PromptError, match="unknown click rule 'x'"):
+        click_to_cluster(gm, None, cam, click, labels, rule="x")
+    with pytest.raises(PromptError, match="radius must be >= 0"):
+        click_to_cluster(gm, None, cam, click, labels, rule="weight", radius=-1)
