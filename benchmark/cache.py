@@ -6,9 +6,10 @@ only when the stage function returns, so a killed run never leaves a directory t
 finished. A partial directory is kept on failure: stages that checkpoint (reconstruction)
 resume from what it holds; others simply overwrite their files.
 
-Keys hash the stage name, the stage's own config and the keys of its inputs, so a change
-anywhere upstream gives every downstream stage a new key, and another method run on the same
-scene finds the shared upstream stages (masks, reconstruction) already done.
+Keys hash the stage name, the stage's own config, the keys of its inputs and the stage's code
+version (``STAGE_VERSIONS``), so a change anywhere upstream gives every downstream stage a new
+key, and another method run on the same scene finds the shared upstream stages (masks,
+reconstruction) already done.
 """
 
 from __future__ import annotations
@@ -26,6 +27,13 @@ from typing import Callable
 from benchmark.io import atomic_write_json, read_json
 
 STAGE_FILE = "_stage.json"
+
+# Keys hash configs, not code. When a stage's code changes what it writes for the same config,
+# bump its version here so outputs of the older code are not reused. Version 1 adds nothing
+# to the key (caches of never-bumped stages stay valid).
+STAGE_VERSIONS: dict[str, int] = {
+    "features": 2,  # 2: smoothing with K=0 normalises features (raw features before)
+}
 
 
 def config_hash(obj) -> str:
@@ -59,7 +67,11 @@ class StageCache:
         self.root = Path(root)
 
     def key(self, stage: str, config: dict, inputs: dict[str, str] | None = None) -> str:
-        return config_hash({"stage": stage, "config": config, "inputs": inputs or {}})
+        payload = {"stage": stage, "config": config, "inputs": inputs or {}}
+        version = STAGE_VERSIONS.get(stage, 1)
+        if version != 1:
+            payload["code_version"] = version
+        return config_hash(payload)
 
     def path(self, stage: str, key: str) -> Path:
         return self.root / stage / key

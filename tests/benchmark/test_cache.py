@@ -79,3 +79,17 @@ def test_read_json_errors_name_the_file(tmp_path):
     atomic_write_json(p, {"a": 1})
     assert json.loads(p.read_text()) == {"a": 1}
 
+
+
+def test_code_version_bump_gives_a_new_key(tmp_path, monkeypatch):
+    import benchmark.cache as cache_mod
+
+    cache = StageCache(tmp_path)
+    cfg, inputs = {"knn": 0}, {"masks": "m"}
+    monkeypatch.setattr(cache_mod, "STAGE_VERSIONS", {})
+    v1 = cache.key("features", cfg, inputs)
+    assert v1 == config_hash({"stage": "features", "config": cfg, "inputs": inputs})  # version 1: key unchanged
+    monkeypatch.setattr(cache_mod, "STAGE_VERSIONS", {"features": 2})
+    v2 = cache.key("features", cfg, inputs)
+    assert v2 != v1
+    assert cache.key("masks", cfg, inputs) == config_hash({"stage": "masks", "config": cfg, "inputs": inputs})
