@@ -17,7 +17,7 @@ Only synthetic scenes have instance maps; real data gets no ceiling.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -98,13 +98,12 @@ def synthetic_truth(scene) -> tuple[list[int], dict[str, Path], int]:
 
 
 def label_ceiling(gaussians, deformation, scene, gts: Sequence[np.ndarray], rule: str = "alone",
-                  threshold: float = 0.5, maps: Mapping[str, Path] | None = None):
+                  threshold: float = 0.5):
     """-> (ScoreResult "v1" of the truth-labelled gaussians on the test views, info dict)."""
     from benchmark.scoring import score_masks
     from trase.segment import render_masks
 
     ids, paths, n_ids = synthetic_truth(scene)
-    paths = dict(maps) if maps is not None else paths
     views = [v for v in scene.train if v.name in paths]
     if not views:
         raise CeilingError(f"{scene.root}: no training view has an instance map; no ceiling")

@@ -119,11 +119,11 @@ def _cluster_under_cursor(gaussians, deformation, camera: Camera, u: float, v: f
     """The cluster with the largest summed compositing weight over the window of pixels
     around (u, v); -1 off the image, on an empty scene, or where the click pixel's alpha is
     below min_alpha. Ties: the lowest cluster id."""
+    if radius < 0:
+        raise PromptError(f"click window radius must be >= 0, got {radius}")
     W, H = camera.width, camera.height
     if not (0 <= u < W and 0 <= v < H) or gaussians.num_gaussians == 0:
         return -1
-    if radius < 0:
-        raise PromptError(f"click window radius must be >= 0, got {radius}")
     col, row = int(np.floor(u)), int(np.floor(v))
     rows = np.arange(max(row - radius, 0), min(row + radius, H - 1) + 1)
     cols = np.arange(max(col - radius, 0), min(col + radius, W - 1) + 1)

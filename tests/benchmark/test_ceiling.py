@@ -20,7 +20,7 @@ def _instance_map(gm, deform, ids, view) -> np.ndarray:
 
 
 def test_votes_are_summed_compositing_weights():
-    gm, deform, ids, views = tiny_scene(n_per=20)
+    gm, deform, _, views = tiny_scene(n_per=20)
     cam = views[1].camera
     everywhere_one = np.ones((cam.height, cam.width), np.int64)
     votes = instance_votes(gm, deform, [cam], [everywhere_one], 3)
@@ -54,7 +54,7 @@ def test_truth_selection_skips_unseen_gaussians():
 
 
 def test_instance_map_of_wrong_size_names_the_view():
-    gm, deform, ids, views = tiny_scene(n_per=5)
+    gm, deform, _, views = tiny_scene(n_per=5)
     cam = views[0].camera
     with pytest.raises(CeilingError, match="cam/00.*WxH"):
         instance_votes(gm, deform, [cam], [np.zeros((cam.height + 1, cam.width), np.int64)], 2)
