@@ -24,22 +24,11 @@ import numpy as np
 import torch
 
 from benchmark.errors import UserError
+from masks.generate import read_instance_map  # [H, W] int64 ids; one-line error naming the file
 
 
 class CeilingError(UserError):
     user_facing = True
-
-
-def read_instance_map(path: Path) -> np.ndarray:
-    """[H, W] int64 instance ids from a uint16 PNG."""
-    import cv2
-
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise CeilingError(f"{path}: instance map missing or unreadable")
-    if img.ndim != 2:
-        raise CeilingError(f"{path}: instance map must be one channel, got shape {img.shape}")
-    return img.astype(np.int64)
 
 
 def instance_votes(gaussians, deformation, cameras: Sequence, instance_maps: Sequence[np.ndarray],
@@ -116,5 +105,4 @@ def label_ceiling(gaussians, deformation, scene, gts: Sequence[np.ndarray], rule
     return score, {"n_selected": int(sel.sum()), "n_views": len(views), "rule": rule}
 
 
-__all__ = ["CeilingError", "instance_votes", "label_ceiling", "read_instance_map", "synthetic_truth",
-           "truth_selection"]
+__all__ = ["CeilingError", "instance_votes", "label_ceiling", "synthetic_truth", "truth_selection"]
