@@ -90,8 +90,8 @@ def cpu_train_downscale(image_size: tuple[int, int] | None) -> float:
     `trase-bench perf reconstruct`, 2000 iterations: 18.6 dB test PSNR at full resolution when
     trained at half, 24.7 dB when trained at full (3000-step LR decay), in 125 s vs 135 s: an
     iteration costs nearly the same at this size, the deformation MLP over the gaussians
-    dominating). Real images (960x536 and
-    up) are still reduced, where per-pixel work dominates.
+    dominating). Real images (960x536 and up) are still reduced, where per-pixel work
+    dominates.
     """
     if not image_size:
         return 1.0

@@ -4,8 +4,9 @@ Trains the runner's CPU geometry preset (the exact settings `trase-bench run` us
 scene) under a wall-clock budget (default 180 s), once per training resolution, saving a
 checkpoint every few hundred iterations; then renders every checkpoint at the test views and
 prints test PSNR against the time at which the checkpoint was written (setup and image loading
-included), at full benchmark resolution and at the training resolution. Threads as in the runner: torch on 1 thread (reconstruct's default),
-numba compositing on all cores (or ``trase-bench perf --threads N``).
+included), at full benchmark resolution and at the training resolution. Threads as in the
+runner: torch on 1 thread (reconstruct's default), numba compositing on all cores (or
+``trase-bench perf --threads N``).
 """
 
 from __future__ import annotations

@@ -98,6 +98,17 @@ def test_presets_and_schedule():
     assert np.isfinite(expon_lr(10**9, 1e-3, 1e-5, 100))
 
 
+def test_cpu_preset_keeps_the_long_lr_decay_for_any_run_length():
+    base = ReconstructionConfig.cpu()
+    assert base.iterations == 3000 and base.densify_until == 1500 and base.warm_up == 300
+    short = ReconstructionConfig.cpu(iterations=2000)
+    # the runner's 2000 steps: learning rates still decay over 20000 steps (annealing inside a
+    # short run cost 1.2-1.7 dB), the densification/warm-up points are not rescaled
+    assert (short.position_lr_max_steps, short.deform_lr_max_steps) == (20_000, 20_000)
+    assert (short.warm_up, short.densify_until, short.time_noise_steps) == (300, 1500, 2000)
+    assert ReconstructionConfig.cpu(iterations=2000, position_lr_max_steps=2000).position_lr_max_steps == 2000
+
+
 def test_screen_grad_norm_recovers_pixel_gradient():
     from trase.camera import Camera, intrinsics, look_at
     from trase.reconstruct import _screen_grad_norm
