@@ -58,6 +58,9 @@ def test_pipeline_end_to_end(data_root, tmp_path, capsys):
     assert r2["stages"]["masks"]["skipped"] and r2["stages"]["geometry"]["skipped"]
     assert not r2["stages"]["features"]["skipped"] and not r2["stages"]["fit"]["skipped"]
     assert r2["stages"]["masks"]["key"] == r["stages"]["masks"]["key"]
+    # the geometry's ceiling is computed once per geometry and rule, then reused
+    assert r2["ceiling"]["miou"] == r["ceiling"]["miou"]
+    assert len(list((out / ".cache" / "ceiling").iterdir())) == 1
 
     # a rerun reuses everything and gives identical metrics (determinism)
     assert _run(data_root, out) == 0
