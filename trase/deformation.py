@@ -282,3 +282,32 @@ def deformed(gaussians, deformation, t: float, detach_xyz_input: bool = True):
     xyz_in = means.detach() if detach_xyz_input else means
     d_xyz, d_rot, d_scale = deformation(xyz_in, t)
     return means + d_xyz, quats + d_rot, torch.clamp(scales + d_scale, min=MIN_SCALE)
+
+
+def deformed_visible(gaussians, deformation, t: float, visible):
+    """``deformed`` where only the ``visible`` gaussians' offsets carry gradients.
+
+    ``visible``: a callable (means [N, 3], quats [N, 4], scales [N, 3], all detached) -> bool
+    mask [N] of the gaussians that can reach the image (e.g. the projection's radii > 0).
+    The network runs once without autograd over every gaussian, then again with autograd
+    over the visible rows only, whose offsets replace the first ones. The returned tensors
+    equal ``deformed``'s up to rounding (a matrix product may round a row differently in a
+    smaller batch), and so do all gradients: an invisible gaussian adds nothing to the image,
+    so its offsets' gradients are zero either way. Why: in training, the network's backward
+    over every gaussian is most of a CPU step, and a camera sees a fraction of the scene.
+    """
+    means, quats, scales = gaussians.means, gaussians.rotations, gaussians.scales
+    if deformation is None:
+        return means, quats, scales
+    xyz = means.detach()
+    with torch.no_grad():
+        d_xyz, d_rot, d_scale = deformation(xyz, t)
+        mask = visible(xyz + d_xyz, quats.detach() + d_rot, torch.clamp(scales.detach() + d_scale, min=MIN_SCALE))
+    idx = torch.nonzero(torch.as_tensor(mask, dtype=torch.bool).reshape(-1)).reshape(-1)  # [V]
+    if idx.numel() > 0 and torch.is_grad_enabled():
+        v_xyz, v_rot, v_scale = deformation(xyz[idx], t)  # [V, 3], [V, 4], [V, 3]
+        d_xyz = d_xyz.index_copy(0, idx, v_xyz)
+        d_rot = d_rot.index_copy(0, idx, v_rot)
+        d_scale = d_scale.index_copy(0, idx, v_scale)
+    return means + d_xyz, quats + d_rot, torch.clamp(scales + d_scale, min=MIN_SCALE)
+

@@ -20,6 +20,7 @@ Deviations from the public trainer (documented because they change numbers sligh
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import time
 from collections.abc import Iterable, Sequence
@@ -37,7 +38,7 @@ from trase.checkpoint import (
     load_model,
     save_model,
 )
-from trase.deformation import DeformMLP, deformed
+from trase.deformation import DeformMLP, deformed, deformed_visible
 from trase.gaussians import GaussianModel
 from trase.losses import l1_loss, psnr, ssim
 
@@ -76,6 +77,11 @@ class ReconstructionConfig:
     sh_interval: int = 1_000  # one more SH band every this many iterations
     lambda_dssim: float = 0.2
     white_background: bool = False
+    # solid surfaces: weight of the mean binary entropy of the opacities (0 = off, the public
+    # code), added to the loss from iteration opacity_entropy_from; it drives every opacity to
+    # 0 or 1, so an object rendered alone has no see-through patches
+    opacity_entropy_weight: float = 0.0
+    opacity_entropy_from: int = 0
     # deformation
     deform_preset: str = "paper"  # "paper" (D=8, W=256) or "small" (D=4, W=64)
     deform_zero_init: bool = False  # start as the identity (see DeformMLP.zero_heads)
@@ -210,18 +216,40 @@ def scene_extent(cameras: Iterable[Camera]) -> float:
 
 # -- rendering ------------------------------------------------------------------------------
 def render_view(gaussians: GaussianModel, deformation, camera: Camera, background=None,
-                backend: str = "auto", time_offset: float = 0.0, with_deform: bool = True):
-    """Render gaussians deformed to camera.time. Returns (RenderOutput, deformed means [N,3])."""
+                backend: str = "auto", time_offset: float = 0.0, with_deform: bool = True,
+                visible_only: bool = False):
+    """Render gaussians deformed to camera.time. Returns (RenderOutput, deformed means [N,3]).
+
+    ``visible_only``: the deformation's gradients are computed for the gaussians the camera
+    can see only (``deformation.deformed_visible``; same image and gradients up to rounding).
+    """
     from trase.render import rasterize
 
     t = float(camera.time) + time_offset
-    means, quats, scales = deformed(gaussians, deformation if with_deform else None, t)
+    deform = deformation if with_deform else None
+    if visible_only and deform is not None and gaussians.means.device.type == "cpu":
+        means, quats, scales = deformed_visible(gaussians, deform, t, functools.partial(in_view, camera=camera))
+    else:
+        means, quats, scales = deformed(gaussians, deform, t)
     out = rasterize(
         means, quats, scales, gaussians.opacities, camera,
         colors=gaussians.sh_for_render(), sh_degree=gaussians.active_sh_degree,
         background=background, backend=backend,
     )
     return out, means
+
+
+def in_view(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, camera: Camera) -> torch.Tensor:
+    """[N] bool: the gaussians the rasterizer does not cull for ``camera`` (radii > 0)."""
+    from trase.render.numba_projection import project_gaussians_numba
+
+    return project_gaussians_numba(means, quats, scales, camera).radii > 0
+
+
+def opacity_entropy(opacities: torch.Tensor) -> torch.Tensor:
+    """Mean binary entropy (nats) of opacities [N] in [0, 1]: 0 when every one is 0 or 1."""
+    o = opacities.clamp(1e-6, 1.0 - 1e-6)
+    return -(o * torch.log(o) + (1.0 - o) * torch.log1p(-o)).mean()
 
 
 @torch.no_grad()
@@ -471,11 +499,13 @@ def _reconstruct(views, points, point_colors, config, out_dir, resume, progress,
             if use_deform:
                 noise = float(torch.randn(1, generator=gen))
                 offset = noise * time_noise_scale(it, cfg) / n_views
-            out, means_t = render_view(gaussians, deform, cam, bg, backend, offset, use_deform)
+            out, means_t = render_view(gaussians, deform, cam, bg, backend, offset, use_deform, visible_only=True)
             means_t.retain_grad()
             image = out.color
             l1 = l1_loss(image, gt)
             loss = (1.0 - cfg.lambda_dssim) * l1 + cfg.lambda_dssim * (1.0 - ssim(image, gt))
+            if cfg.opacity_entropy_weight > 0 and it >= cfg.opacity_entropy_from:
+                loss = loss + cfg.opacity_entropy_weight * opacity_entropy(gaussians.opacities)
             loss.backward()
 
             with torch.no_grad():

@@ -16,7 +16,10 @@ DATASET_CHOICES = ("nerfds", "hypernerf", "neu3d", "immersive", "technicolor")
 @click.option("--seed", default=0, show_default=True, type=int, help="Colours, textures, motion phases.")
 @click.option("--size", default="small", show_default=True, type=click.Choice(("tiny", "small", "medium")),
               help="small: <= 160 px wide at training resolution; medium: for benchmarks; tiny: tests.")
-def synth(dataset: str, out_dir: str, seed: int, size: str) -> None:
+@click.option("--difficulty", default="standard", show_default=True, type=click.Choice(("standard", "hard")),
+              help="standard: the benchmark's frames per sequence and motion per frame; hard: the whole "
+                   "motion in 10-60 frames (the earlier scenes, for stress runs).")
+def synth(dataset: str, out_dir: str, seed: int, size: str, difficulty: str) -> None:
     """Generate a procedural dynamic scene with exact ground truth in DATASET's raw format.
 
     Writes the publisher's files (and, for multi-view formats, the prepared frames), then
@@ -36,6 +39,6 @@ def synth(dataset: str, out_dir: str, seed: int, size: str) -> None:
                 tasks[stage] = bar.add_task(stage, total=max(total, 1))
             bar.update(tasks[stage], completed=done, total=max(total, 1))
 
-        path = generate(dataset, out_dir, seed=seed, size=size, progress=report)
-    click.echo(f"wrote {dataset} synthetic scene (size {size}, seed {seed}) to {path} "
+        path = generate(dataset, out_dir, seed=seed, size=size, progress=report, difficulty=difficulty)
+    click.echo(f"wrote {dataset} synthetic scene (size {size}, {difficulty}, seed {seed}) to {path} "
                f"in {time.perf_counter() - t0:.1f} s")

@@ -127,3 +127,72 @@ def test_screen_grad_norm_recovers_pixel_gradient():
     want = (w * torch.tensor([50.0, 40.0], dtype=torch.float64)).norm(dim=1).float()  # NDC units
     assert torch.allclose(got[:5], want[:5], rtol=1e-4)
     assert got[5] == 0
+
+
+def _grads(g, deform, cam, visible_only):
+    from trase.losses import l1_loss
+    from trase.reconstruct import render_view
+
+    for p in [g.means, *deform.parameters()]:
+        p.grad = None
+    target = torch.full((cam.height, cam.width, 3), 0.3)
+    out, means_t = render_view(g, deform, cam, torch.zeros(3), "numba", visible_only=visible_only)
+    l1_loss(out.color, target).backward()
+    return out.color.detach().clone(), g.means.grad.clone(), [p.grad.clone() for p in deform.parameters()]
+
+
+def test_visible_only_deformation_gives_the_same_image_and_gradients():
+    from recon_scene import make_cameras, make_gt
+
+    from trase.camera import Camera
+    from trase.reconstruct import in_view
+
+    g, _ = make_gt(n=300)
+    g.means.requires_grad_(True)
+    # a third of the gaussians far to one side: outside the view
+    with torch.no_grad():
+        g.means[:100, 0] += 8.0
+    torch.manual_seed(0)
+    deform = DeformMLP(D=4, W=32)  # random heads: a real deformation, not the identity
+    cam0 = make_cameras(1, 40)[0]
+    cam = Camera(K=cam0.K, w2c=cam0.w2c, width=40, height=40, time=0.4, name="c")
+    with torch.no_grad():
+        from trase.deformation import deformed
+
+        vis = in_view(*[x.detach() for x in deformed(g, deform, cam.time)], cam)
+    assert 0 < int(vis.sum()) < g.num_gaussians  # the test covers both kinds of gaussian
+    img_a, gm_a, gp_a = _grads(g, deform, cam, visible_only=False)
+    rows = []
+    hook = deform.register_forward_pre_hook(lambda m, args: rows.append((args[0].shape[0], torch.is_grad_enabled())))
+    img_b, gm_b, gp_b = _grads(g, deform, cam, visible_only=True)
+    hook.remove()
+    # one pass without autograd over all, one with autograd over the visible rows only
+    assert rows == [(g.num_gaussians, False), (int(vis.sum()), True)]
+    assert torch.allclose(img_a, img_b, atol=1e-6)
+    assert torch.allclose(gm_a, gm_b, atol=1e-7, rtol=1e-5)
+    assert gm_b[~vis].abs().max() == 0  # invisible gaussians learn nothing either way
+    for a, b in zip(gp_a, gp_b):
+        assert torch.allclose(a, b, atol=1e-7, rtol=1e-4), (a - b).abs().max()
+    assert any(float(a.abs().max()) > 0 for a in gp_a)  # the network does get gradients
+
+
+def test_opacity_entropy_is_zero_at_binary_opacities_and_pushes_towards_them():
+    from trase.reconstruct import opacity_entropy
+
+    assert float(opacity_entropy(torch.tensor([0.0, 1.0, 1.0]))) == pytest.approx(0.0, abs=1e-4)
+    assert float(opacity_entropy(torch.tensor([0.5]))) == pytest.approx(np.log(2), rel=1e-6)
+    x = torch.tensor([-1.0, 0.5, 2.0], requires_grad=True)  # logits
+    opacity_entropy(torch.sigmoid(x)).backward()
+    # descent moves each logit away from 0: opacities towards the nearer of 0 and 1
+    assert x.grad[0] > 0 and x.grad[1] < 0 and x.grad[2] < 0
+    assert torch.isfinite(x.grad).all()
+
+
+def test_opacity_entropy_setting_makes_opacities_more_binary(scene, tmp_path):
+    views, pts = scene
+    from trase.reconstruct import opacity_entropy
+
+    plain, _ = reconstruct(views, pts, None, CFG, tmp_path / "plain", progress=False)
+    solid_cfg = dataclasses.replace(CFG, opacity_entropy_weight=0.5, opacity_entropy_from=10)
+    solid, _ = reconstruct(views, pts, None, solid_cfg, tmp_path / "solid", progress=False)
+    assert float(opacity_entropy(solid.opacities.detach())) < float(opacity_entropy(plain.opacities.detach()))

@@ -2,8 +2,8 @@
 
 Public API::
 
-    generate(dataset, out_dir, seed=0, size="small") -> Path        # one scene, raw format + truth
-    ensure_synthetic(dataset, size="small", seed=0, cache_dir=None) -> Path   # cached default
+    generate(dataset, out_dir, seed=0, size="small", difficulty="standard") -> Path  # raw format + truth
+    ensure_synthetic(dataset, size="small", seed=0, cache_dir=None, difficulty="standard") -> Path
     find_or_generate(dataset, sequence, data_root) -> (scene_dir, variant)
     build_world(seed) -> World; render(world, camera, t) -> (rgb, depth, ids)
     SIZES, DATASET_KEYS, GENERATOR_VERSION, SyntheticError
@@ -14,12 +14,20 @@ dataset), ``formats`` (raw writers), ``gaussians`` (geometry.npz), ``generate``,
 """
 
 from .cache import default_cache_dir, ensure_synthetic, find_or_generate
-from .generate import GENERATOR_VERSION, SEQUENCE_NAMES, SyntheticError, generate, sequence_name
-from .rigs import DATASET_KEYS, SIZE_NAMES, SIZES
+from .generate import (
+    GENERATOR_VERSION,
+    SEQUENCE_NAMES,
+    SyntheticError,
+    generate,
+    parse_sequence_name,
+    sequence_name,
+)
+from .rigs import DATASET_KEYS, DIFFICULTIES, SIZE_NAMES, SIZES
 from .world import World, build_world, render
 
 __all__ = [
     "DATASET_KEYS",
+    "DIFFICULTIES",
     "GENERATOR_VERSION",
     "SEQUENCE_NAMES",
     "SIZES",
@@ -31,6 +39,7 @@ __all__ = [
     "ensure_synthetic",
     "find_or_generate",
     "generate",
+    "parse_sequence_name",
     "render",
     "sequence_name",
 ]

@@ -15,9 +15,14 @@ import sys
 import tempfile
 from pathlib import Path
 
-from .generate import GENERATOR_VERSION, SEQUENCE_NAMES, SyntheticError, _check_args, generate
-
-SYNTHETIC_SEQUENCES = {name: size for size, name in SEQUENCE_NAMES.items()}
+from .generate import (
+    GENERATOR_VERSION,
+    SyntheticError,
+    _check_args,
+    generate,
+    parse_sequence_name,
+    sequence_name,
+)
 
 
 def default_cache_dir() -> Path:
@@ -46,15 +51,15 @@ def _check_version(scene_dir: Path) -> None:
 
 
 def ensure_synthetic(dataset: str, size: str = "small", seed: int = 0,
-                     cache_dir: Path | str | None = None, progress=None) -> Path:
+                     cache_dir: Path | str | None = None, progress=None, difficulty: str = "standard") -> Path:
     """The cached synthetic scene of ``dataset`` (generated on first use, with a notice).
 
     Seed 0 lives at ``<cache>/<dataset>/v<version>/<sequence>``; another seed at
     ``<sequence>-seed<N>``.
     """
-    _check_args(dataset, size)
+    _check_args(dataset, size, difficulty)
     cache = Path(cache_dir) if cache_dir is not None else default_cache_dir()
-    name = SEQUENCE_NAMES[size] + (f"-seed{seed}" if seed != 0 else "")
+    name = sequence_name(size, difficulty) + (f"-seed{seed}" if seed != 0 else "")
     final = cache / dataset / f"v{GENERATOR_VERSION}" / name
     if _is_complete(final):
         _check_version(final)
@@ -63,11 +68,11 @@ def ensure_synthetic(dataset: str, size: str = "small", seed: int = 0,
         raise SyntheticError(f"{final}: incomplete synthetic scene (no synthetic/manifest.json); delete it to regenerate")
     final.parent.mkdir(parents=True, exist_ok=True)
     print(f"trase-bench: no real {dataset} data found; generating the synthetic scene "
-          f"(size {size}, seed {seed}) into {final}", file=sys.stderr)
+          f"(size {size}, {difficulty}, seed {seed}) into {final}", file=sys.stderr)
     tmp = Path(tempfile.mkdtemp(prefix=f".{name}.tmp-", dir=final.parent))
     try:
         scene_tmp = tmp / name  # the scene folder's name is its sequence name
-        generate(dataset, scene_tmp, seed=seed, size=size, progress=progress)
+        generate(dataset, scene_tmp, seed=seed, size=size, progress=progress, difficulty=difficulty)
         try:
             os.rename(scene_tmp, final)
         except OSError:
@@ -85,8 +90,9 @@ def find_or_generate(dataset: str, sequence: str | None = None,
 
     Real data is looked up at ``<root>/<dataset>/<sequence>/`` (and the publishers' other
     layouts, see ``benchmark.datasets.find_scene_dir``) under ``data_root`` or ``$TRASE_DATA``.
-    ``sequence`` None or a synthetic name ("synthetic", "synthetic-medium") uses the synthetic
-    default when no real scene of that name exists; a real sequence name that is missing is
+    ``sequence`` None or a synthetic name ("synthetic", "synthetic-medium", "synthetic-hard",
+    ...; ``generate.sequence_name``) uses the synthetic scene when no real scene of that name
+    exists; a real sequence name that is missing is
     an error listing where it looked.
     """
     from benchmark.datasets import find_scene_dir, get_dataset
@@ -97,8 +103,9 @@ def find_or_generate(dataset: str, sequence: str | None = None,
         roots.append(Path(data_root))
     elif os.environ.get("TRASE_DATA"):
         roots.append(Path(os.environ["TRASE_DATA"]))
-    seq = sequence if sequence is not None else SEQUENCE_NAMES["small"]
-    if seq not in SYNTHETIC_SEQUENCES:
+    seq = sequence if sequence is not None else sequence_name("small")
+    synthetic = parse_sequence_name(seq)
+    if synthetic is None:
         seq = spec.resolve_sequence(seq)
         for root in roots:
             found = find_scene_dir(spec.key, seq, root)
@@ -114,4 +121,5 @@ def find_or_generate(dataset: str, sequence: str | None = None,
         d = root / spec.key / seq
         if _is_complete(d):
             return d, "synthetic"
-    return ensure_synthetic(spec.key, size=SYNTHETIC_SEQUENCES[seq], cache_dir=cache_dir), "synthetic"
+    size, difficulty = synthetic
+    return ensure_synthetic(spec.key, size=size, cache_dir=cache_dir, difficulty=difficulty), "synthetic"

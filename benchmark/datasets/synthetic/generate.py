@@ -31,20 +31,25 @@ from .gaussians import build_geometry
 from .rays import camera_rays
 from .rigs import (
     DATASET_KEYS,
+    DIFFICULTIES,
     SIZE_NAMES,
-    SIZES,
+    STANDARD_TIME,
     hypernerf_rig,
     immersive_rig,
     nerfds_rig,
     neu3d_rig,
+    rig_size,
     technicolor_rig,
 )
 from .world import World, build_world, render
 
 # bump whenever generated files change, so cached scenes of an older generator are never reused
 # 2: ground-truth disks sunk by a per-object inset in pixels fitted on the training cameras
-GENERATOR_VERSION = "2"
+# 3: difficulty axis: standard scenes with the benchmarks' frames per sequence and motion per
+#    frame (rigs.STANDARD_TIME); the earlier scenes are the "hard" difficulty
+GENERATOR_VERSION = "3"
 SEQUENCE_NAMES = {"tiny": "synthetic-tiny", "small": "synthetic", "medium": "synthetic-medium"}
+HARD_SUFFIX = "-hard"
 TECHNICOLOR_FIRST_FRAME = 1  # publisher frame numbers of the PNGs start here
 
 Progress = Callable[[str, int, int], None]  # (stage, done, total)
@@ -56,31 +61,44 @@ class SyntheticError(UserError):
     user_facing = True
 
 
-def sequence_name(size: str) -> str:
-    return SEQUENCE_NAMES[size]
+def sequence_name(size: str, difficulty: str = "standard") -> str:
+    """"synthetic", "synthetic-medium", ...; the hard variant adds "-hard"."""
+    return SEQUENCE_NAMES[size] + (HARD_SUFFIX if difficulty == "hard" else "")
 
 
-def _check_args(dataset: str, size: str) -> None:
+def parse_sequence_name(name: str) -> tuple[str, str] | None:
+    """(size, difficulty) of a synthetic sequence name, None for any other name."""
+    for difficulty in DIFFICULTIES:
+        for size in SIZE_NAMES:
+            if sequence_name(size, difficulty) == name:
+                return size, difficulty
+    return None
+
+
+def _check_args(dataset: str, size: str, difficulty: str = "standard") -> None:
     if dataset not in DATASET_KEYS:
         raise SyntheticError(f"unknown dataset {dataset!r} for synthetic scenes; valid: {', '.join(DATASET_KEYS)}")
     if size not in SIZE_NAMES:
         raise SyntheticError(f"unknown size {size!r}; valid: {', '.join(SIZE_NAMES)}")
+    if difficulty not in DIFFICULTIES:
+        raise SyntheticError(f"unknown difficulty {difficulty!r}; valid: {', '.join(DIFFICULTIES)}")
 
 
 def generate(dataset: str, out_dir: Path | str, seed: int = 0, size: str = "small",
-             progress: Progress | None = None) -> Path:
+             progress: Progress | None = None, difficulty: str = "standard") -> Path:
     """Write one synthetic scene of ``dataset`` into ``out_dir`` (created; must be empty).
 
-    Returns ``out_dir``. Same (dataset, seed, size) -> same bytes (videos: same decoded frames).
+    Returns ``out_dir``. Same (dataset, seed, size, difficulty) -> same bytes (videos: same
+    decoded frames).
     """
-    _check_args(dataset, size)
+    _check_args(dataset, size, difficulty)
     out = Path(out_dir)
     if out.exists() and any(out.iterdir()):
         raise SyntheticError(f"{out}: output directory is not empty")
     existed = out.exists()
     out.mkdir(parents=True, exist_ok=True)
     try:
-        _generate_into(dataset, out, seed, size, progress or (lambda stage, done, total: None))
+        _generate_into(dataset, out, seed, size, difficulty, progress or (lambda stage, done, total: None))
     except BaseException:
         # everything inside was written by this call (the directory was empty): leave no
         # partial scene behind that a rerun would refuse or, worse, trust
@@ -91,18 +109,19 @@ def generate(dataset: str, out_dir: Path | str, seed: int = 0, size: str = "smal
     return out
 
 
-def _generate_into(dataset: str, out: Path, seed: int, size: str, report: Progress) -> None:
-    world = build_world(seed)
-    rs = SIZES[dataset][size]
-    views = rig_views(dataset, size, seed)
+def _generate_into(dataset: str, out: Path, seed: int, size: str, difficulty: str, report: Progress) -> None:
+    rs = rig_size(dataset, size, difficulty)
+    world = build_world(seed, rs.span)
+    views = rig_views(dataset, size, seed, difficulty)
+    sequence = sequence_name(size, difficulty)
     if dataset in ("nerfds", "hypernerf"):
         _write_nerfies(dataset, out, world, views, report)
     else:
-        _write_multiview(dataset, out, world, views, report, sequence_name(size))
+        _write_multiview(dataset, out, world, views, report, sequence)
 
-    scene = _load(dataset, out, sequence_name(size))
+    scene = _load(dataset, out, sequence)
     _check_loader(scene, {v.view: (v.camera, v.time) for v in views})
-    _write_truth(scene, out, world, seed, size, rs.gaussians, report)
+    _write_truth(scene, out, world, seed, size, difficulty, rs, report)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -116,10 +135,10 @@ class RigView:
     cam_index: int  # index of the fixed camera in the rig (multi-view), 0 or 1 (nerfds)
 
 
-def rig_views(dataset: str, size: str = "small", seed: int = 0) -> list[RigView]:
+def rig_views(dataset: str, size: str = "small", seed: int = 0, difficulty: str = "standard") -> list[RigView]:
     """Every image of the dataset's rig with its native camera and time, in writing order."""
-    _check_args(dataset, size)
-    rs = SIZES[dataset][size]
+    _check_args(dataset, size, difficulty)
+    rs = rig_size(dataset, size, difficulty)
     rng = np.random.default_rng([seed, DATASET_KEYS.index(dataset)])
     if dataset in ("nerfds", "hypernerf"):
         rig = nerfds_rig(rs, rng) if dataset == "nerfds" else hypernerf_rig(rs, rng)
@@ -257,7 +276,7 @@ def instance_file(view_name: str) -> str:
     return "instances/" + re.sub(r"[^A-Za-z0-9._-]", "__", view_name) + ".png"
 
 
-def _write_truth(scene, out: Path, world: World, seed: int, size: str, budget: int, report) -> None:
+def _write_truth(scene, out: Path, world: World, seed: int, size: str, difficulty: str, rs, report) -> None:
     syn = out / "synthetic"
     syn.mkdir(parents=True, exist_ok=True)
     interest = world.of_interest()
@@ -280,8 +299,8 @@ def _write_truth(scene, out: Path, world: World, seed: int, size: str, budget: i
     report("geometry", 0, 1)
     # silhouettes of the gaussians fitted on the training cameras only (see fit.py)
     train_cams = [v.camera for v in scene.train]
-    insets, fit_report = calibrate_insets(world, scene.times, budget, train_cams)
-    geom = build_geometry(world, scene.times, budget, inset=insets, footprint=pixel_footprint(train_cams))
+    insets, fit_report = calibrate_insets(world, scene.times, rs.gaussians, train_cams)
+    geom = build_geometry(world, scene.times, rs.gaussians, inset=insets, footprint=pixel_footprint(train_cams))
     np.savez_compressed(syn / "geometry.npz", **geom)
     report("geometry", 1, 1)
     manifest = {
@@ -290,6 +309,10 @@ def _write_truth(scene, out: Path, world: World, seed: int, size: str, budget: i
         "sequence": scene.sequence,
         "seed": int(seed),
         "size": size,
+        "difficulty": difficulty,
+        "frames_per_camera": rs.frames,
+        "motion_span": rs.span,
+        "time_statistics": dataclasses.asdict(STANDARD_TIME[scene.dataset]) if difficulty == "standard" and size != "tiny" else None,
         "n_gaussians": len(geom["means"]),
         "times": [float(t) for t in scene.times],
         "objects": world.object_table(),

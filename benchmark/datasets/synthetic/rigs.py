@@ -7,8 +7,13 @@
 * immersive: fixed equidistant-fisheye cameras on a spherical cap (a dome looking outwards).
 * technicolor: a 4x4 planar array of parallel pinhole cameras, off-centre principal point.
 
-Sizes: ``small`` keeps the loader's training resolution <= 160 px wide and <= 60 frames per
-camera; ``medium`` is for benchmarks; ``tiny`` is for unit tests.
+Sizes: ``small`` keeps the loader's training resolution <= 160 px wide; ``medium`` is for
+benchmarks; ``tiny`` is for unit tests (few frames, whatever the difficulty).
+
+Difficulty: ``standard`` scenes follow the real benchmarks' statistics in time (see
+``STANDARD_TIME``); ``hard`` scenes are the generator's earlier scenes, kept for stress runs:
+every object's whole path (the pillar and the cube cross the room) squeezed into 10-60 frames,
+4-25x fewer than the benchmarks have, so objects move 4-30x further per frame than in any of them.
 """
 
 from __future__ import annotations
@@ -22,6 +27,7 @@ from trase.camera import Camera, intrinsics, look_at
 
 DATASET_KEYS = ("nerfds", "hypernerf", "neu3d", "immersive", "technicolor")
 SIZE_NAMES = ("tiny", "small", "medium")
+DIFFICULTIES = ("standard", "hard")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -31,9 +37,11 @@ class RigSize:
     frames: int  # time steps (per camera)
     cameras: int  # fixed cameras (multi-view) / moving cameras (nerfies)
     gaussians: int  # budget of ground-truth gaussians
+    span: float = 1.0  # part of the objects' motion the sequence covers (world.build_world)
 
 
-SIZES: dict[str, dict[str, RigSize]] = {
+# the ``hard`` scenes: the generator's scenes up to version 2, unchanged
+HARD_SIZES: dict[str, dict[str, RigSize]] = {
     "nerfds": {
         "tiny": RigSize(128, 96, 6, 2, 4000),
         "small": RigSize(320, 240, 24, 2, 24000),
@@ -60,6 +68,61 @@ SIZES: dict[str, dict[str, RigSize]] = {
         "medium": RigSize(640, 352, 25, 16, 60000),
     },
 }
+
+
+@dataclasses.dataclass(frozen=True)
+class TimeStatistics:
+    """How a benchmark samples time, and where the figure comes from."""
+
+    frames: int  # frames per sequence (per camera)
+    fps: float  # capture frame rate
+    source: str
+
+
+# Frames per sequence of the real benchmarks (per camera). Object motion per frame is the
+# other half: in the world's units (metres), the fastest object of the hard scenes (the cube)
+# travels 6.4 m over the sequence and the pillar 5.4 m; the standard scenes cover the part of
+# that motion (``span``) at which the fastest object moves at most MAX_MOTION_PER_FRAME per
+# frame, i.e. 0.9 m/s at 30 fps: a quick hand or arm, a walking person. That speed is an
+# estimate from the benchmarks' content (people cooking, welding, turning; hands moving objects
+# on a table); the datasets publish no motion statistics.
+STANDARD_TIME: dict[str, TimeStatistics] = {
+    "nerfds": TimeStatistics(150, 30.0, "NeRF-DS (Yan et al. 2023): ~150-500 frames per camera of the stereo "
+                             "rig; the lower end, so a run stays short"),
+    "hypernerf": TimeStatistics(200, 15.0, "HyperNeRF interp captures (Park et al. 2021): a few hundred frames; "
+                                "the Mask benchmark trains on every 4th and tests on every 4th from the third"),
+    "neu3d": TimeStatistics(300, 30.0, "Neu3D (Li et al. 2022, the paper's supplementary): 300 frames at 30 fps"),
+    "immersive": TimeStatistics(50, 30.0, "Immersive-Mask (the paper's supplementary): the first 50 frames, 30 fps"),
+    "technicolor": TimeStatistics(50, 30.0, "Technicolor-Mask (the paper's supplementary): 50 frames per scene "
+                                  "(e.g. Birthday 151-200), 30 fps"),
+}
+FASTEST_PATH_M = 6.4  # the cube's path over the hard sequence (world.py)
+MAX_MOTION_PER_FRAME = 0.03  # metres per frame for the fastest object (0.9 m/s at 30 fps)
+
+
+def standard_span(frames: int) -> float:
+    """Part of the motion a standard sequence of ``frames`` frames covers."""
+    return min(1.0, frames * MAX_MOTION_PER_FRAME / FASTEST_PATH_M)
+
+
+def _standard(dataset: str) -> dict[str, RigSize]:
+    n = STANDARD_TIME[dataset].frames
+    hard = HARD_SIZES[dataset]
+    return {
+        "tiny": hard["tiny"],  # unit-test scenes: few frames, the whole motion
+        "small": dataclasses.replace(hard["small"], frames=n, span=standard_span(n)),
+        "medium": dataclasses.replace(hard["medium"], frames=n, span=standard_span(n)),
+    }
+
+
+STANDARD_SIZES: dict[str, dict[str, RigSize]] = {ds: _standard(ds) for ds in DATASET_KEYS}
+SIZES = STANDARD_SIZES  # the default difficulty
+_TABLES = {"standard": STANDARD_SIZES, "hard": HARD_SIZES}
+
+
+def rig_size(dataset: str, size: str = "small", difficulty: str = "standard") -> RigSize:
+    return _TABLES[difficulty][dataset][size]
+
 
 TARGET = np.array([0.0, 0.3, 0.45])  # where the rigs look
 

@@ -12,7 +12,10 @@ surface point and local normal only (texture with baked shading), so it moves wi
 and the ground-truth gaussians can carry it exactly.
 
 The layout is fixed (so "a small ball next to a crate" always holds); the seed changes colours,
-texture offsets and motion phases.
+texture offsets and motion phases. ``span`` is the part of the motion a sequence covers: the
+pose functions are written for span 1 (the ``hard`` scenes: every object's whole path within
+the sequence), and a sequence time t in [0, 1] is motion time span * t, so a benchmark-like
+scene (``rigs.py``) moves its objects as far per frame as the real benchmark's content does.
 """
 
 from __future__ import annotations
@@ -124,6 +127,7 @@ def room_texture(floor1, floor2, wall1, wall2, size, offset) -> Callable[[np.nda
 class World:
     objects: list[SceneObject]
     seed: int
+    span: float = 1.0  # part of the motion the sequence covers (see the module docs)
 
     @property
     def n_ids(self) -> int:
@@ -198,8 +202,13 @@ class World:
         return best, ids, rgb
 
 
-def build_world(seed: int = 0) -> World:
-    """The scene for a seed (layout fixed; colours, texture offsets and motion phases vary)."""
+def build_world(seed: int = 0, span: float = 1.0) -> World:
+    """The scene for a seed (layout fixed; colours, texture offsets and motion phases vary).
+
+    ``span`` in (0, 1]: the part of every object's motion the sequence time [0, 1] covers.
+    """
+    if not 0.0 < span <= 1.0:
+        raise ValueError(f"motion span must be in (0, 1], got {span}")
     rng = np.random.default_rng(seed)
 
     def jitter(c, amount=0.12):
@@ -239,6 +248,12 @@ def build_world(seed: int = 0) -> World:
         c = np.array([3.2 - 6.4 * t, 1.3, 1.15 + 0.2 * math.sin(6 * math.pi * t)])
         return R, c, 0.13 * ones
 
+    def spanned(pose):
+        return pose if span == 1.0 else (lambda t: pose(span * t))
+
+    ball_pose, ring_pose, blob_pose, pillar_pose, cube_pose = (
+        spanned(p) for p in (ball_pose, ring_pose, blob_pose, pillar_pose, cube_pose))
+
     objs = [
         SceneObject(1, "room", Room(), "static", False,
                     static([0.0, -1.0, 1.5], [3.5, 4.0, 1.5]),
@@ -267,7 +282,7 @@ def build_world(seed: int = 0) -> World:
                     static([-1.45, -0.15, 0.25], [0.16, 0.16, 0.25]),
                     bands(jitter([0.6, 0.2, 0.7]), jitter([0.9, 0.9, 0.9]), 2.0), light()),
     ]
-    return World(objs, seed)
+    return World(objs, seed, span)
 
 
 def render(world: World, cam, t: float, rays=None):
