@@ -113,15 +113,16 @@ def default_config(method, spec, variant: str, overrides: dict,
     preset = geo_over.get("preset", "auto")
     if preset == "auto":
         preset = "paper" if torch.cuda.is_available() else "cpu"
-    if preset not in ("paper", "cpu"):
-        raise ConfigError(f"--set geometry.preset={preset}: choose auto, paper or cpu")
+    if preset not in ("paper", "cpu", "cpu-v1"):
+        raise ConfigError(f"--set geometry.preset={preset}: choose auto, paper, cpu or cpu-v1")
     sched = {"warm_up": spec.warm_up, "densify_until": spec.densify_until}
     if preset == "paper":
         train = ReconstructionConfig.paper(**sched)
     else:
-        # 2000 steps of the cpu preset keep `make demo` short on two cores (see
-        # ReconstructionConfig.cpu). Training resolution: see cpu_train_downscale.
-        train = ReconstructionConfig.cpu(image_downscale=cpu_train_downscale(image_size), iterations=2000)
+        # a few CPU minutes (ReconstructionConfig.cpu; cpu-v1: the first CPU preset, kept for
+        # comparisons). Training resolution: see cpu_train_downscale.
+        make = ReconstructionConfig.cpu if preset == "cpu" else ReconstructionConfig.cpu_v1
+        train = make(image_downscale=cpu_train_downscale(image_size))
     base = {
         "masks": {
             "generator": "synthetic" if variant == "synthetic" else "classical",

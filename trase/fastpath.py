@@ -218,6 +218,7 @@ class ViewWeights:
     def stats(self) -> dict:
         vals = list(self.nbytes.values())
         return {
+            "path": "fastpath",
             "views": len(vals),
             "bytes_per_view_mean": float(np.mean(vals)) if vals else 0.0,
             "bytes_per_view_max": int(max(vals)) if vals else 0,
@@ -249,5 +250,5 @@ class RasterizerPath:
         return out.features.reshape(-1, D)[torch.as_tensor(pixels, dtype=torch.int64)]
 
     def stats(self) -> dict:
-        return {"views": len(self._views), "backend": self.backend}
+        return {"path": "rasterizer", "views": len(self._views), "backend": self.backend}
 

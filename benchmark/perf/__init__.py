@@ -15,7 +15,7 @@ SUITES: dict[str, tuple[str, str]] = {
     "knn": ("benchmark.perf.knn:run", "K=16 smoothing neighbours: cKDTree (as trase) vs all-core, chunked, sklearn; + smoothing step."),
     "cluster": ("benchmark.perf.cluster:run", "Feature clustering: HDBSCAN 2/10/25% vs DBSCAN, KMeans, PCA and fixed-sample variants (ARI)."),
     "features": ("benchmark.perf.features:run", "Feature step: whole step on the synthetic scene (rasterizer vs fast path, R/F/X/O), fused vs dense objective, render grid."),
-    "reconstruct": ("benchmark.perf.reconstruct:run", "Test PSNR vs wall-clock time of the CPU reconstruction (synthetic HyperNeRF), half and full res."),
+    "reconstruct": ("benchmark.perf.reconstruct:run", "Test PSNR vs wall-clock time of the CPU reconstruction (synthetic HyperNeRF), old and new CPU preset."),
     "pipeline": ("benchmark.perf.pipeline:run", "Per-stage time and peak memory of the runner per synthetic dataset, 2 sizes; exponents."),
     "pareto": ("benchmark.perf.pareto:run", "mIoU vs features+fit+evaluate time over a settings grid for one scene; PNG with the Pareto front."),
 }

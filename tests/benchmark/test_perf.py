@@ -46,18 +46,21 @@ def test_registry_entries_resolve():
         assert callable(get_suite(name))
 
 
-def test_reconstruct_suite_reports_psnr_per_checkpoint(monkeypatch, capsys):
+def test_reconstruct_suite_reports_psnr_per_checkpoint_for_both_presets(monkeypatch, capsys):
     from benchmark.perf import reconstruct
 
     monkeypatch.setattr(reconstruct, "QUICK", {"size": "tiny", "budget_s": 60.0, "iterations": 10, "interval": 5})
-    monkeypatch.setattr(reconstruct, "DOWNSCALES", (2.0,))
     out = reconstruct.run(quick=True, echo=print)
-    (r,) = out["runs"]
-    assert [c["iteration"] for c in r["curve"]] == [5, 10]
-    for c in r["curve"]:
-        assert 0 < c["seconds"] <= r["wall_s"] + 1 and 5.0 < c["psnr_full"] < 60.0 and c["gaussians"] > 0
-    assert r["final"] == r["curve"][-1]
-    assert r["finished"] and r["iterations_planned"] == 10
-    # the runner's settings for this scene (the tiny scene trains at full resolution)
-    assert out["train_config"]["image_downscale"] == 1.0 and out["train_config"]["deform_preset"] == "small"
-    assert "test PSNR" in capsys.readouterr().out
+    assert [r["preset"] for r in out["runs"]] == ["cpu-v1", "cpu"]
+    for r in out["runs"]:
+        assert [c["iteration"] for c in r["curve"]] == [5, 10]
+        for c in r["curve"]:
+            assert 0 < c["seconds"] <= r["wall_s"] + 1 and 5.0 < c["psnr"] < 60.0 and c["gaussians"] > 0
+        assert r["final"] == r["curve"][-1]
+        assert r["finished"] and r["iterations_planned"] == 10
+        # the runner's settings for this scene (the tiny scene trains at full resolution)
+        assert r["train_config"]["image_downscale"] == 1.0 and r["train_config"]["deform_preset"] == "small"
+    old, new = (r["train_config"] for r in out["runs"])
+    assert not old["deform_visible_only"] and new["deform_visible_only"]
+    printed = capsys.readouterr().out
+    assert "test PSNR" in printed and "s/it deforming" in printed

@@ -27,12 +27,31 @@ def test_features_separate_objects(tmp_path):
 
 
 def test_deterministic_and_fastpath_matches_rasterizer(tmp_path):
-    r1, _ = _train(tmp_path / "a", iterations=30)
-    r2, _ = _train(tmp_path / "b", iterations=30)
+    r1, _ = _train(tmp_path / "a", iterations=30, fastpath=True)
+    r2, _ = _train(tmp_path / "b", iterations=30, fastpath=True)
     assert torch.equal(r1.features, r2.features)
+    assert r1.path_stats["path"] == "fastpath"
     r3, _ = _train(tmp_path / "c", iterations=30, fastpath=False, render_backend="numba")
     assert (r1.history[0]["loss"] - r3.history[0]["loss"]) < 1e-5
     assert (r1.features - r3.features).abs().max() < 1e-2
+
+
+def test_auto_fastpath_only_when_views_are_drawn_often(tmp_path):
+    from trase.features import FASTPATH_MIN_USES, FeatureTrainingError, use_fastpath
+
+    assert use_fastpath("auto", FASTPATH_MIN_USES * 50, 50)
+    assert not use_fastpath("auto", 3000, 450)  # 450 views: each drawn ~7 times
+    assert use_fastpath(True, 1, 5000) and not use_fastpath(False, 10**6, 1)
+    try:
+        use_fastpath("sometimes", 10, 1)
+    except FeatureTrainingError as exc:
+        assert "sometimes" in str(exc)
+    else:
+        raise AssertionError("a bad fastpath setting must be an error")
+    # the tiny scene has 4 views: 30 steps draw each ~8 times -> rasterizer; 120 -> fast path
+    few, _ = _train(tmp_path / "few", iterations=30)
+    many, _ = _train(tmp_path / "many", iterations=4 * FASTPATH_MIN_USES)
+    assert few.path_stats["path"] == "rasterizer" and many.path_stats["path"] == "fastpath"
 
 
 def test_degenerate_views_and_single_gaussian(tmp_path):
