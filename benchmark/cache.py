@@ -33,6 +33,7 @@ STAGE_FILE = "_stage.json"
 # to the key (caches of never-bumped stages stay valid).
 STAGE_VERSIONS: dict[str, int] = {
     "features": 2,  # 2: smoothing with K=0 normalises features (raw features before)
+    "ceiling": 2,  # 2: object alpha statistics; votes from at most 600 training views
 }
 
 

@@ -5,8 +5,8 @@ demo` scene) once per CPU preset (``cpu-v1``, the first one, and ``cpu``, the cu
 one after the other in this process, saving a checkpoint every few hundred iterations; then
 renders every checkpoint at the test views and prints test PSNR against the time at which the
 checkpoint was written (setup and image loading included), and the median seconds per
-iteration before and after the deformation switches on. Threads as in the runner: torch on 1
-thread (reconstruct's default), numba compositing on all cores (or ``trase-bench perf
+iteration before and after the deformation switches on. Threads as in the runner: torch as the
+preset says (``torch_threads``), numba compositing on all cores (or ``trase-bench perf
 --threads N``). Run it on a quiet machine: the two presets are timed one after the other.
 """
 
@@ -65,7 +65,7 @@ def _train_and_score(scene, preset: str, train: dict, budget_s: float, iteration
     cfg = ReconstructionConfig(**train)
     t0 = time.time()
     reconstruct(scene.train, scene.points, scene.point_colors, cfg, out_dir, resume=False, progress=False,
-                max_seconds=budget_s)  # torch on 1 thread, as the runner (see reconstruct's docstring)
+                max_seconds=budget_s)  # torch threads: the preset's, as the runner
     wall = time.time() - t0
     curve = []
     for it in available_iterations(out_dir):
@@ -76,7 +76,7 @@ def _train_and_score(scene, preset: str, train: dict, budget_s: float, iteration
         curve.append({"iteration": it, "seconds": at, "gaussians": g.num_gaussians, "psnr": psnr})
         echo(f"  {preset:<7} iteration {it:5d} at {at:6.1f}s  {g.num_gaussians:6d} gaussians  test PSNR {psnr:5.2f} dB")
     last = curve[-1] if curve else None
-    return {"preset": preset, "train_config": train, "budget_s": budget_s, "wall_s": wall, "torch_threads": 1,
+    return {"preset": preset, "train_config": train, "budget_s": budget_s, "wall_s": wall, "torch_threads": cfg.torch_threads,
             "numba_threads": numba.get_num_threads(), "iterations_planned": cfg.iterations,
             "finished": bool(last and last["iteration"] == cfg.iterations),
             "seconds_per_iteration": _seconds_per_iteration(out_dir / "train_log.csv", cfg.warm_up),

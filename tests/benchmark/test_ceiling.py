@@ -58,3 +58,16 @@ def test_instance_map_of_wrong_size_names_the_view():
     cam = views[0].camera
     with pytest.raises(CeilingError, match="cam/00.*WxH"):
         instance_votes(gm, deform, [cam], [np.zeros((cam.height + 1, cam.width), np.int64)], 2)
+
+
+def test_object_alpha_stats_measure_holes_inside_the_ground_truth():
+    from benchmark.ceiling import object_alpha_stats
+
+    gt = np.zeros((4, 4), bool)
+    gt[1:3, 1:3] = True  # 4 object pixels
+    alpha = np.full((4, 4), 0.9, np.float32)  # solid everywhere ...
+    alpha[1, 1] = 0.2  # ... but one see-through pixel inside the object
+    st = object_alpha_stats([alpha, alpha], [gt, gt])
+    assert st["holes"] == 0.25 and st["gt_pixels"] == 8
+    assert st["mean_in_gt"] == pytest.approx((3 * 0.9 + 0.2) / 4, abs=1e-4)
+    assert object_alpha_stats([alpha], [np.zeros((4, 4), bool)])["holes"] is None  # nothing to measure

@@ -61,6 +61,6 @@ def test_reconstruct_suite_reports_psnr_per_checkpoint_for_both_presets(monkeypa
         # the runner's settings for this scene (the tiny scene trains at full resolution)
         assert r["train_config"]["image_downscale"] == 1.0 and r["train_config"]["deform_preset"] == "small"
     old, new = (r["train_config"] for r in out["runs"])
-    assert not old["deform_visible_only"] and new["deform_visible_only"]
+    assert old["torch_threads"] == 1 and new["torch_threads"] == 2
     printed = capsys.readouterr().out
     assert "test PSNR" in printed and "s/it deforming" in printed

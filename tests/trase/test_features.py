@@ -40,7 +40,7 @@ def test_auto_fastpath_only_when_views_are_drawn_often(tmp_path):
     from trase.features import FASTPATH_MIN_USES, FeatureTrainingError, use_fastpath
 
     assert use_fastpath("auto", FASTPATH_MIN_USES * 50, 50)
-    assert not use_fastpath("auto", 3000, 450)  # 450 views: each drawn ~7 times
+    assert not use_fastpath("auto", 1000, 450)  # 450 views: each drawn ~2 times
     assert use_fastpath(True, 1, 5000) and not use_fastpath(False, 10**6, 1)
     try:
         use_fastpath("sometimes", 10, 1)
@@ -48,8 +48,8 @@ def test_auto_fastpath_only_when_views_are_drawn_often(tmp_path):
         assert "sometimes" in str(exc)
     else:
         raise AssertionError("a bad fastpath setting must be an error")
-    # the tiny scene has 4 views: 30 steps draw each ~8 times -> rasterizer; 120 -> fast path
-    few, _ = _train(tmp_path / "few", iterations=30)
+    # the tiny scene has 4 views: 10 steps draw each ~2.5 times -> rasterizer; 20 -> fast path
+    few, _ = _train(tmp_path / "few", iterations=10)
     many, _ = _train(tmp_path / "many", iterations=4 * FASTPATH_MIN_USES)
     assert few.path_stats["path"] == "rasterizer" and many.path_stats["path"] == "fastpath"
 
