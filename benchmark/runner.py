@@ -194,6 +194,16 @@ def synthetic_manifest(scene) -> tuple[Path, dict]:
     return Path(path), read_json(path, "synthetic manifest")
 
 
+def synthetic_scene_info(scene) -> dict | None:
+    """Which synthetic scene a result was measured on (None on real data): generator version,
+    seed, size and difficulty (results of the standard and hard scenes must never be mixed)."""
+    if not scene.extras.get("synthetic_manifest"):
+        return None
+    _, manifest = synthetic_manifest(scene)
+    keys = ("generator_version", "seed", "size", "difficulty", "frames_per_camera", "motion_span")
+    return {k: manifest.get(k) for k in keys}
+
+
 def synthetic_instance_maps(scene) -> dict[str, Path]:
     path, manifest = synthetic_manifest(scene)
     return {name: path.parent / rel for name, rel in manifest["instances"].items()}  # relative to manifest
@@ -453,6 +463,7 @@ def run_sequence(opts: RunOptions, sequence: str | None, reporter: Reporter, ind
         "dataset": spec.key,
         "sequence": seq,
         "variant": variant,
+        "synthetic_scene": synthetic_scene_info(scene),
         "metrics": {**{k: v1[k] for k in ("miou", "macc", "pooled_iou", "metric", "metric_version",
                                           "n_frames", "both_empty", "missing")},
                     "official": {k: official[k] for k in ("miou", "macc", "pooled_iou", "metric_version")}},

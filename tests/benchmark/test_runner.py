@@ -51,6 +51,9 @@ def test_pipeline_end_to_end(data_root, tmp_path, capsys):
     # with the ground-truth geometry it is near perfect
     assert r["ceiling"]["rule"] == r["config"]["method"]["render_rule"]
     assert r["ceiling"]["n_selected"] > 0 and r["ceiling"]["miou"] > 0.85
+    assert 0 <= r["ceiling"]["object_alpha"]["holes"] <= 1 and r["ceiling"]["object_alpha"]["gt_pixels"] > 0
+    # which synthetic scene (standard or hard) the figure was measured on
+    assert r["synthetic_scene"]["difficulty"] in ("standard", "hard") and r["synthetic_scene"]["generator_version"]
 
     # a second method on the same scene reuses masks and geometry
     assert _run(data_root, out, method="trase-hard") == 0
