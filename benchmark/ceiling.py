@@ -100,7 +100,7 @@ def label_ceiling(gaussians, deformation, scene, gts: Sequence[np.ndarray], rule
     ids, paths, n_ids = synthetic_truth(scene)
     views = [v for v in scene.train if v.name in paths]
     if len(views) > MAX_VOTE_VIEWS:  # evenly spread over the list (cameras x frames)
-        views = [views[int(round(i * (len(views) - 1) / (MAX_VOTE_VIEWS - 1)))] for i in range(MAX_VOTE_VIEWS)]
+        views = [views[round(i * (len(views) - 1) / (MAX_VOTE_VIEWS - 1))] for i in range(MAX_VOTE_VIEWS)]
     if not views:
         raise CeilingError(f"{scene.root}: no training view has an instance map; no ceiling")
     votes = instance_votes(gaussians, deformation, [v.camera for v in views],

@@ -141,7 +141,7 @@ def _grads(g, deform, cam, visible_only):
     for p in [g.means, *deform.parameters()]:
         p.grad = None
     target = torch.full((cam.height, cam.width, 3), 0.3)
-    out, means_t = render_view(g, deform, cam, torch.zeros(3), "numba", visible_only=visible_only)
+    out, _ = render_view(g, deform, cam, torch.zeros(3), "numba", visible_only=visible_only)
     l1_loss(out.color, target).backward()
     return out.color.detach().clone(), g.means.grad.clone(), [p.grad.clone() for p in deform.parameters()]
 

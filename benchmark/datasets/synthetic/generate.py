@@ -62,7 +62,7 @@ class SyntheticError(UserError):
 
 
 def sequence_name(size: str, difficulty: str = "standard") -> str:
-    """"synthetic", "synthetic-medium", ...; the hard variant adds "-hard"."""
+    """The sequence name: "synthetic", "synthetic-medium", ...; the hard variant adds "-hard"."""
     return SEQUENCE_NAMES[size] + (HARD_SUFFIX if difficulty == "hard" else "")
 
 

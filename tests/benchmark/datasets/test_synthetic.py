@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import itertools
 import json
 from pathlib import Path
 
@@ -470,7 +471,7 @@ def test_hard_scenes_are_the_earlier_scenes_and_standard_ones_follow_the_benchma
         # the fastest object (the cube) moves at most MAX_MOTION_PER_FRAME per frame
         world = build_world(0, std.span)
         path = [world.centre("cube", i / std.frames) for i in range(std.frames)]
-        step = max(np.linalg.norm(b - a) for a, b in zip(path, path[1:]))
+        step = max(np.linalg.norm(b - a) for a, b in itertools.pairwise(path))
         assert step <= MAX_MOTION_PER_FRAME * 1.6, (d, step)  # the cube's height also bobs
     assert rig_size("immersive", "small").frames == 50 and standard_span(50) < 0.3
     assert standard_span(10**6) == 1.0
