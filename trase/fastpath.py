@@ -135,6 +135,10 @@ class ViewWeights:
         self._views: dict[int, ViewInfo] = {}
         self.nbytes: dict[str, int] = {}  # view name -> bytes of its weights
         self.hits = {"ram": 0, "disk": 0, "computed": 0}
+        # view -> fingerprint of its frozen geometry, once known: the geometry is frozen for
+        # this object's life, so a view reloaded from disk is not deformed again (a network
+        # pass over every gaussian) just to check its file
+        self._fingerprints: dict[int, str] = {}
 
     def register(self, key: int, name: str, camera: Camera, valid: np.ndarray) -> None:
         """Declare view ``key``: its camera (at mask resolution) and the pixels to cover."""
@@ -151,15 +155,18 @@ class ViewWeights:
 
     def _compute_or_load(self, key: int) -> PixelWeights:
         info = self._views[key]
-        means, quats, scales, opac = frozen_geometry(self.gaussians, self.deformation, info.camera.time)
         pixels = np.flatnonzero(info.valid.reshape(-1)).astype(np.int64)  # ascending
-        fp = _fingerprint(means, quats, scales, opac, info.camera, pixels, self.min_weight)
+        fp, geometry = self._fingerprints.get(key), None
+        if fp is None:  # the first time this view is asked for in this run
+            geometry = frozen_geometry(self.gaussians, self.deformation, info.camera.time)
+            fp = _fingerprint(*geometry, info.camera, pixels, self.min_weight)
         path = self._path(info)
         if path is not None and path.is_file():
             try:
                 with np.load(path, allow_pickle=False) as z:
                     if str(z["fingerprint"]) == fp:
                         self.hits["disk"] += 1
+                        self._fingerprints[key] = fp
                         return PixelWeights(
                             pixels=torch.from_numpy(z["pixels"]),
                             indptr=torch.from_numpy(z["indptr"]),
@@ -168,8 +175,10 @@ class ViewWeights:
                         )
             except (OSError, ValueError, KeyError):
                 pass  # unreadable or stale cache file: recompute and overwrite
-        pw = pixel_weights(means, quats, scales, opac, info.camera, pixels=torch.from_numpy(pixels),
-                           min_weight=self.min_weight)
+        if geometry is None:  # known view whose file went missing or bad: deform it again
+            geometry = frozen_geometry(self.gaussians, self.deformation, info.camera.time)
+        pw = pixel_weights(*geometry, info.camera, pixels=torch.from_numpy(pixels), min_weight=self.min_weight)
+        self._fingerprints[key] = fp
         self.hits["computed"] += 1
         if path is not None:
             _save_npz_atomic(

@@ -85,6 +85,26 @@ def test_memory_bound_evicts(tmp_path):
     assert vw.hits["disk"] == 1
 
 
+def test_reloads_within_a_run_do_not_deform_again(tmp_path, monkeypatch):
+    import trase.fastpath as fastpath
+
+    gm, deform, cam = _scene()
+    valid = np.ones((cam.height, cam.width), bool)
+    vw = ViewWeights(gm, deform, tmp_path, max_bytes=1)  # RAM holds one view: others reload
+    for k in range(2):
+        vw.register(k, f"v{k}", cam.with_time(k / 2), valid)
+    first = vw.get(0).weights.clone()
+    vw.get(1)
+    calls = []
+    real = fastpath.frozen_geometry
+    monkeypatch.setattr(fastpath, "frozen_geometry", lambda *a: calls.append(a) or real(*a))
+    torch.testing.assert_close(vw.get(0).weights, first, rtol=0, atol=0)  # from disk
+    assert vw.hits["disk"] == 1 and calls == []  # the fingerprint was known
+    (tmp_path / "v1.npz").unlink()  # a file that vanished is computed again, geometry included
+    vw.get(1)
+    assert vw.hits["computed"] == 3 and len(calls) == 1
+
+
 def test_outside_pixels_and_empty(tmp_path):
     gm, deform, cam = _scene()
     valid = np.zeros((cam.height, cam.width), bool)
