@@ -94,9 +94,11 @@ class TimeStatistics:
 # on a table); the datasets publish no motion statistics.
 STANDARD_TIME: dict[str, TimeStatistics] = {
     "nerfds": TimeStatistics(150, 30.0, "NeRF-DS (Yan et al. 2023): stereo rig, left camera trains and right "
-                             "camera tests; sequences of a few hundred frames per camera, the lower end here"),
-    "hypernerf": TimeStatistics(200, 15.0, "HyperNeRF interp captures (Park et al. 2021): a few hundred frames; "
-                                "the Mask benchmark trains on every 4th and tests on every 4th from the third"),
+                             "camera tests; a few hundred frames per camera (approximate: no release "
+                             "file was checked here), the lower end taken"),
+    "hypernerf": TimeStatistics(200, 15.0, "HyperNeRF interp captures (Park et al. 2021): a few hundred frames "
+                                "(approximate: no release file was checked here); the Mask benchmark trains "
+                                "on every 4th and tests on every 4th from the third"),
     "neu3d": TimeStatistics(300, 30.0, "Neu3D (Li et al. 2022; the paper's supplementary): 300 frames at 30 fps, "
                             "18-21 cameras", frames=100,
                             why="18 cameras x 300 frames is 5400 ray-cast images (~20 min to generate on 2 "
