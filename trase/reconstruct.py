@@ -159,8 +159,9 @@ CPU_V1: dict[str, Any] = {
 CPU_CHANGES: dict[str, Any] = {
     # the deformation network's products are most of a step (215 of 302 ms at 30k gaussians);
     # on 2 quiet cores a step takes 209 ms with 2 torch threads against 302 ms with 1
-    # (synthetic HyperNeRF scene). On a machine shared with other jobs, extra threads can
-    # spin against each other: set geometry.train.torch_threads=1 there.
+    # (synthetic HyperNeRF scene). Beside another job the same two threads wait on each
+    # other (static phase 1.01 s per step against 0.13 s with 1 thread): set
+    # geometry.train.torch_threads=1 on a shared machine.
     "torch_threads": 2,
     # solid surfaces: opacities pushed to 0 or 1 over the second half of the run. Chosen on
     # the synthetic HyperNeRF scene of seed 1 (not the benchmark's seed-0 scene): weight 0.01
