@@ -114,9 +114,8 @@ class ReconstructionConfig:
         3000-step schedule, the small deformation net, SH up to degree 1, 4-5x the colour and
         scale learning rates (at the public rates a colour needs ~500 steps to move from grey
         to a dark texel), position and deformation learning rates decaying over 20000 steps
-        (annealing within a short run cost 1.2-1.7 dB), and the network evaluated with
-        gradients over every gaussian. Kept so ``trase-bench perf reconstruct`` can show it
-        beside the current ``cpu`` preset."""
+        (annealing within a short run cost 1.2-1.7 dB), torch on one thread. Kept so
+        ``trase-bench perf reconstruct`` can show it beside the current ``cpu`` preset."""
         kw: dict[str, Any] = dict(CPU_V1)
         kw.update(overrides)
         return cls(**kw)
