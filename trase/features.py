@@ -42,8 +42,9 @@ class FeatureTrainingError(ValueError):
 
 # "auto" fast path: a view's weights cost ~0.4-0.7 s to compute (a 160x120 view of a 30k
 # gaussian room, every pixel with ~50 contributors, 2 CPU cores) and make a step cheaper when
-# the view is drawn (measured on the synthetic HyperNeRF scene, 30k gaussians, Np 2000: 87 ms
-# per step against 190 ms rasterizing), so they pay off from ~5 draws; scenes with hundreds or
+# the view is drawn (synthetic HyperNeRF scene, 30k gaussians, Np 2000: 60-87 ms per step in
+# runs beside another job, 170-215 ms rasterizing measured separately; not side by side), so
+# they pay off from ~5 draws; scenes with hundreds or
 # thousands of training views draw most views once or never in a few thousand steps.
 # Both paths render the same features (<= 1e-5, trase.fastpath).
 FASTPATH_MIN_USES = 5
