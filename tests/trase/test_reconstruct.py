@@ -203,22 +203,28 @@ def test_opacity_entropy_setting_makes_opacities_more_binary(scene, tmp_path):
     assert float(opacity_entropy(solid.opacities.detach())) < float(opacity_entropy(plain.opacities.detach()))
 
 
-def test_densification_never_exceeds_the_gaussian_cap_and_keeps_the_largest_gradients():
-    # the cpu preset's 15k cap decides a step's cost; densification must respect it exactly
+def _densify_points_under_cap(cap: int) -> tuple[GaussianModel, np.ndarray]:
+    """200 gaussians, gradients rising with the row (row 0 below the threshold), densified once
+    under ``cap``."""
     from trase.reconstruct import _densify_and_prune, _make_optimizers
 
     pts = np.random.default_rng(0).uniform(-1, 1, (200, 3))
     g = GaussianModel.from_points(pts, None, sh_degree=0)
-    cfg = ReconstructionConfig.cpu(max_gaussians=230, min_opacity=0.0)
+    cfg = ReconstructionConfig.cpu(max_gaussians=cap, min_opacity=0.0)
     opt, _ = _make_optimizers(g, DeformMLP.preset("small"), cfg)
-    grads = torch.linspace(0.0, 1.0, 200)  # every gaussian a candidate (threshold 0.0004)
-    grads[0] = 0.0
-    _densify_and_prune(g, opt, cfg, grads.clone(), torch.ones(200), 1.0, False, torch.Generator().manual_seed(0))
+    grads = torch.linspace(0.0, 1.0, 200)
+    grads[0] = 0.0  # 199 candidates above the 0.0004 threshold
+    _densify_and_prune(g, opt, cfg, grads, torch.ones(200), 1.0, False, torch.Generator().manual_seed(0))
+    return g, pts
+
+
+def test_densification_never_exceeds_the_gaussian_cap_and_keeps_the_largest_gradients():
+    # the cpu preset's 15k cap decides a step's cost; densification must respect it exactly
+    g, pts = _densify_points_under_cap(230)
     assert g.num_gaussians == 230  # 30 room left: 30 of 199 candidates densified
-    # the 30 largest-gradient gaussians (the last rows) were the ones copied or split
+    # these gaussians are larger than percent_dense x extent, so a densified one is split
+    # (its row removed): the first 170 rows stay in place only if the 30 largest-gradient
+    # gaussians (the last rows) were the ones chosen
     assert torch.equal(g.means[:170], torch.as_tensor(pts[:170], dtype=g.means.dtype))
-    full = GaussianModel.from_points(pts, None, sh_degree=0)
-    opt2, _ = _make_optimizers(full, DeformMLP.preset("small"), cfg)
-    cfg_full = ReconstructionConfig.cpu(max_gaussians=200, min_opacity=0.0)
-    _densify_and_prune(full, opt2, cfg_full, grads.clone(), torch.ones(200), 1.0, False, torch.Generator().manual_seed(0))
+    full, _ = _densify_points_under_cap(200)
     assert full.num_gaussians == 200  # at the cap: nothing added
