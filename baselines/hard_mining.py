@@ -34,6 +34,7 @@ from trase.objectives.base import (
     PixelSample,
     pair_stats,
     register_objective,
+    regulariser_features,
 )
 from trase.objectives.fused import fused_pair_losses
 from trase.objectives.soft import IMPLS, combine_pair_losses, use_fused, weighted_pair_losses
@@ -69,17 +70,20 @@ def hard_mining_loss(
     if use_fused(impl, features):
         l_pos, l_neg, n_pos, n_neg, n_valid = fused_pair_losses(
             features, sample, hard=True, tau_pos=tau_pos, tau_neg=tau_neg)
-        return combine_pair_losses(n_valid, features, l_pos, l_neg, n_pos, n_neg, reg_weight)
+        return combine_pair_losses(n_valid, regulariser_features(features, sample), l_pos, l_neg, n_pos, n_neg,
+                                   reg_weight)
     ps = pair_stats(features, sample)  # checks the feature shape against the sample
     pos, neg = hard_pairs(ps, tau_pos, tau_neg)
     n_pos, n_neg = int(pos.sum()), int(neg.sum())
     l_pos, l_neg = weighted_pair_losses(ps, pos, neg, n_pos, n_neg)
-    return combine_pair_losses(ps, features, l_pos, l_neg, n_pos, n_neg, reg_weight)
+    return combine_pair_losses(ps, regulariser_features(features, sample), l_pos, l_neg, n_pos, n_neg, reg_weight)
 
 
 @register_objective("trase-hard")
 class HardMining(Objective):
     """TRASE's weighted pair loss over only the individually violating pairs (ablation)."""
+
+    uses_norm_regulariser = True
 
     def __init__(
         self, tau_pos: float = TAU_POS, tau_neg: float = TAU_NEG, reg_weight: float = 1.0,

@@ -111,8 +111,9 @@ class CGCMethod(TraseMethod):
         )
         fitted.stats["selected_gaussians"] = int(sel.sum())
         thr = float(fitted.config.get("alpha_threshold", 0.5))
+        rule = str(fitted.config.get("render_rule", "alone"))  # as its oracle and the ceiling
         return render_masks(
-            fitted.gaussians, fitted.deformation, sel, [v.camera for v in scene.test], thr
+            fitted.gaussians, fitted.deformation, sel, [v.camera for v in scene.test], thr, rule
         )
 
 

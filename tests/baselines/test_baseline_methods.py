@@ -76,3 +76,26 @@ def test_fit_and_segment_tiny_scene(tmp_path, name):
         # 40 x 30 masks: the public 100 px at 480 x 270 -> 1 px; keep is all (no TRASE filter)
         assert fitted.config["features"]["objective_params"]["min_mask_pixels"] == 1
         assert fitted.keep.all() and fitted.stats["selected_gaussians"] > 0
+
+
+@pytest.mark.parametrize("rule", ["alone", "visible"])
+def test_cgc_segments_with_the_configured_render_rule(monkeypatch, rule):
+    # its oracle and the ceiling follow method.render_rule; its own masks must too
+    import baselines.cgc_inference as cgc_inference
+    import trase.segment as segment
+
+    _, _, _, views = tiny_scene(n_per=2)
+    seen = {}
+
+    def fake_render(gaussians, deformation, selected, cameras, threshold, rule="alone"):
+        seen["rule"] = rule
+        return [np.zeros((c.height, c.width), bool) for c in cameras]
+
+    monkeypatch.setattr(cgc_inference, "select_by_clicks", lambda *a, **k: np.ones(4, bool))
+    monkeypatch.setattr(segment, "render_masks", fake_render)
+    fitted = types.SimpleNamespace(gaussians=object(), deformation=None, features=np.zeros((4, 8), np.float32),
+                                   config={"render_rule": rule, "alpha_threshold": 0.5}, stats={})
+    scene = types.SimpleNamespace(test=views, root="tiny")
+    prompts = BenchmarkPrompts(0, views[0].name, views[0].camera.time, [Click(1.0, 1.0, views[0].name)])
+    get_method("cgc").segment(fitted, scene, prompts)
+    assert seen["rule"] == rule

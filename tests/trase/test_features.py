@@ -79,3 +79,80 @@ def test_build_sample_membership():
     assert (ms.covered.reshape(-1)[pix]).all()
     assert np.array_equal(s.membership.numpy(), m.reshape(2, -1)[:, pix].T)
     np.testing.assert_allclose(s.pixel_mean_area.numpy(), ms.pixel_mean_area.reshape(-1)[pix])
+
+
+def test_smoothed_features_are_normalised_again_before_rendering():
+    # public trainer: render(..., norm_gaussian_features=True) after the neighbour mean
+    from trase.features import render_ready
+    from trase.smoothing import knn_indices
+
+    gen = torch.Generator().manual_seed(0)
+    feats = torch.randn(40, 8, generator=gen)
+    knn = knn_indices(torch.randn(40, 3, generator=gen), 6)
+    on = render_ready(feats, knn, FeatureConfig(knn=6, knn_keep=3), torch.Generator().manual_seed(1))
+    off = render_ready(feats, knn, FeatureConfig(knn=6, knn_keep=3, renormalize=False),
+                       torch.Generator().manual_seed(1))
+    assert torch.allclose(on.norm(dim=1), torch.ones(40), atol=1e-6)
+    assert (off.norm(dim=1) < 0.999).any()  # a mean of unit vectors is shorter
+    assert torch.allclose(on, torch.nn.functional.normalize(off, dim=1), atol=1e-6)
+
+
+class _Recorder(torch.nn.Module):
+    """An objective that keeps what the trainer hands it (uses the norm regulariser)."""
+
+    uses_norm_regulariser = True
+
+    def __init__(self):
+        super().__init__()
+        self.seen = []
+
+    def forward(self, features, sample):
+        self.seen.append((features.detach().clone(), sample))
+        return (features ** 2).sum() * 0.0, {}
+
+    def gaussian_loss(self, features, xyz, rng=None):
+        return None
+
+
+def test_norm_regulariser_sees_the_whole_view_unless_told_sampled(tmp_path, monkeypatch):
+    import trase.features as tf
+
+    gm, deform, ids, views = tiny_scene()
+    masks = {v.name: exact_masks(gm, deform, ids, v) for v in views}
+    for rule in ("image", "sampled"):
+        rec = _Recorder()
+        monkeypatch.setattr(tf, "get_objective", lambda name, **kw: rec)
+        cfg = FeatureConfig(dim=4, iterations=6, n_pixels=100, n_masks=3, knn=4, knn_keep=2,
+                            norm_reg_pixels=rule, fastpath=True)
+        train_features(gm, deform, views, lambda v: masks[v.name], cfg, cache_dir=tmp_path / rule, progress=False)
+        for rendered, sample in rec.seen:
+            if rule == "sampled":
+                assert sample.image_features is None
+                continue
+            H, W = views[sample.view].camera.height, views[sample.view].camera.width
+            assert sample.image_features.shape == (H * W, 4)
+            assert torch.allclose(sample.image_features[sample.pixels], rendered)
+            outside = ~masks[views[sample.view].name].covered.reshape(-1)
+            assert outside.any()  # the view has pixels in no mask, and they are rendered too
+    try:
+        train_features(gm, deform, views, lambda v: masks[v.name],
+                       FeatureConfig(dim=4, iterations=2, norm_reg_pixels="some"), progress=False)
+    except tf.FeatureTrainingError as exc:
+        assert "norm_reg_pixels" in str(exc)
+    else:
+        raise AssertionError("an unknown norm_reg_pixels must be an error")
+
+
+def test_norm_regulariser_averages_over_the_image_features_when_given():
+    from trase.objectives import PixelSample, get_objective
+
+    sample = PixelSample(pixels=torch.arange(4), membership=torch.tensor([[1], [1], [0], [0]], dtype=torch.bool),
+                         mask_area=torch.tensor([2.0]), pixel_mean_area=torch.tensor([2.0, 2.0, 0.0, 0.0]))
+    feats = torch.ones(4, 2) / 2 ** 0.5  # unit norm at the sampled pixels
+    for name in ("trase", "trase-hard", "trase-all"):
+        _, stats = get_objective(name)(feats, sample)
+        assert stats["reg"] < 1e-9
+        sample.image_features = torch.cat([feats, torch.zeros(4, 2)])  # half the view renders nothing
+        _, stats = get_objective(name)(feats, sample)
+        assert abs(stats["reg"] - 0.25) < 1e-6  # (1 - 0.5)^2
+        sample.image_features = None

@@ -11,6 +11,7 @@ from trase.objectives.base import (
     pair_stats,
     pair_weights,
     register_objective,
+    regulariser_features,
 )
 
 __all__ = [
@@ -24,4 +25,5 @@ __all__ = [
     "pair_stats",
     "pair_weights",
     "register_objective",
+    "regulariser_features",
 ]

@@ -39,6 +39,10 @@ class PixelSample:
     pixel_mean_area: torch.Tensor  # [Np] float: mean area of ALL masks covering pixel (0: none)
     alpha: torch.Tensor | None = None  # [Np] rendered alpha (silhouette-based objectives)
     view: int = -1  # index of the training view, for logging
+    # [H*W, D] the features rendered at every pixel of the view (at mask resolution), when the
+    # step rendered the whole image: the feature-norm regulariser then averages over it, as the
+    # public code does; None: it averages over the sampled pixels
+    image_features: torch.Tensor | None = None
 
     def __post_init__(self) -> None:
         n = self.pixels.shape[0]
@@ -60,6 +64,8 @@ class PixelSample:
             )
         if self.alpha is not None and self.alpha.shape != (n,):
             raise ObjectiveInputError(f"alpha must be [Np={n}], got {tuple(self.alpha.shape)}")
+        if self.image_features is not None and self.image_features.ndim != 2:
+            raise ObjectiveInputError(f"image_features must be [H*W, D], got {tuple(self.image_features.shape)}")
 
     @property
     def n_pixels(self) -> int:
@@ -167,10 +173,18 @@ def pair_stats(features: torch.Tensor, sample: PixelSample) -> PairStats:
 
 
 def norm_regulariser(features: torch.Tensor) -> torch.Tensor:
-    """(1 - mean ||F(p)||)^2 over all sampled pixels: keeps rendered features near unit norm."""
+    """(1 - mean ||F(p)||)^2 over the rows of ``features`` [P, D]: keeps rendered features near
+    unit norm. Which pixels: ``regulariser_features``."""
     if features.shape[0] == 0:
         return features.sum() * 0.0
     return (1.0 - features.norm(dim=1).mean()) ** 2
+
+
+def regulariser_features(features: torch.Tensor, sample: PixelSample) -> torch.Tensor:
+    """The rendered features the norm regulariser averages over: the whole view when the step
+    rendered it (``sample.image_features``; the public code's rule), else the sampled pixels
+    ``features`` [Np, D] (the ``sampled`` setting of ``FeatureConfig.norm_reg_pixels``)."""
+    return sample.image_features if sample.image_features is not None else features
 
 
 class Objective(torch.nn.Module):
@@ -178,6 +192,9 @@ class Objective(torch.nn.Module):
     optional extra term on the gaussians themselves (e.g. CGC's 3D spatial term)."""
 
     name: str = ""
+    # True when the loss has the feature-norm regulariser: the trainer then renders the whole
+    # view for it (``PixelSample.image_features``) if the config asks for the public rule
+    uses_norm_regulariser: bool = False
 
     def forward(self, features: torch.Tensor, sample: PixelSample) -> tuple[torch.Tensor, dict]:
         """features [Np, D] rendered at sample.pixels -> (scalar loss, stats of floats)."""

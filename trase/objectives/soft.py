@@ -44,6 +44,7 @@ from trase.objectives.base import (
     norm_regulariser,
     pair_stats,
     register_objective,
+    regulariser_features,
 )
 from trase.objectives.fused import fused_pair_losses
 
@@ -138,7 +139,8 @@ def weighted_pair_losses(ps: PairStats, pos_pairs, neg_pairs, z_pos, z_neg):
 def combine_pair_losses(n_valid: int, features, l_pos, l_neg, n_pos: int, n_neg: int,
                         reg_weight: float = 1.0) -> tuple[torch.Tensor, dict]:
     """L = L_pos + L_neg + reg_weight * regulariser, with the stats every mining rule reports.
-    ``n_valid``: pixels in >= 1 sampled mask (an int, or the ``PairStats`` they came from)."""
+    ``n_valid``: pixels in >= 1 sampled mask (an int, or the ``PairStats`` they came from);
+    ``features``: what the regulariser averages over (``base.regulariser_features``)."""
     if isinstance(n_valid, PairStats):
         n_valid = int(n_valid.valid.sum())
     reg = norm_regulariser(features)
@@ -167,6 +169,8 @@ def weighted_pair_losses_reference(ps: PairStats, pos_pairs, neg_pairs, z_pos, z
 @register_objective("trase")
 class SoftMining(Objective):
     """Soft-mined contrastive loss + feature-norm regulariser (TRASE)."""
+
+    uses_norm_regulariser = True
 
     def __init__(
         self,
@@ -205,7 +209,8 @@ class SoftMining(Objective):
         l_pos, l_neg, n_pos, n_neg, n_valid = fused_pair_losses(
             features, sample, tau_pos=tau_pos, tau_neg=tau_neg, side=self.anchor_side,
             normalise=self.normalise)
-        return combine_pair_losses(n_valid, features, l_pos, l_neg, n_pos, n_neg, self.reg_weight)
+        return combine_pair_losses(n_valid, regulariser_features(features, sample), l_pos, l_neg, n_pos, n_neg,
+                                   self.reg_weight)
 
     def forward_reference(self, features: torch.Tensor, sample: PixelSample) -> tuple[torch.Tensor, dict]:
         """The dense torch form (readable; the tests compare ``forward`` against it)."""
@@ -220,4 +225,5 @@ class SoftMining(Objective):
         else:
             z_pos, z_neg = n_pos, n_neg
         l_pos, l_neg = weighted_pair_losses(ps, pos, neg, z_pos, z_neg)
-        return combine_pair_losses(ps, features, l_pos, l_neg, n_pos, n_neg, self.reg_weight)
+        return combine_pair_losses(ps, regulariser_features(features, sample), l_pos, l_neg, n_pos, n_neg,
+                                   self.reg_weight)
