@@ -25,7 +25,7 @@ test: $(STAMP)
 	$(PY) -m pytest
 
 # The main job on the built-in default data: TRASE on the synthetic HyperNeRF-format scene
-# (generated once into the cache), then the leaderboard of everything under runs/.
+# (generated once into the cache), then the leaderboard of the main runs under runs/.
 demo: $(STAMP)
 	$(VENV)/bin/trase-bench run --method trase --dataset hypernerf --out runs
 	$(VENV)/bin/trase-bench leaderboard --results runs --variant synthetic

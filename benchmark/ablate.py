@@ -25,6 +25,14 @@ class Variant:
     method: str
     overrides: tuple[str, ...]
 
+    @property
+    def run_name(self) -> str:
+        """The variant's run directory name (benchmark.runs.NAME_RE): '2%' -> '2pct'."""
+        return self.label.replace("%", "pct").replace(" ", "_")
+
+
+UNFILTERED = "method.filter_threshold=-1.0"  # -1: every gaussian keeps its cluster
+
 
 @dataclasses.dataclass(frozen=True)
 class Study:
@@ -34,6 +42,10 @@ class Study:
     columns: tuple[str, ...]  # extra columns beyond mIoU/mAcc (see _extra)
     published: str | None  # CSV in benchmark/data/published
     published_key: str | None = None  # its column naming the variant
+    # the paper table's protocol, applied to every variant, and where it comes from
+    protocol: tuple[str, ...] = ()
+    protocol_note: str = ""
+    published_extra: str | None = None  # a second published CSV joined on its shared columns
 
 
 def _v(label, *overrides, method="trase"):
@@ -44,21 +56,31 @@ STUDIES: dict[str, Study] = {s.name: s for s in (
     Study("smoothing", "Smoothing: K nearest neighbours",
           (_v("K=0", "method.features.knn=0"), _v("K=16", "method.features.knn=16"),
            _v("K=32", "method.features.knn=32")),
-          ("fit_s",), "ablation_smoothing_k.csv", "variant"),
-    Study("feature-dim", "Feature dimension (size on disk, clustering time)",
-          tuple(_v(str(d), f"method.features.dim={d}") for d in (16, 32, 64, 128)),
-          ("size_mb", "cluster_s"), "ablation_feature_dim.csv", "dim"),
+          ("fit_s",), "ablation_smoothing_k.csv", "variant",
+          protocol=(UNFILTERED,),
+          protocol_note="unfiltered: the paper's K=16 row equals its 'without filtering' row"),
+    Study("feature-dim", "Feature dimension (storage, clustering time)",
+          tuple(_v(f"{d}/{f}", f"method.features.dim={d}", *((UNFILTERED,) if f == "no" else ()))
+                for d in (16, 32, 64, 128) for f in ("no", "yes")),
+          ("storage_mb", "cluster_s"), "ablation_feature_dim.csv", "dim",
+          published_extra="ablation_feature_dim_cost.csv",
+          protocol_note="each dimension with and without filtering, as the paper's table (label dim/filtering); "
+                        "storage = gaussians + features + deformation network, float32, in MiB"),
     Study("subsample", "Clustering subsample fraction",
           tuple(_v(f"{int(f * 100)}%", f"method.clustering.fraction={f}") for f in (0.02, 0.10, 0.25)),
-          ("cluster_s", "n_clusters"), "ablation_cluster_subsample.csv", "variant"),
+          ("cluster_s", "n_clusters", "cluster_points"), "ablation_cluster_subsample.csv", "variant",
+          protocol=(UNFILTERED, "method.clustering.min_sample=0"),
+          protocol_note="unfiltered (the paper's 2% row equals its 'without filtering' row); the fraction "
+                        "of the gaussians exactly, without the method's 5000-point floor"),
     Study("filtering", "Similarity filtering after clustering",
-          (_v("no", "method.filter_threshold=-1.0"), _v("yes")),
+          (_v("no", UNFILTERED), _v("yes")),
           (), "ablation_filtering.csv", "filtering"),
     Study("mask-sampling", "Mask sampling rule",
           (_v("random"), _v("area", "method.features.mask_rule=area"),
            _v("score", "method.features.mask_rule=score"),
            _v("grid", "method.features.mask_rule=grid", "method.features.n_masks=50")),
-          (), "ablation_mask_sampling.csv", "rule"),
+          (), "ablation_mask_sampling.csv", "rule",
+          protocol_note="filtered: the paper's random row equals its 'with filtering' row"),
     Study("mining", "Pair mining (with feature-space intra/inter distances)",
           (_v("soft", method="trase"), _v("hard", method="trase-hard"), _v("all", method="trase-all")),
           ("intra", "inter"), "ablation_mining_intra_inter.csv", "mining"),
@@ -73,12 +95,14 @@ STUDIES: dict[str, Study] = {s.name: s for s in (
 def _extra(col: str, rec: dict) -> float | int | None:
     stages = rec.get("stages", {})
     fit = stages.get("fit", {})
-    timings = fit.get("info", {}).get("timings", {})
+    info = fit.get("info", {})
+    timings = info.get("timings", {})
     fs = rec.get("feature_space") or {}
     return {
         "fit_s": (stages.get("features", {}).get("seconds") or 0.0) + (fit.get("seconds") or 0.0),
         "cluster_s": timings.get("clustering"),
-        "size_mb": rec.get("model_size_bytes", 0) / 2**20,
+        "cluster_points": (info.get("stats") or {}).get("cluster_sample"),
+        "storage_mb": (rec.get("storage") or {}).get("total_mib"),
         "n_clusters": rec.get("n_clusters"),
         "intra": fs.get("intra"),
         "inter": fs.get("inter"),
@@ -96,16 +120,19 @@ def run_study(name: str, dataset: str, out_dir: Path, data_root: Path | None = N
     study = STUDIES[name]
     rows = []
     for v in study.variants:
+        # a variant is a run of its study: <out>/ablations/<study>/<method>/<dataset>/<sequence>/<variant>
         opts = RunOptions(method=v.method, dataset=dataset, sequences=sequences, data_root=data_root,
-                          out_dir=Path(out_dir) / "ablations" / name / v.label,
-                          cache_dir=Path(out_dir) / ".cache",
-                          overrides=list(overrides or []) + list(v.overrides), progress=progress)
+                          out_dir=Path(out_dir) / "ablations" / name, cache_dir=Path(out_dir) / ".cache",
+                          overrides=list(study.protocol) + list(overrides or []) + list(v.overrides),
+                          progress=progress, name=v.run_name, study=name, study_variant=v.label)
         for path in run(opts):
             rec = load_results(path)
+            official = rec["metrics"]["official"]
             row = {"variant": v.label, "method": v.method, "sequence": rec["sequence"],
-                   "data": rec["variant"], "miou": rec["metrics"]["miou"], "macc": rec["metrics"]["macc"],
+                   "data": rec["variant"], "miou": official["miou"], "macc": official["macc"],
                    "total_s": total_seconds(rec)}
             row.update({c: _extra(c, rec) for c in study.columns})
+            row["_config"] = rec["config"]
             rows.append(row)
     return pd.DataFrame(rows)
 
@@ -113,19 +140,82 @@ def run_study(name: str, dataset: str, out_dir: Path, data_root: Path | None = N
 def summarise(df: pd.DataFrame) -> pd.DataFrame:
     """Mean over sequences per variant, in the study's variant order."""
     order = list(dict.fromkeys(df["variant"]))
-    num = df.drop(columns=["method", "sequence", "data"]).groupby("variant", sort=False).mean(numeric_only=True)
+    num = df.drop(columns=["method", "sequence", "data", "_config"], errors="ignore").groupby(
+        "variant", sort=False).mean(numeric_only=True)
     return num.loc[order].reset_index()
+
+
+# settings that change no figure of the table (bookkeeping, threads, caches)
+BOOKKEEPING = ("seed", "torch_threads", "checkpoint_interval", "log_interval", "mask_cache", "max_cache_bytes",
+               "fastpath", "render_backend", "checkpoint", "min_weight")
+
+
+def paper_config(method_name: str, dataset: str, variant: str, overrides: list[str]) -> dict:
+    """The config the paper's protocol would give this variant: the ``paper`` presets of the
+    geometry and the method for the dataset, then the study's and the variant's overrides."""
+    from benchmark.config import merge, parse_overrides
+    from benchmark.datasets import get_dataset
+    from benchmark.methods import get_method
+    from benchmark.runner import default_config
+
+    spec, method = get_dataset(dataset), get_method(method_name)
+    cfg = default_config(method, spec, variant, {"geometry": {"preset": "paper"}})
+    cfg["method"] = method.default_config(spec, preset="paper")
+    return merge(cfg, parse_overrides(overrides))
+
+
+def _flatten(d: dict, prefix: str = "") -> dict:
+    out = {}
+    for k, v in d.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, dict) and v:
+            out.update(_flatten(v, key + "."))
+        else:
+            out[key] = v
+    return out
+
+
+def differences(name: str, dataset: str, df: pd.DataFrame, overrides: list[str] | None = None) -> list[str]:
+    """What still separates the measured table from the paper's: the data, then every setting
+    whose value differs from the paper protocol's (``paper_config``), with both values."""
+    study = STUDIES[name]
+    data = sorted(set(df["data"])) if len(df) else []
+    out = []
+    if data != ["real"]:
+        out.append(f"data: {', '.join(data) or 'none'} scenes; the paper's tables are on the real benchmarks")
+    if study.protocol_note:
+        out.append(f"protocol followed: {study.protocol_note}")
+    seen: dict[str, tuple] = {}
+    for v in study.variants:
+        rows = df[df["variant"] == v.label]
+        if not len(rows):
+            continue
+        here = _flatten(rows.iloc[0]["_config"])
+        ref = _flatten(paper_config(v.method, dataset, rows.iloc[0]["data"],
+                                    list(study.protocol) + list(overrides or []) + list(v.overrides)))
+        for key in sorted(set(here) | set(ref)):
+            if key.split(".")[-1] in BOOKKEEPING or here.get(key) == ref.get(key):
+                continue
+            seen.setdefault(key, (here.get(key, "(unset)"), ref.get(key, "(unset)")))
+    out += [f"{k}: {a} here, {b} in the paper protocol" for k, (a, b) in seen.items()]
+    return out
 
 
 def published_table(name: str, dataset: str) -> pd.DataFrame | None:
     study = STUDIES[name]
     if not study.published:
         return None
-    path = resources.files("benchmark") / "data" / "published" / study.published
-    with path.open() as f:
-        df = pd.read_csv(f)
+    df = _published_csv(study.published)
+    if study.published_extra:
+        extra = _published_csv(study.published_extra)
+        df = df.merge(extra, on=[c for c in df.columns if c in extra.columns], how="left")
     df = df[df["dataset"] == dataset] if "dataset" in df.columns else df
     return df.reset_index(drop=True) if len(df) else None
+
+
+def _published_csv(name: str) -> pd.DataFrame:
+    with (resources.files("benchmark") / "data" / "published" / name).open() as f:
+        return pd.read_csv(f)
 
 
 def render_table(df: pd.DataFrame, fmt: str, title: str) -> str:

@@ -23,6 +23,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "prepare": ("benchmark.commands.prepare:prepare", "Raw multi-view downloads -> training frames."),
     "report": ("benchmark.commands.report:report", "Per-sequence HTML report of a run."),
     "run": ("benchmark.commands.run:run", "Run a method on a benchmark (synthetic default without data)."),
+    "runs": ("benchmark.commands.runs:runs", "List runs with their kind, config and protocol."),
     "score": ("benchmark.commands.score:score", "Score predicted masks against ground truth."),
     "synth": ("benchmark.commands.synth:synth", "Generate a synthetic scene in a benchmark's raw format."),
 }

@@ -1,9 +1,15 @@
-"""Leaderboards rendered from results files (and the paper's published numbers), never typed.
+"""Leaderboards rendered from runs (and the paper's published numbers), never typed.
 
 Layout follows the paper's Table 1: one row per method, a (mIoU, mAcc) column pair per
 benchmark, the best value of each column in bold, and a time column. Per-sequence tables
 follow the supplementary. Rules:
 
+* the caller chooses the runs (``benchmark.runs``: by default each method's main run), and a
+  cell is one run: two configs for one (method, dataset, sequence) are refused before this;
+* every measured row carries its protocol (geometry, features preset, masks, prompts, render
+  rule, metric) as a footnote marker;
+* cells use the official metric, the one the published rows were made with; the project's
+  ``v1`` is shown beside a cell where it differs;
 * real and synthetic results never share a table (``variant``);
 * published numbers appear only beside real results, as separate rows labelled
   ``(published)``, with the supplementary's own average;
@@ -23,6 +29,7 @@ import pandas as pd
 
 from benchmark.datasets import DATASETS
 from benchmark.results import total_seconds
+from benchmark.runs import protocol, protocol_label
 
 FORMATS = ("markdown", "latex", "csv", "html")
 PUBLISHED_NOTE = (
@@ -30,6 +37,8 @@ PUBLISHED_NOTE = (
     "column (OpenGaussian on HyperNeRF-Mask: Table 1 says 0.6311/0.9411, the supplementary "
     "0.6531/0.9480; SA4D on Neu3D-Mask mAcc: Table 1 0.9391, supplementary 0.9931)."
 )
+METRIC_NOTE = ("Measured cells: the official metric (the public evaluation script's rules, which the "
+               "paper's numbers were made with); the project's v1 metric in brackets where it differs.")
 
 
 @dataclasses.dataclass
@@ -38,6 +47,9 @@ class Table:
     groups: list[str]  # one per column pair (dataset or sequence)
     rows: list[tuple[str, list[float | None], float | None]]  # label, [miou, macc]*groups, s/seq
     notes: list[str] = dataclasses.field(default_factory=list)
+    # per row, the v1 metric's [miou, macc]*groups (None: published row, or no cell)
+    alt: list[list[float | None] | None] = dataclasses.field(default_factory=list)
+    protocols: list[str] = dataclasses.field(default_factory=list)  # per row, its protocol label(s)
 
     def best(self) -> list[float | None]:
         n = 2 * len(self.groups)
@@ -47,21 +59,28 @@ class Table:
 
 # -- data ------------------------------------------------------------------------------------
 def measured_frame(records: list[dict]) -> pd.DataFrame:
+    """One row per run: official metric (``miou``, ``macc``), v1 beside, protocol label."""
     rows = [
         {
             "variant": r["variant"],
             "dataset": r["dataset"],
             "sequence": r["sequence"],
             "method": r["method"],
-            "miou": r["metrics"]["miou"],
-            "macc": r["metrics"]["macc"],
+            "miou": r["metrics"]["official"]["miou"],
+            "macc": r["metrics"]["official"]["macc"],
+            "miou_v1": r["metrics"]["miou"],
+            "macc_v1": r["metrics"]["macc"],
             "seconds": total_seconds(r),
             "source": "measured",
+            "protocol": protocol_label(protocol(r)),
         }
         for r in records
     ]
-    cols = ["variant", "dataset", "sequence", "method", "miou", "macc", "seconds", "source"]
-    return pd.DataFrame(rows, columns=cols)
+    return pd.DataFrame(rows, columns=COLUMNS)
+
+
+COLUMNS = ["variant", "dataset", "sequence", "method", "miou", "macc", "miou_v1", "macc_v1", "seconds",
+           "source", "protocol"]
 
 
 def published_frame() -> pd.DataFrame:
@@ -72,6 +91,8 @@ def published_frame() -> pd.DataFrame:
     df["variant"] = "real"
     df["source"] = "published"
     df["seconds"] = math.nan
+    df["miou_v1"] = df["macc_v1"] = math.nan
+    df["protocol"] = ""
     return df
 
 
@@ -90,60 +111,112 @@ def _datasets_in(df: pd.DataFrame, variant: str) -> list[str]:
     return [d for d in DATASETS if d in present] + sorted(present - set(DATASETS))
 
 
-def _label(method: str, source: str) -> str:
-    return f"{method} (published)" if source == "published" else method
+class _Protocols:
+    """Footnote markers [a], [b], ... of the protocols in one table, in order of appearance."""
+
+    def __init__(self) -> None:
+        self.keys: dict[str, str] = {}
+
+    def marks(self, labels) -> str:
+        out = []
+        for lab in sorted({x for x in labels if x}):
+            if lab not in self.keys:
+                n = len(self.keys)
+                self.keys[lab] = chr(ord("a") + n) if n < 26 else str(n)
+            out.append(self.keys[lab])
+        return f" [{', '.join(sorted(out))}]" if out else ""
+
+    def notes(self) -> list[str]:
+        return [f"[{k}] {lab}" for lab, k in self.keys.items()]
+
+
+def _label(method: str, source: str, marks: str = "") -> str:
+    return f"{method} (published)" if source == "published" else method + marks
+
+
+def _sort(rows: list, *parallel: list) -> tuple[list, ...]:
+    order = sorted(range(len(rows)), key=lambda i: (rows[i][0].endswith("(published)"), rows[i][0]))
+    return ([rows[i] for i in order],) + tuple([p[i] for i in order] for p in parallel)
+
+
+def _protocol_text(sub: pd.DataFrame, source: str) -> str:
+    return "" if source == "published" else " | ".join(sorted({x for x in sub.protocol if x}))
 
 
 def main_table(df: pd.DataFrame, variant: str) -> Table:
     datasets = _datasets_in(df, variant)
     groups = [DATASETS[d].display_name if d in DATASETS else d for d in datasets]
-    rows, notes = [], []
+    rows, alt, texts, notes, protocols = [], [], [], [], _Protocols()
     for (method, source), sub in df.groupby(["method", "source"], sort=True):
         cells: list[float | None] = []
+        v1: list[float | None] = []
         for d in datasets:
             dsub = sub[sub.dataset == d]
             if source == "published":
                 avg = dsub[dsub.sequence == "_average"]
                 cells += [float(avg.miou.iloc[0]), float(avg.macc.iloc[0])] if len(avg) else [None, None]
+                v1 += [None, None]
                 continue
             expected = _expected_sequences(df, variant, d)
             have = set(dsub.sequence)
             if expected and set(expected) <= have:
                 dsub = dsub[dsub.sequence.isin(expected)]
-                cells += [float(dsub.miou.mean()), float(dsub.macc.mean())]
+                cells += [_mean(dsub.miou), _mean(dsub.macc)]
+                v1 += [_mean(dsub.miou_v1), _mean(dsub.macc_v1)]
             else:
                 cells += [None, None]
+                v1 += [None, None]
                 if have:
                     notes.append(f"{method} on {d}: {len(have & set(expected))}/{len(expected)} "
                                  "sequences run, no average")
         secs = None if source == "published" else float(sub.seconds.mean())
-        rows.append((_label(method, source), cells, secs))
-    rows.sort(key=lambda r: (r[0].endswith("(published)"), r[0]))
+        marks = "" if source == "published" else protocols.marks(sub.protocol)
+        rows.append((_label(method, source, marks), cells, secs))
+        alt.append(None if source == "published" else v1)
+        texts.append(_protocol_text(sub, source))
+    rows, alt, texts = _sort(rows, alt, texts)
+    notes = protocols.notes() + notes + [METRIC_NOTE]
     if variant == "real":
         notes.append(PUBLISHED_NOTE)
     title = f"Segmentation in novel views ({variant} data): mIoU / mAcc per benchmark"
-    return Table(title, groups, rows, notes)
+    return Table(title, groups, rows, notes, alt, texts)
+
+
+def _mean(col: pd.Series) -> float | None:
+    vals = col.dropna()
+    return float(vals.mean()) if len(vals) == len(col) and len(col) else None
 
 
 def sequence_table(df: pd.DataFrame, variant: str, dataset: str) -> Table:
     seqs = _expected_sequences(df, variant, dataset)
-    rows = []
+    rows, alt, texts, protocols = [], [], [], _Protocols()
     for (method, source), sub in df[df.dataset == dataset].groupby(["method", "source"]):
         cells: list[float | None] = []
+        v1: list[float | None] = []
         for s in seqs:
             hit = sub[sub.sequence == s]
-            cells += [float(hit.miou.iloc[0]), float(hit.macc.iloc[0])] if len(hit) else [None, None]
+            cells += [_value(hit.miou), _value(hit.macc)]
+            v1 += [_value(hit.miou_v1), _value(hit.macc_v1)]
         if all(c is None for c in cells):
             continue
         secs = None if source == "published" else float(sub.seconds.mean())
-        rows.append((_label(method, source), cells, secs))
-    rows.sort(key=lambda r: (r[0].endswith("(published)"), r[0]))
+        marks = "" if source == "published" else protocols.marks(sub.protocol)
+        rows.append((_label(method, source, marks), cells, secs))
+        alt.append(None if source == "published" else v1)
+        texts.append(_protocol_text(sub, source))
+    rows, alt, texts = _sort(rows, alt, texts)
     name = DATASETS[dataset].display_name if dataset in DATASETS else dataset
-    return Table(f"{name} per sequence ({variant} data)", seqs, rows)
+    return Table(f"{name} per sequence ({variant} data)", seqs, rows, protocols.notes() + [METRIC_NOTE], alt,
+                 texts)
+
+
+def _value(col: pd.Series) -> float | None:
+    return float(col.iloc[0]) if len(col) and pd.notna(col.iloc[0]) else None
 
 
 def build_tables(records: list[dict], variant: str, published: bool = True) -> list[Table]:
-    """Main table then one per-sequence table per dataset with measured results."""
+    """Main table then one per-sequence table per dataset with measured results. ``records``:
+    the chosen runs, one per (method, dataset, sequence) (``benchmark.runs.one_run_per_row``)."""
     df = measured_frame([r for r in records if r["variant"] == variant])
     if variant == "real" and published:
         pub = published_frame()
@@ -175,8 +248,14 @@ def render(table: Table, fmt: str) -> str:
 def _cells(table: Table, bold: callable) -> list[tuple[str, list[str], str]]:
     best = table.best()
     out = []
-    for label, cells, secs in table.rows:
-        txt = [bold(_fmt(v)) if v is not None and v == best[i] else _fmt(v) for i, v in enumerate(cells)]
+    for r, (label, cells, secs) in enumerate(table.rows):
+        v1 = table.alt[r] if r < len(table.alt) and table.alt[r] else [None] * len(cells)
+        txt = []
+        for i, v in enumerate(cells):
+            t = bold(_fmt(v)) if v is not None and v == best[i] else _fmt(v)
+            if v is not None and v1[i] is not None and _fmt(v1[i]) != _fmt(v):
+                t += f" (v1 {_fmt(v1[i])})"
+            txt.append(t)
         out.append((label, txt, _fmt_time(secs)))
     return out
 
@@ -207,11 +286,14 @@ def _latex(t: Table) -> str:
 
 def _csv(t: Table) -> str:
     rows = []
-    for label, cells, secs in t.rows:
+    for r, (label, cells, secs) in enumerate(t.rows):
         row = {"table": t.title, "method": label}
+        v1 = t.alt[r] if r < len(t.alt) and t.alt[r] else [None] * len(cells)
         for i, g in enumerate(t.groups):
             row[f"{g}_miou"], row[f"{g}_macc"] = cells[2 * i], cells[2 * i + 1]
+            row[f"{g}_miou_v1"], row[f"{g}_macc_v1"] = v1[2 * i], v1[2 * i + 1]
         row["seconds_per_sequence"] = secs
+        row["protocol"] = t.protocols[r] if r < len(t.protocols) else ""
         rows.append(row)
     buf = io.StringIO()
     pd.DataFrame(rows).to_csv(buf, index=False)

@@ -144,7 +144,7 @@ pre{{background:#f6f6f6;padding:8px;overflow:auto;font-size:12px}}</style></head
 {''.join(tiles)}
 <h2>Per-frame scores</h2>{_img_tag(plot, 'per-frame IoU')}
 <h2>Stages</h2><table><tr><th>stage</th><th>seconds</th><th>peak RSS MiB</th><th></th></tr>{stage_rows}</table>
-<p>{record.get('n_gaussians', 'n/a')} gaussians; model {record.get('model_size_bytes', 0) / 2**20:.1f} MiB on disk.</p>
+<p>{record.get('n_gaussians', 'n/a')} gaussians; model {(record.get('storage') or {}).get('total_mib', 0):.1f} MiB (gaussians, features and deformation, float32).</p>
 <h2>Config</h2><pre>{html.escape(json.dumps(record.get('config', {}), indent=2))}</pre>
 <h2>Versions</h2><pre>{html.escape(json.dumps(record.get('versions', {}), indent=2))}</pre>
 </body></html>

@@ -1,4 +1,4 @@
-"""``results.json``: one file per (method, dataset, sequence), the only input of tables.
+"""``results.json``: one file per run (``benchmark.runs``), the only input of tables.
 
 Everything a reader needs to trust or reproduce a number travels with it: both metric
 versions, per-frame raw values, stage timings and memory, the full config and its hash,
@@ -17,9 +17,11 @@ from pathlib import Path
 from benchmark.errors import UserError
 from benchmark.io import atomic_write_json, read_json
 
-SCHEMA = "trase-bench/results/1"
-REQUIRED = ("schema", "method", "dataset", "sequence", "variant", "metrics")
-REQUIRED_METRICS = ("miou", "macc", "pooled_iou", "metric_version", "n_frames")
+SCHEMA = "trase-bench/results/2"  # 2: run identity (``run``, one directory per config)
+LEGACY_SCHEMAS = ("trase-bench/results/1",)  # readable, never tabulated (benchmark.runs)
+REQUIRED = ("schema", "method", "dataset", "sequence", "variant", "metrics", "run", "config", "config_hash")
+REQUIRED_METRICS = ("miou", "macc", "pooled_iou", "metric_version", "n_frames", "official")
+RUN_KINDS = ("main", "run", "ablation")
 VERSIONED_PACKAGES = ("trase-bench", "torch", "numpy", "scipy", "scikit-learn", "numba",
                       "opencv-contrib-python-headless")
 
@@ -46,10 +48,6 @@ def machine_info() -> dict:
     }
 
 
-def results_path(out_dir: Path, method: str, dataset: str, sequence: str) -> Path:
-    return Path(out_dir) / method / dataset / sequence / "results.json"
-
-
 def write_results(path: Path, record: dict) -> None:
     """Validate and write atomically; adds schema, time, versions and machine if absent."""
     record = dict(record)
@@ -64,11 +62,16 @@ def write_results(path: Path, record: dict) -> None:
 def validate(record: dict, path: Path | str = "results") -> dict:
     if not isinstance(record, dict):
         raise ResultsError(f"{path}: results must be a JSON object")
+    if "schema" in record and record["schema"] in LEGACY_SCHEMAS:
+        raise ResultsError(f"{path}: results written before run identity ({record['schema']}); rerun it")
     missing = [k for k in REQUIRED if k not in record]
     if missing:
         raise ResultsError(f"{path}: results file lacks key {missing[0]!r}")
     if record["schema"] != SCHEMA:
         raise ResultsError(f"{path}: unknown results schema {record['schema']!r} (expected {SCHEMA})")
+    run = record["run"]
+    if not isinstance(run, dict) or run.get("kind") not in RUN_KINDS or not run.get("name"):
+        raise ResultsError(f"{path}: 'run' must name the run and its kind ({', '.join(RUN_KINDS)})")
     if record["variant"] not in ("real", "synthetic"):
         raise ResultsError(f"{path}: variant must be 'real' or 'synthetic', got {record['variant']!r}")
     metrics = record["metrics"]
@@ -77,10 +80,17 @@ def validate(record: dict, path: Path | str = "results") -> dict:
     missing = [k for k in REQUIRED_METRICS if k not in metrics]
     if missing:
         raise ResultsError(f"{path}: metrics lack key {missing[0]!r}")
-    for k in ("miou", "macc", "pooled_iou"):
-        v = metrics[k]
-        if v is not None and not (isinstance(v, (int, float)) and 0.0 <= v <= 1.0):
-            raise ResultsError(f"{path}: metrics.{k} must be a number in [0, 1] or null, got {v!r}")
+    official = metrics["official"]
+    if not isinstance(official, dict):
+        raise ResultsError(f"{path}: metrics.official must be an object")
+    for where, block in (("metrics", metrics), ("metrics.official", official)):
+        for k in ("miou", "macc"):
+            v = block.get(k)
+            if v is not None and not (isinstance(v, (int, float)) and 0.0 <= v <= 1.0):
+                raise ResultsError(f"{path}: {where}.{k} must be a number in [0, 1] or null, got {v!r}")
+    v = metrics["pooled_iou"]
+    if v is not None and not (isinstance(v, (int, float)) and 0.0 <= v <= 1.0):
+        raise ResultsError(f"{path}: metrics.pooled_iou must be a number in [0, 1] or null, got {v!r}")
     return record
 
 
@@ -88,17 +98,13 @@ def load_results(path: Path) -> dict:
     return validate(read_json(path, "results file"), path)
 
 
-def find_results(root: Path) -> list[dict]:
-    """Every results.json under ``root`` (validated), each with its path under ``_path``."""
-    root = Path(root)
-    if not root.is_dir():
-        raise ResultsError(f"{root}: results directory not found")
-    out = []
-    for p in sorted(root.rglob("results.json")):
-        rec = load_results(p)
-        rec["_path"] = str(p)
-        out.append(rec)
-    return out
+def read_any_results(path: Path) -> dict:
+    """A results file of this schema (validated) or of a legacy one (returned as read, with
+    its ``schema``; only for saying what it is)."""
+    rec = read_json(path, "results file")
+    if isinstance(rec, dict) and rec.get("schema") in LEGACY_SCHEMAS:
+        return rec
+    return validate(rec, path)
 
 
 def total_seconds(record: dict) -> float:

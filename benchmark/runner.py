@@ -2,8 +2,9 @@
 
 Every stage goes through the stage cache (benchmark.cache): its key hashes its own config
 section and its inputs' keys, so a rerun, or another method on the same scene, reuses the
-masks and the reconstruction and says so. Results land in
-``<out>/<method>/<dataset>/<sequence>/results.json`` with predictions beside them.
+masks and the reconstruction and says so. Results land in the run's directory,
+``<out>/<method>/<dataset>/<sequence>/<name>/results.json`` (``benchmark.runs``: name = --name or
+c<config hash>), with predictions beside them.
 """
 
 from __future__ import annotations
@@ -25,7 +26,8 @@ from benchmark.cache import StageCache, StageRecord, config_hash
 from benchmark.config import ConfigError, merge, parse_overrides
 from benchmark.errors import UserError
 from benchmark.io import atomic_directory, sha256_files
-from benchmark.results import results_path, write_results
+from benchmark.results import write_results
+from benchmark.runs import check_free, run_dir, run_info, run_name
 from benchmark.scoring import read_mask, score_masks
 
 STAGES = ("masks", "geometry", "fit", "prompts", "evaluate")
@@ -42,6 +44,9 @@ class RunOptions:
     overrides: list[str] = dataclasses.field(default_factory=list)  # --set key=value
     jobs: int = 1
     progress: bool = True
+    name: str | None = None  # run directory name; None: c<config hash> (benchmark.runs)
+    study: str | None = None  # set by ablation studies: the run is a variant of this study
+    study_variant: str | None = None
 
     @property
     def cache_root(self) -> Path:
@@ -136,7 +141,9 @@ def default_config(method, spec, variant: str, overrides: dict,
             "train": train.to_dict(),
         },
         "method": method.default_config(spec),
-        "prompts": {"rule": "gt-first-frame"},
+        # clicks on every object of interest, in the first test frame it appears in
+        # (trase.prompts; "gt-first-frame": the first non-empty frame only)
+        "prompts": {"rule": "gt-first-appearance"},
     }
     return merge(base, overrides)
 
@@ -251,10 +258,6 @@ def load_geometry(stage_dir: Path):
     return load_model(stage_dir / "model")
 
 
-def dir_size(path: Path) -> int:
-    return sum(p.stat().st_size for p in Path(path).rglob("*") if p.is_file())
-
-
 def stage_features(cache: StageCache, method, scene, cfg: dict, masks_rec: StageRecord,
                    geo_rec: StageRecord, geometry: Callable, progress: bool) -> StageRecord:
     """Learned per-gaussian features: keyed only on the settings that change them."""
@@ -306,16 +309,17 @@ def stage_fit(cache: StageCache, method, scene, cfg: dict, masks_rec: StageRecor
 
 
 def stage_prompts(cache: StageCache, scene, cfg: dict, gt_key: str) -> StageRecord:
-    from trase.prompts import load_or_make_prompts
+    from trase.prompts import BENCHMARK_RULES, PROMPTS_VERSION, load_or_make_prompts
 
     pcfg = cfg["prompts"]
-    if pcfg["rule"] != "gt-first-frame":
-        raise ConfigError(f"--set prompts.rule={pcfg['rule']}: only gt-first-frame is defined")
-    key = cache.key("prompts", pcfg, {"gt": gt_key})
+    if pcfg["rule"] not in BENCHMARK_RULES:
+        raise ConfigError(f"--set prompts.rule={pcfg['rule']}: choose {' or '.join(BENCHMARK_RULES)}")
+    key = cache.key("prompts", {**pcfg, "version": PROMPTS_VERSION}, {"gt": gt_key})
 
     def work(d: Path) -> dict:
-        bp = load_or_make_prompts(d / "prompts.json", scene.test, lambda i: read_mask(scene.gt_masks[i]))
-        return {"view": bp.view, "n_clicks": len(bp.clicks)}
+        bp = load_or_make_prompts(d / "prompts.json", scene.test, lambda i: read_mask(scene.gt_masks[i]),
+                                  rule=pcfg["rule"])
+        return {"view": bp.view, "n_clicks": len(bp.clicks), "frames": bp.frames()}
 
     return cache.run("prompts", key, work, pcfg)
 
@@ -346,7 +350,7 @@ def render_clusters(fitted, camera) -> np.ndarray:
     return (out.color.clamp(0, 1).numpy() * 255).astype(np.uint8)
 
 
-def evaluate(method, fitted, scene, prompts, run_dir: Path) -> dict:
+def evaluate(method, fitted, scene, prompts, directory: Path) -> dict:
     """Predicted masks for every test view -> pred/*.png, scores (v1 and official), oracle."""
     import cv2
 
@@ -355,11 +359,11 @@ def evaluate(method, fitted, scene, prompts, run_dir: Path) -> dict:
         raise RuntimeError(f"{method.name}.segment returned {len(preds)} masks for {len(scene.test)} test views")
     gts = [read_mask(p) for p in scene.gt_masks]
     names = [f"{i:05d}" for i in range(len(scene.test))]
-    with atomic_directory(run_dir / "pred") as d:
+    with atomic_directory(directory / "pred") as d:
         for n, m in zip(names, preds):
             cv2.imwrite(str(d / f"{n}.png"), m.astype(np.uint8) * 255)
     shown = names[:: max(1, len(names) // 8)][:8]
-    with atomic_directory(run_dir / "clusters") as d:
+    with atomic_directory(directory / "clusters") as d:
         for n in shown:
             rgb = render_clusters(fitted, scene.test[names.index(n)].camera)
             cv2.imwrite(str(d / f"{n}.png"), rgb[..., ::-1])
@@ -415,6 +419,10 @@ def run_sequence(opts: RunOptions, sequence: str | None, reporter: Reporter, ind
     views = scene.test or scene.train
     size = (views[0].camera.width, views[0].camera.height) if views else None
     cfg = default_config(method, spec, variant, overrides, size)
+    chash = config_hash(cfg)
+    name = run_name(chash, opts.name)
+    out_dir = run_dir(opts.out_dir, opts.method, spec.key, seq, name)
+    check_free(out_dir, chash)  # before any work: a run with another config is never overwritten
     cache = StageCache(opts.cache_root)
     scene_key = scene_fingerprint(scene)
     gt_key = sha256_files(list(scene.gt_masks))[:16]
@@ -437,10 +445,10 @@ def run_sequence(opts: RunOptions, sequence: str | None, reporter: Reporter, ind
 
     from benchmark.cache import PeakMemory
     from benchmark.methods import FittedModel
+    from trase.checkpoint import model_storage
     from trase.prompts import BenchmarkPrompts
 
-    run_dir = results_path(opts.out_dir, opts.method, spec.key, seq).parent
-    run_dir.mkdir(parents=True, exist_ok=True)
+    out_dir.mkdir(parents=True, exist_ok=True)
     with PeakMemory() as mem:
         t0 = time.perf_counter()
         gaussians, deformation = geometry()
@@ -450,15 +458,16 @@ def run_sequence(opts: RunOptions, sequence: str | None, reporter: Reporter, ind
 
         prompts_dict = read_json(prompts_path, "prompts file")
         prompts = BenchmarkPrompts.from_dict(prompts_dict, str(prompts_path))
-        ev = evaluate(method, fitted, scene, prompts, run_dir)
+        ev = evaluate(method, fitted, scene, prompts, out_dir)
         ceiling = stage_ceiling(cache, scene, fitted, recs["geometry"].key, gt_key)
         seconds = time.perf_counter() - t0
-    recs["evaluate"] = StageRecord("evaluate", "-", run_dir, False, seconds, mem.peak_mb, {})
+    recs["evaluate"] = StageRecord("evaluate", "-", out_dir, False, seconds, mem.peak_mb, {})
     reporter.stage(seq, recs["evaluate"])
 
     v1, official = ev["v1"].to_dict(), ev["official"].to_dict()
-    pred_files = sorted((run_dir / "pred").glob("*.png"))
+    pred_files = sorted((out_dir / "pred").glob("*.png"))
     record = {
+        "run": run_info(name, opts.overrides, opts.study, opts.study_variant),
         "method": opts.method,
         "dataset": spec.key,
         "sequence": seq,
@@ -482,9 +491,11 @@ def run_sequence(opts: RunOptions, sequence: str | None, reporter: Reporter, ind
         "n_clusters": int(fitted.stats.get("n_clusters", 0)),
         "selected_clusters": ev["selected"],
         "feature_space": fitted.stats.get("feature_space"),
-        "model_size_bytes": dir_size(recs["geometry"].path) + dir_size(recs["fit"].path),
+        # the model itself (gaussians + features + deformation, float32), as the paper's storage
+        "storage": model_storage(fitted.gaussians, fitted.deformation, int(fitted.features.shape[1]))
+        if fitted.gaussians is not None else None,
         "config": cfg,
-        "config_hash": config_hash(cfg),
+        "config_hash": chash,
         "seeds": {"masks": cfg["masks"]["seed"], "geometry": cfg["geometry"]["train"].get("seed"),
                   "features": cfg["method"].get("features", {}).get("seed"),
                   "clustering": cfg["method"].get("clustering", {}).get("seed")},
@@ -495,7 +506,7 @@ def run_sequence(opts: RunOptions, sequence: str | None, reporter: Reporter, ind
                     "gt": str(scene.gt_masks[i]), "pred": f"pred/{i:05d}.png"}
                    for i, v in enumerate(scene.test)],
     }
-    path = run_dir / "results.json"
+    path = out_dir / "results.json"
     write_results(path, _jsonable(record))
     reporter.finish()
     return path

@@ -9,10 +9,16 @@
 * 2D mask prompt (the public code's text-prompt path): every mask pixel with a rendered surface
   is lifted the same way; a cluster is chosen when at least ``min_share`` of the lifted pixels
   land on its gaussians.
-* Benchmark prompts: deterministic clicks from the ground truth of the first test frame whose
-  ground truth is not empty: one click per connected object region of at least
-  ``min_area`` pixels, at the region's distance-transform maximum (the most interior pixel;
-  ties broken by row-major order). Saved to prompts.json and reused.
+* Benchmark prompts: deterministic clicks from the test frames' ground truth, one per connected
+  object region of at least ``min_area`` pixels, at the region's distance-transform maximum
+  (the most interior pixel; ties broken by row-major order), made in that region's own frame.
+  Rule ``gt-first-appearance`` (default): every region of the first non-empty frame, then each
+  region of a later frame that touches no object pixel of the frame before it (within
+  ``link_radius`` px): an object that enters later gets a click in the first frame it appears
+  in, as a person clicking the objects of interest would. A new object that appears touching
+  an old one is missed (the ground truth is one merged mask per frame: no identities).
+  Rule ``gt-first-frame``: the first non-empty frame's regions only (prompts version 1).
+  Saved to prompts.json and reused.
 * Oracle selection: the clusters whose visible rendered pixels (cluster weight >= 0.5 in the
   full render) lie mostly (> ``min_inside``) inside the ground truth over all test frames:
   an upper bound on what clicking can achieve, reported separately, never as the score.
@@ -34,8 +40,9 @@ from trase.deformation import deformed
 from trase.io import atomic_write_text
 from trase.render import pixel_weights, rasterize
 
-PROMPTS_VERSION = 1
+PROMPTS_VERSION = 2  # 2: each click names its own test frame
 CLICK_RULES = ("depth", "weight")
+BENCHMARK_RULES = ("gt-first-appearance", "gt-first-frame")
 
 
 class PromptError(ValueError):
@@ -48,6 +55,7 @@ class Click:
     v: float  # pixel y
     view: str = ""  # name of the view the click was made in
     time: float | None = None  # None: the camera's time
+    view_index: int = -1  # index of that view among the scene's test views (-1: unknown)
 
 
 @torch.no_grad()
@@ -170,10 +178,11 @@ def mask_to_clusters(gaussians, deformation, camera: Camera, mask: np.ndarray, l
 
 
 # ---------------------------------------------------------------- benchmark prompts
-def interior_points(gt: np.ndarray, min_area: int = 20) -> list[tuple[float, float]]:
-    """One (u, v) per connected region of gt [H, W] with >= min_area pixels: the pixel centre
-    of the region's distance-transform maximum (ties: first in row-major order), largest
-    region first."""
+def _regions(gt: np.ndarray, min_area: int, keep_largest: bool = True) -> list[tuple[int, float, float, np.ndarray]]:
+    """(area, u, v, region mask) per connected region of gt [H, W] with >= min_area pixels,
+    (u, v) the pixel centre of its distance-transform maximum (ties: first in row-major
+    order), largest region first. With only smaller regions, ``keep_largest`` keeps the
+    largest one anyway."""
     import cv2
 
     gt = np.asarray(gt, dtype=bool)
@@ -182,67 +191,97 @@ def interior_points(gt: np.ndarray, min_area: int = 20) -> list[tuple[float, flo
     n, lab, stats, _ = cv2.connectedComponentsWithStats(gt.astype(np.uint8), connectivity=8)
     padded = np.pad(gt, 1).astype(np.uint8)  # image border counts as background
     dist = cv2.distanceTransform(padded, cv2.DIST_L2, 5)[1:-1, 1:-1]
+    areas = stats[1:, cv2.CC_STAT_AREA]
+    keep = [k for k in range(1, n) if areas[k - 1] >= min_area]
+    if not keep and keep_largest:
+        keep = [int(np.argmax(areas)) + 1]
     regions = []
-    for k in range(1, n):
-        area = int(stats[k, cv2.CC_STAT_AREA])
-        if area < min_area:
-            continue
-        d = np.where(lab == k, dist, -1.0)
-        flat = int(np.argmax(d))  # first maximum in row-major order
-        r, c = divmod(flat, gt.shape[1])
-        regions.append((area, float(c) + 0.5, float(r) + 0.5))
-    if not regions:  # only tiny regions: keep the largest one anyway
-        areas = stats[1:, cv2.CC_STAT_AREA]
-        k = int(np.argmax(areas)) + 1
-        d = np.where(lab == k, dist, -1.0)
-        r, c = divmod(int(np.argmax(d)), gt.shape[1])
-        regions.append((int(areas[k - 1]), float(c) + 0.5, float(r) + 0.5))
+    for k in keep:
+        region = lab == k
+        d = np.where(region, dist, -1.0)
+        r, c = divmod(int(np.argmax(d)), gt.shape[1])  # first maximum in row-major order
+        regions.append((int(areas[k - 1]), float(c) + 0.5, float(r) + 0.5, region))
     regions.sort(key=lambda x: (-x[0], x[2], x[1]))
-    return [(u, v) for _, u, v in regions]
+    return regions
+
+
+def interior_points(gt: np.ndarray, min_area: int = 20) -> list[tuple[float, float]]:
+    """One (u, v) per connected region of gt [H, W] with >= min_area pixels (the largest
+    region when all are smaller): its most interior pixel centre, largest region first."""
+    return [(u, v) for _, u, v, _ in _regions(gt, min_area)]
 
 
 @dataclasses.dataclass
 class BenchmarkPrompts:
-    view_index: int  # index into the scene's test views
+    view_index: int  # the first prompted test frame (index into the scene's test views)
     view: str  # its name
     time: float
-    clicks: list[Click]
-    source: str = "gt_first_nonempty_test_frame"
+    clicks: list[Click]  # each names its own frame (Click.view, view_index, time)
+    source: str = "gt-first-appearance"  # the rule that made them (BENCHMARK_RULES)
 
     def to_dict(self) -> dict:
         return {
             "version": PROMPTS_VERSION, "source": self.source, "view_index": self.view_index,
             "view": self.view, "time": self.time,
-            "points": [[c.u, c.v] for c in self.clicks],
+            "clicks": [{"u": c.u, "v": c.v, "view": c.view, "view_index": c.view_index, "time": c.time}
+                       for c in self.clicks],
         }
 
     @classmethod
     def from_dict(cls, d: dict, path: str = "prompts.json") -> BenchmarkPrompts:
         try:
             if int(d["version"]) != PROMPTS_VERSION:
-                raise PromptError(f"{path}: prompts version {d['version']} (expected {PROMPTS_VERSION})")
-            clicks = [Click(float(u), float(v), str(d["view"]), float(d["time"])) for u, v in d["points"]]
+                raise PromptError(f"{path}: prompts version {d['version']} (expected {PROMPTS_VERSION}); "
+                                  "delete it to make it again")
+            clicks = [Click(float(c["u"]), float(c["v"]), str(c["view"]),
+                            None if c["time"] is None else float(c["time"]), int(c["view_index"]))
+                      for c in d["clicks"]]
             return cls(int(d["view_index"]), str(d["view"]), float(d["time"]), clicks, str(d.get("source", "")))
         except (KeyError, TypeError, ValueError) as exc:
             if isinstance(exc, PromptError):
                 raise
             raise PromptError(f"{path}: malformed prompts file ({type(exc).__name__}: {exc})") from None
 
+    def frames(self) -> list[int]:
+        """The test frames the clicks were made in, in order."""
+        return sorted({c.view_index for c in self.clicks})
 
-def make_benchmark_prompts(test_views: Sequence, gt_masks: Sequence[np.ndarray], min_area: int = 20) -> BenchmarkPrompts:
-    """Clicks from the first test frame whose ground truth is non-empty."""
+
+def make_benchmark_prompts(test_views: Sequence, gt_masks, min_area: int = 20,
+                           rule: str = "gt-first-appearance", link_radius: int = 2) -> BenchmarkPrompts:
+    """Clicks from the test frames' ground truth by ``rule`` (module docstring)."""
+    import cv2
+
+    if rule not in BENCHMARK_RULES:
+        raise PromptError(f"unknown benchmark prompt rule {rule!r}; choose one of {', '.join(BENCHMARK_RULES)}")
+    kernel = np.ones((2 * link_radius + 1, 2 * link_radius + 1), np.uint8)
+    clicks: list[Click] = []
+    first, previous = None, None
     for i, (view, gt) in enumerate(zip(test_views, gt_masks)):
-        pts = interior_points(gt, min_area)
-        if pts:
-            clicks = [Click(u, v, view.name, view.camera.time) for u, v in pts]
-            return BenchmarkPrompts(i, view.name, float(view.camera.time), clicks)
-    raise PromptError("every test frame's ground truth is empty: no object to prompt")
+        gt = np.asarray(gt, dtype=bool)
+        if first is None:
+            regions = _regions(gt, min_area)
+            if regions:
+                first = i
+        elif rule == "gt-first-frame":
+            break
+        else:
+            near = cv2.dilate(previous.astype(np.uint8), kernel) > 0 if previous is not None else None
+            regions = [r for r in _regions(gt, min_area, keep_largest=False)
+                       if near is None or not (r[3] & near).any()]
+        clicks += [Click(u, v, view.name, float(view.camera.time), i) for _, u, v, _ in regions]
+        previous = gt if gt.any() else None
+    if first is None:
+        raise PromptError("every test frame's ground truth is empty: no object to prompt")
+    v0 = test_views[first]
+    return BenchmarkPrompts(first, v0.name, float(v0.camera.time), clicks, rule)
 
 
-def load_or_make_prompts(path: str | Path, test_views: Sequence, load_gt, min_area: int = 20) -> BenchmarkPrompts:
+def load_or_make_prompts(path: str | Path, test_views: Sequence, load_gt, min_area: int = 20,
+                         rule: str = "gt-first-appearance") -> BenchmarkPrompts:
     """Reuse ``path`` (prompts.json) when it exists, else derive and save it atomically.
 
-    load_gt(i) -> bool [H, W] ground truth of test view i (read lazily, first non-empty wins)."""
+    load_gt(i) -> bool [H, W] ground truth of test view i (read lazily, in order)."""
     path = Path(path)
     if path.is_file():
         try:
@@ -256,7 +295,7 @@ def load_or_make_prompts(path: str | Path, test_views: Sequence, load_gt, min_ar
             for i in range(len(test_views)):
                 yield load_gt(i)
 
-    bp = make_benchmark_prompts(test_views, _Lazy(), min_area)
+    bp = make_benchmark_prompts(test_views, _Lazy(), min_area, rule)
     atomic_write_text(path, json.dumps(bp.to_dict(), indent=1))
     return bp
 

@@ -1,4 +1,4 @@
-"""``trase-bench leaderboard``: tables rendered from results files."""
+"""``trase-bench leaderboard``: tables rendered from chosen runs."""
 
 from __future__ import annotations
 
@@ -7,28 +7,46 @@ from pathlib import Path
 import click
 
 from benchmark.leaderboard import FORMATS, render_all
-from benchmark.results import find_results
 
 
 @click.command()
 @click.option("--results", "results_dir", type=click.Path(file_okay=False), default="runs",
-              show_default=True, help="Directory searched recursively for results.json.")
+              show_default=True, help="Directory searched recursively for runs.")
+@click.option("--run", "run_dirs", multiple=True, type=click.Path(),
+              help="Use exactly these runs (a run directory or its results.json; repeatable) instead of "
+                   "the main runs under --results. See `trase-bench runs`.")
+@click.option("--kind", "kinds", multiple=True, type=click.Choice(["main", "run", "ablation"]),
+              help="Kinds of run taken from --results (repeatable; default: main, i.e. made with the "
+                   "method's defaults). Ablation variants enter only when asked for.")
 @click.option("--format", "fmt", type=click.Choice(FORMATS), default="markdown", show_default=True)
 @click.option("--variant", type=click.Choice(["all", "synthetic", "real"]), default="all",
               show_default=True, help="Which data variant's tables to show.")
 @click.option("--no-published", is_flag=True, help="Leave out the paper's published rows.")
 @click.option("--out", type=click.Path(dir_okay=False), help="Write to a file instead of stdout.")
-def leaderboard(results_dir: str, fmt: str, variant: str, no_published: bool, out: str | None) -> None:
-    """Leaderboard of every result under --results: Table 1 layout plus per-sequence tables.
+def leaderboard(results_dir: str, run_dirs: tuple[str, ...], kinds: tuple[str, ...], fmt: str, variant: str,
+                no_published: bool, out: str | None) -> None:
+    """Leaderboard in the paper's Table 1 layout plus per-sequence tables.
 
-    Synthetic and real results are separate tables; published numbers are labelled rows
-    beside real results only.
+    By default each method's main run under --results (made without --set); --run picks runs
+    explicitly. Two runs with different configs for one method and sequence are refused. Every
+    measured row names its protocol; cells use the official metric (v1 beside where it
+    differs). Synthetic and real results are separate tables; published numbers are labelled
+    rows beside real results only.
     """
-    records = find_results(Path(results_dir))
+    from benchmark.runs import find_runs, load_run, one_run_per_row, select_runs
+
+    warn = lambda m: click.echo(m, err=True)  # noqa: E731
+    if run_dirs:
+        if kinds:
+            raise click.UsageError("--kind chooses runs under --results; with --run the runs are given")
+        records = [load_run(Path(p)) for p in run_dirs]
+    else:
+        records = select_runs(find_runs(Path(results_dir), warn=warn), kinds or ("main",))
+    records = one_run_per_row(records)
     variants = ("synthetic", "real") if variant == "all" else (variant,)
     text = render_all(records, fmt, variants=variants, published=not no_published)
     if not records:
-        click.echo(f"note: no results.json under {results_dir}; showing published rows only", err=True)
+        warn(f"note: no {'/'.join(kinds or ('main',))} runs under {results_dir}; showing published rows only")
     if out:
         from benchmark.io import atomic_write_text
 

@@ -21,13 +21,18 @@ import click
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
               help="Override a setting, e.g. --set geometry.source=ground-truth "
                    "--set method.features.iterations=500 (repeatable).")
+@click.option("--name", default=None,
+              help="Name of the run's directory (default: c + 8 hex digits of the resolved config's hash). "
+                   "A run with another config under this name is never overwritten.")
 @click.option("--jobs", type=int, default=1, show_default=True, help="Sequences run in parallel.")
 @click.option("--quiet", is_flag=True, help="No progress output.")
-def run(method, dataset, sequences, data_root, out_dir, cache_dir, overrides, jobs, quiet) -> None:
+def run(method, dataset, sequences, data_root, out_dir, cache_dir, overrides, name, jobs, quiet) -> None:
     """Run masks -> geometry -> features/clustering -> prompts -> evaluation per sequence.
 
     Each stage is cached under a key of its inputs and config: reruns and other methods on
-    the same scene reuse what they can. Writes <out>/<method>/<dataset>/<sequence>/results.json.
+    the same scene reuse what they can. Writes <out>/<method>/<dataset>/<sequence>/<name>/results.json:
+    one directory per config, so a rerun with other --set values never replaces a result. A run
+    without --set is the method's main run (what `trase-bench leaderboard` shows by default).
     """
     from benchmark.runner import RunOptions
     from benchmark.runner import run as run_pipeline
@@ -35,14 +40,17 @@ def run(method, dataset, sequences, data_root, out_dir, cache_dir, overrides, jo
     opts = RunOptions(method=method, dataset=dataset, sequences=list(sequences) or None,
                       data_root=Path(data_root) if data_root else None, out_dir=Path(out_dir),
                       cache_dir=Path(cache_dir) if cache_dir else None, overrides=list(overrides),
-                      jobs=jobs, progress=not quiet)
+                      jobs=jobs, progress=not quiet, name=name)
     from benchmark.results import load_results
 
     for path in run_pipeline(opts):
         r = load_results(path)
-        m = r["metrics"]
+        m, official = r["metrics"], r["metrics"]["official"]
         fmt = lambda x: "n/a" if x is None else f"{x:.4f}"  # noqa: E731
         oracle = r.get("oracle") or {}
         ceiling = f", geometry ceiling {fmt(r['ceiling'].get('miou'))}" if r.get("ceiling") else ""
-        click.echo(f"{r['method']} {r['dataset']}/{r['sequence']} ({r['variant']}): mIoU {fmt(m['miou'])} "
-                   f"mAcc {fmt(m['macc'])}  [oracle mIoU {fmt(oracle.get('miou'))}{ceiling}]  -> {path}")
+        v1 = "" if (m["miou"], m["macc"]) == (official["miou"], official["macc"]) else \
+            f" (v1: {fmt(m['miou'])} / {fmt(m['macc'])})"
+        click.echo(f"{r['method']} {r['dataset']}/{r['sequence']} ({r['variant']}, run "
+                   f"{r['run']['name']}, {r['run']['kind']}): mIoU {fmt(official['miou'])} mAcc {fmt(official['macc'])}{v1}  "
+                   f"[oracle mIoU {fmt(oracle.get('miou'))}{ceiling}]  -> {path}")

@@ -6,6 +6,7 @@ Output (``OUT_DIR``)::
     cameras.json                      per camera: training pinhole camera + native lens model
     points.npy [, point_colors.npy]   initial point cloud (given with --points, else frustum samples)
     prepared.json                     the manifest, written last: what was produced from what
+                                      (paths relative to OUT_DIR, no timestamp)
 
 Resumable: images are written atomically and skipped when present, so an interrupted run
 continues where it stopped; the manifest only exists once everything is there. Nerfies
@@ -16,7 +17,6 @@ from __future__ import annotations
 
 import json
 import os
-import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -109,7 +109,7 @@ def prepare_sequence(
 
     if points is not None:
         pts, cols = read_points(points)
-        points_source = str(Path(points).resolve())
+        points_source = _relative(Path(points), out_dir)
     else:
         train_cams = [rect[n].camera for n in names if n != spec.test_camera]
         depth = source.depth_range()
@@ -126,7 +126,7 @@ def prepare_sequence(
         "format_version": FORMAT_VERSION,
         "dataset": spec.key,
         "sequence": seq,
-        "source_dir": str(raw_dir.resolve()),
+        "source_dir": _relative(raw_dir, out_dir),
         "frames": frame_list,
         "cameras": names,
         "test_camera": spec.test_camera,
@@ -136,10 +136,15 @@ def prepare_sequence(
         "points_source": points_source,
         "repaired_images": list(getattr(source, "repaired", [])),
         "n_points": len(pts),
-        "created": time.strftime("%Y-%m-%dT%H:%M:%S"),
     }
     _write_json(out_dir / MANIFEST, manifest)
     return manifest
+
+
+def _relative(path: Path, out_dir: Path) -> str:
+    """``path`` relative to the prepared folder (POSIX separators): the manifest stays true when
+    the folders move together, and the same inputs give the same bytes."""
+    return Path(os.path.relpath(Path(path).resolve(), Path(out_dir).resolve())).as_posix()
 
 
 def _write_json(path: Path, obj) -> None:

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmark.methods import FittedModel, MethodError, register_method
-from benchmark.methods.trase_method import TraseMethod, _find_view
+from benchmark.methods.trase_method import TraseMethod, click_view
 
 BASELINE_METHODS = ("trase-hard", "trase-all", "cgc", "opengaussian")
 
@@ -99,16 +99,21 @@ class CGCMethod(TraseMethod):
                 "segment needs the fitted model's geometry (FittedModel.gaussians is None)"
             )
         ccfg = fitted.config.get("cgc", {})
-        view = _find_view(scene, prompts)
-        sel = select_by_clicks(
-            fitted.gaussians,
-            fitted.deformation,
-            torch.from_numpy(fitted.features),
-            view.camera,
-            prompts.clicks,
-            float(ccfg.get("threshold", THRESHOLD)),
-            int(ccfg.get("patch", PATCH)),
-        )
+        by_view: dict[str, tuple] = {}  # clicks grouped by the frame they were made in
+        for c in prompts.clicks:
+            view = click_view(scene, prompts, c)
+            by_view.setdefault(view.name, (view, []))[1].append(c)
+        sel = np.zeros(fitted.features.shape[0], bool)
+        for view, clicks in by_view.values():  # the union over clicks, as CGC's selection is
+            sel |= select_by_clicks(
+                fitted.gaussians,
+                fitted.deformation,
+                torch.from_numpy(fitted.features),
+                view.camera,
+                clicks,
+                float(ccfg.get("threshold", THRESHOLD)),
+                int(ccfg.get("patch", PATCH)),
+            )
         fitted.stats["selected_gaussians"] = int(sel.sum())
         thr = float(fitted.config.get("alpha_threshold", 0.5))
         rule = str(fitted.config.get("render_rule", "alone"))  # as its oracle and the ceiling

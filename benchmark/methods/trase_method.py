@@ -149,6 +149,7 @@ class TraseMethod(Method):
         stats = {
             "n_gaussians": int(feats.shape[0]),
             "n_clusters": cl.n_clusters,
+            "cluster_sample": int(cl.sample.size),  # gaussians the clustering itself saw
             "kept_fraction": float(keep.mean()) if keep.size else 0.0,
             "feature_space": fs.to_dict(),
             "path": learn_info.get("path", {}),
@@ -168,12 +169,12 @@ class TraseMethod(Method):
         """Prompt clicks -> chosen cluster ids (clicks on no surface choose nothing)."""
         from trase.prompts import click_to_cluster
 
-        view = _find_view(scene, prompts)
         pcfg = fitted.config.get("prompts", {})
         min_alpha = float(pcfg.get("min_alpha", 0.5))
         rule, radius = str(pcfg.get("click_rule", "depth")), int(pcfg.get("click_radius", 1))
         chosen = set()
         for c in prompts.clicks:
+            view = click_view(scene, prompts, c)
             k = click_to_cluster(fitted.gaussians, fitted.deformation, view.camera, c, fitted.labels, min_alpha,
                                  rule, radius)
             if k >= 0:
@@ -206,13 +207,16 @@ class TraseMethod(Method):
         return render_masks(fitted.gaussians, fitted.deformation, sel, cams, thr, rule), clusters
 
 
-def _find_view(scene, prompts):
+def click_view(scene, prompts, click):
+    """The test view a click was made in (its own frame; else the prompts' first frame)."""
+    name = click.view or prompts.view
+    index = click.view_index if click.view_index >= 0 else prompts.view_index
     for v in scene.test:
-        if v.name == prompts.view:
+        if v.name == name:
             return v
-    if 0 <= prompts.view_index < len(scene.test):
-        return scene.test[prompts.view_index]
-    raise MethodError(f"prompt view {prompts.view!r} is not a test view of {scene.root}")
+    if 0 <= index < len(scene.test):
+        return scene.test[index]
+    raise MethodError(f"prompt view {name!r} is not a test view of {scene.root}")
 
 
 def with_objective(objective: str, **params) -> TraseMethod:

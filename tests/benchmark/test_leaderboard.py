@@ -4,71 +4,124 @@ import pytest
 
 from benchmark.cli import main
 from benchmark.leaderboard import build_tables, render, render_all
-from benchmark.results import ResultsError, find_results, results_path, write_results
+from benchmark.results import ResultsError, write_results
+from benchmark.runs import RunError, find_runs, one_run_per_row, select_runs
+from tests.benchmark.results_helpers import config, record, write
 
 
-def _rec(method, dataset, sequence, miou, macc, variant="synthetic", seconds=10.0):
-    return {
-        "method": method, "dataset": dataset, "sequence": sequence, "variant": variant,
-        "metrics": {"miou": miou, "macc": macc, "pooled_iou": miou, "metric_version": "v1/bin1",
-                    "n_frames": 3},
-        "stages": {"features": {"seconds": seconds}},
-    }
-
-
-def _write(root, rec):
-    write_results(results_path(root, rec["method"], rec["dataset"], rec["sequence"]), rec)
+def _main_runs(root):
+    return one_run_per_row(select_runs(find_runs(root)))
 
 
 def test_synthetic_table_best_in_bold_and_no_published_rows(tmp_path):
-    _write(tmp_path, _rec("trase", "hypernerf", "synthetic", 0.9, 0.99))
-    _write(tmp_path, _rec("cgc", "hypernerf", "synthetic", 0.7, 0.995))
-    recs = find_results(tmp_path)
+    write(tmp_path, record("trase", "hypernerf", "synthetic", 0.9, 0.99))
+    write(tmp_path, record("cgc", "hypernerf", "synthetic", 0.7, 0.995))
+    recs = _main_runs(tmp_path)
     tables = build_tables(recs, "synthetic")
     main_t = tables[0]
-    assert [r[0] for r in main_t.rows] == ["cgc", "trase"]
+    assert [r[0] for r in main_t.rows] == ["cgc [a]", "trase [a]"]  # one protocol, one marker
     md = render(main_t, "markdown")
     assert "**0.9000**" in md and "**0.9950**" in md
-    assert "published" not in render_all(recs, "markdown", variants=("synthetic",))
+    assert "[a] geometry reconstruct (cpu preset); features cpu; masks synthetic" in md
+    assert "(published)" not in render_all(recs, "markdown", variants=("synthetic",))
     assert build_tables(recs, "real", published=False) == []
 
 
+def test_ablation_variants_and_reruns_stay_out_of_the_main_table(tmp_path):
+    # the reproduction: a main run, then ablation variants into the same --out
+    write(tmp_path, record("trase", "nerfds", "synthetic", 0.1221, 0.9))
+    for k, miou in (("K=0", 0.1221), ("K=16", 0.6368), ("K=32", 0.1069)):
+        rec = record("trase", "nerfds", "synthetic", miou, 0.9, cfg=config(knn=k), study="smoothing",
+                     overrides=[f"method.features.knn={k[2:]}"], name=k)
+        write(tmp_path, rec, under="ablations/smoothing")
+    write(tmp_path, record("trase", "nerfds", "synthetic", 0.5, 0.9, cfg=config(filter_threshold=0.5),
+                           overrides=["method.filter_threshold=0.5"]))
+    runs = find_runs(tmp_path)
+    assert sorted(r["run"]["kind"] for r in runs) == ["ablation"] * 3 + ["main", "run"]
+    t = build_tables(_main_runs(tmp_path), "synthetic")
+    assert t[0].rows[0][1][:2] == [0.1221, 0.9] and t[1].rows[0][1][:2] == [0.1221, 0.9]
+    # asked for: the variants enter, and their different configs are refused, named
+    with pytest.raises(RunError, match="4 runs with different configs"):
+        one_run_per_row(select_runs(runs, ("main", "ablation")))
+
+
+def test_two_configs_for_one_row_are_refused_unless_chosen(tmp_path, capsys):
+    a = write(tmp_path, record("trase", "hypernerf", "synthetic", 0.7, 0.9))
+    b = write(tmp_path, record("trase", "hypernerf", "synthetic", 0.8, 0.9, cfg=config(preset="paper")))
+    with pytest.raises(RunError, match=r"trase on hypernerf/synthetic: 2 runs with different configs.*--run"):
+        _main_runs(tmp_path)
+    assert main(["leaderboard", "--results", str(tmp_path), "--variant", "synthetic"]) == 1
+    assert "choose one with --run" in capsys.readouterr().err
+    assert main(["leaderboard", "--run", str(b), "--variant", "synthetic"]) == 0
+    out = capsys.readouterr().out
+    assert "0.8000" in out and "0.7000" not in out and "geometry reconstruct (paper preset)" in out
+    # the same config twice (a named rerun of the defaults): one cell, the newest
+    rec = record("trase", "hypernerf", "synthetic", 0.7, 0.9, name="again")
+    rec["created"] = "2099-01-01T00:00:00+00:00"
+    write(tmp_path, rec)
+    kept = one_run_per_row([r for r in find_runs(tmp_path) if r["config_hash"] == rec["config_hash"]])
+    assert len(kept) == 1 and kept[0]["run"]["name"] == "again"
+    assert a.exists()
+
+
+def test_official_metric_with_v1_beside_where_it_differs(tmp_path):
+    write(tmp_path, record("trase", "hypernerf", "synthetic", 0.6, 0.9, v1=(0.75, 0.9)))
+    md = render_all(_main_runs(tmp_path), "markdown", variants=("synthetic",))
+    assert "0.6000** (v1 0.7500)" in md  # official in the cell, v1 beside it
+    assert "0.9000**" in md and "0.9000** (v1" not in md  # mAcc: the same, nothing beside
+    assert "official metric" in md
+    csv = render_all(_main_runs(tmp_path), "csv", variants=("synthetic",))
+    assert "HyperNeRF-Mask_miou_v1" in csv and "0.75" in csv
+
+
 def test_real_average_only_when_every_sequence_ran(tmp_path):
-    _write(tmp_path, _rec("trase", "nerfds", "as_novel_view", 0.8, 0.9, variant="real"))
-    recs = find_results(tmp_path)
-    t = build_tables(recs, "real")[0]
+    write(tmp_path, record("trase", "nerfds", "as_novel_view", 0.8, 0.9, variant="real"))
+    t = build_tables(_main_runs(tmp_path), "real")[0]
     row = dict((r[0], r[1]) for r in t.rows)
     nerfds = t.groups.index("NeRF-DS-Mask")
-    assert row["trase"][2 * nerfds] is None  # 1 of 5 sequences: no average
+    assert row["trase [a]"][2 * nerfds] is None  # 1 of 5 sequences: no average
     assert row["trase (published)"][2 * nerfds] == pytest.approx(0.8773, abs=1e-3)
     assert any("1/5 sequences" in n for n in t.notes)
     for seq in ("basin_novel_view", "cup_novel_view", "plate_novel_view", "press_novel_view"):
-        _write(tmp_path, _rec("trase", "nerfds", seq, 0.6, 0.9, variant="real"))
-    t = build_tables(find_results(tmp_path), "real")[0]
+        write(tmp_path, record("trase", "nerfds", seq, 0.6, 0.9, variant="real"))
+    t = build_tables(_main_runs(tmp_path), "real")[0]
     row = dict((r[0], r[1]) for r in t.rows)
-    assert row["trase"][2 * nerfds] == pytest.approx((0.8 + 4 * 0.6) / 5)
+    assert row["trase [a]"][2 * nerfds] == pytest.approx((0.8 + 4 * 0.6) / 5)
 
 
 def test_formats_render(tmp_path):
-    _write(tmp_path, _rec("trase", "neu3d", "synthetic", 0.5, 0.6))
-    recs = find_results(tmp_path)
+    write(tmp_path, record("trase", "neu3d", "synthetic", 0.5, 0.6))
+    recs = _main_runs(tmp_path)
     for fmt in ("markdown", "latex", "csv", "html"):
         out = render_all(recs, fmt, variants=("synthetic",))
         assert "0.5000" in out or "0.5" in out
     assert "\\textbf{0.5000}" in render_all(recs, "latex", variants=("synthetic",))
 
 
-def test_corrupt_results_file_is_named(tmp_path):
+def test_corrupt_and_legacy_results_files(tmp_path, capsys):
     p = tmp_path / "x" / "results.json"
     p.parent.mkdir()
-    p.write_text(json.dumps({"schema": "trase-bench/results/1", "method": "m"}))
+    p.write_text(json.dumps({"schema": "trase-bench/results/2", "method": "m"}))
     with pytest.raises(ResultsError, match="results.json: results file lacks key 'dataset'"):
-        find_results(tmp_path)
+        find_runs(tmp_path)
+    p.write_text(json.dumps({"schema": "trase-bench/results/1", "method": "m"}))
+    notes = []
+    assert find_runs(tmp_path, warn=notes.append) == []
+    assert "written before run identity" in notes[0]
+    with pytest.raises(ResultsError, match="before run identity"):
+        write_results(tmp_path / "y.json", {"schema": "trase-bench/results/1"})
 
 
-def test_cli_leaderboard(tmp_path, capsys):
-    _write(tmp_path, _rec("trase", "hypernerf", "synthetic", 0.9, 0.99))
+def test_cli_leaderboard_and_runs(tmp_path, capsys):
+    write(tmp_path, record("trase", "hypernerf", "synthetic", 0.9, 0.99))
+    write(tmp_path, record("trase", "hypernerf", "synthetic", 0.5, 0.99, cfg=config(knn=0), study="smoothing",
+                           name="K=0"), under="ablations/smoothing")
     assert main(["leaderboard", "--results", str(tmp_path), "--variant", "synthetic"]) == 0
     out = capsys.readouterr().out
-    assert "HyperNeRF-Mask" in out and "trase" in out
+    assert "HyperNeRF-Mask" in out and "trase [a]" in out and "0.5000" not in out
+    assert main(["leaderboard", "--results", str(tmp_path), "--kind", "ablation", "--variant", "synthetic"]) == 0
+    assert "0.5000" in capsys.readouterr().out
+    assert main(["runs", "--results", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "ablation smoothing/v" in out and "main" in out and "[a] geometry reconstruct" in out
     assert main(["leaderboard", "--results", str(tmp_path / "none")]) == 1

@@ -3,7 +3,8 @@ import numpy as np
 
 from benchmark.cli import main
 from benchmark.report import overlay
-from benchmark.results import results_path, write_results
+from benchmark.results import write_results
+from tests.benchmark.results_helpers import record
 
 
 def test_overlay_colours():
@@ -17,7 +18,8 @@ def test_overlay_colours():
 
 
 def test_report_from_run_dir(tmp_path, capsys):
-    run = results_path(tmp_path, "trase", "hypernerf", "synthetic").parent
+    rec = record("trase", "hypernerf", "synthetic", 1.0, 1.0)
+    run = tmp_path / "trase" / "hypernerf" / "synthetic" / rec["run"]["name"]
     (run / "pred").mkdir(parents=True)
     frames = []
     for i in range(3):
@@ -29,13 +31,9 @@ def test_report_from_run_dir(tmp_path, capsys):
         cv2.imwrite(str(gt), m)
         cv2.imwrite(str(run / "pred" / f"{name}.png"), m)
         frames.append({"frame": name, "image": str(img), "gt": str(gt), "pred": f"pred/{name}.png"})
-    write_results(run / "results.json", {
-        "method": "trase", "dataset": "hypernerf", "sequence": "synthetic", "variant": "synthetic",
-        "metrics": {"miou": 1.0, "macc": 1.0, "pooled_iou": 1.0, "metric_version": "v1/bin1",
-                    "n_frames": 3},
+    write_results(run / "results.json", rec | {
         "per_frame": [{"frame": f["frame"], "iou": 1.0, "acc": 1.0} for f in frames],
         "frames": frames, "stages": {"masks": {"seconds": 1.5, "peak_rss_mb": 100}},
-        "config": {"features": {"dim": 32}},
     })
     assert main(["report", "--method", "trase", "--dataset", "hypernerf", "--sequence", "synthetic",
                  "--out", str(tmp_path)]) == 0
@@ -44,4 +42,7 @@ def test_report_from_run_dir(tmp_path, capsys):
     assert (run / "report" / "per_frame_iou.png").exists()
     assert main(["report", "--method", "x", "--dataset", "hypernerf", "--sequence", "s",
                  "--out", str(tmp_path)]) == 1
-    assert "no results for x" in capsys.readouterr().err
+    assert "no main run of x" in capsys.readouterr().err
+    assert main(["report", "--method", "trase", "--dataset", "hypernerf", "--sequence", "synthetic",
+                 "--name", "nope", "--out", str(tmp_path)]) == 1
+    assert "not a run directory" in capsys.readouterr().err

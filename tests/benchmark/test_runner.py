@@ -23,20 +23,31 @@ def data_root(tmp_path_factory):
     return root
 
 
-def _run(data_root, out, method="trase", extra=()):
+def _run(data_root, out, method="trase", extra=(), name=None):
     args = ["run", "--method", method, "--dataset", "hypernerf", "--sequence", "synthetic",
-            "--data-root", str(data_root), "--out", str(out), "--quiet"]
+            "--data-root", str(data_root), "--out", str(out), "--quiet"] + (["--name", name] if name else [])
     for s in FAST + list(extra):
         args += ["--set", s]
     return main(args)
+
+
+def _runs(out, method="trase"):
+    """The run directories of ``method`` on the tiny scene, oldest first."""
+    return sorted((p.parent for p in (out / method / "hypernerf" / "synthetic").glob("*/results.json")),
+                  key=lambda d: (d / "results.json").stat().st_mtime_ns)
 
 
 @pytest.mark.slow
 def test_pipeline_end_to_end(data_root, tmp_path, capsys):
     out = tmp_path / "runs"
     assert _run(data_root, out) == 0
-    path = out / "trase" / "hypernerf" / "synthetic" / "results.json"
+    (run_dir,) = _runs(out)
+    path = run_dir / "results.json"
     r = load_results(path)
+    assert r["run"]["kind"] == "run" and r["run"]["overrides"] == FAST  # made with --set: not a main run
+    assert run_dir.name == r["run"]["name"] == "c" + r["config_hash"][:8]
+    assert r["metrics"]["official"]["metric_version"] == "official/bin1"
+    assert r["storage"]["total_mib"] > 0 and r["storage"]["features_bytes"] == r["n_gaussians"] * 32 * 4
     assert r["variant"] == "synthetic"
     assert r["metrics"]["metric_version"] == "v1/bin1"
     assert 0.0 <= r["metrics"]["miou"] <= 1.0
@@ -45,7 +56,7 @@ def test_pipeline_end_to_end(data_root, tmp_path, capsys):
     assert not any(s["skipped"] for s in r["stages"].values())
     assert r["config"]["method"]["features"]["iterations"] == 40
     assert r["seeds"]["features"] == 0 and len(r["checksums"]["pred"]) == 16
-    assert r["prompts"]["points"]
+    assert r["prompts"]["clicks"] and r["prompts"]["source"] == "gt-first-appearance"
     assert (path.parent / "pred" / "00000.png").exists()
     # synthetic scene: the geometry's ceiling (truth-labelled gaussians) is reported beside the score;
     # with the ground-truth geometry it is near perfect
@@ -57,7 +68,7 @@ def test_pipeline_end_to_end(data_root, tmp_path, capsys):
 
     # a second method on the same scene reuses masks and geometry
     assert _run(data_root, out, method="trase-hard") == 0
-    r2 = load_results(out / "trase-hard" / "hypernerf" / "synthetic" / "results.json")
+    r2 = load_results(_runs(out, "trase-hard")[0] / "results.json")
     assert r2["stages"]["masks"]["skipped"] and r2["stages"]["geometry"]["skipped"]
     assert not r2["stages"]["features"]["skipped"] and not r2["stages"]["fit"]["skipped"]
     assert r2["stages"]["masks"]["key"] == r["stages"]["masks"]["key"]
@@ -71,17 +82,30 @@ def test_pipeline_end_to_end(data_root, tmp_path, capsys):
     assert all(s["skipped"] for n, s in r3["stages"].items() if n != "evaluate")
     assert r3["metrics"] == r["metrics"]
 
-    # a clustering change reuses the trained features and reruns only the fit stage
+    # a clustering change reuses the trained features and reruns only the fit stage, in a run
+    # directory of its own: the first result is still there, unchanged
     assert _run(data_root, out, extra=["method.clustering.fraction=0.5"]) == 0
-    r4 = load_results(path)
+    first, other = _runs(out)
+    assert first == run_dir and load_results(path)["metrics"] == r["metrics"]
+    r4 = load_results(other / "results.json")
     assert r4["stages"]["features"]["skipped"] and not r4["stages"]["fit"]["skipped"]
-
+    # a named run is never overwritten by another config
+    assert _run(data_root, out, name="mine") == 0
     capsys.readouterr()
+    assert _run(data_root, out, extra=["method.clustering.fraction=0.5"], name="mine") == 1
+    assert "a run with another config exists" in capsys.readouterr().err
+
+    # main runs only by default: none here (every run used --set); the other kinds when asked
     assert main(["leaderboard", "--results", str(out), "--variant", "synthetic"]) == 0
+    assert "HyperNeRF-Mask" not in capsys.readouterr().out
+    assert main(["leaderboard", "--results", str(out), "--variant", "synthetic", "--kind", "run"]) == 1
+    assert "runs with different configs" in capsys.readouterr().err  # fraction 0.5 beside the first
+    assert main(["leaderboard", "--run", str(run_dir), "--run", str(_runs(out, "trase-hard")[0]),
+                 "--variant", "synthetic"]) == 0
     board = capsys.readouterr().out
-    assert "HyperNeRF-Mask" in board and "trase-hard" in board and "published" not in board
+    assert "HyperNeRF-Mask" in board and "trase-hard [a]" in board and "(published)" not in board
     assert main(["report", "--method", "trase", "--dataset", "hypernerf", "--sequence", "synthetic",
-                 "--out", str(out)]) == 0
+                 "--name", run_dir.name, "--out", str(out)]) == 0
     assert (path.parent / "report.html").exists()
 
 

@@ -79,10 +79,10 @@ def build_pristine(base: Path) -> dict[str, Path]:
     out["geometry"] = geo
 
     res = base / "src" / "results"
-    write_results(res / "m" / "hypernerf" / "s" / "results.json", {
-        "method": "m", "dataset": "hypernerf", "sequence": "s", "variant": "synthetic",
-        "metrics": {"miou": 0.5, "macc": 0.9, "pooled_iou": 0.5, "metric_version": "v1/bin1", "n_frames": 3},
-    })
+    from tests.benchmark.results_helpers import record
+
+    write_results(res / "m" / "hypernerf" / "s" / "main" / "results.json",
+                  record("m", "hypernerf", "s", 0.5, 0.9, name="main"))
     out["results"] = res
     return out
 

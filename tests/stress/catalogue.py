@@ -256,15 +256,15 @@ CASES: list[Case] = [
     Case("geo-nan", "geometry", "geometry.npz", "NaN in d_xyz", "non-finite",
          npz_edit(lambda d: d["d_xyz"].__setitem__((0, 0, 0), np.nan))),
     # ---- results files through `trase-bench leaderboard` ----
-    Case("res-not-utf8", "results", "m/hypernerf/s/results.json", "invalid UTF-8 bytes", "not UTF-8", non_utf8),
-    Case("res-truncated", "results", "m/hypernerf/s/results.json", "truncated JSON", "malformed results file", truncate),
-    Case("res-no-metrics", "results", "m/hypernerf/s/results.json", "key `metrics` removed", "lacks key 'metrics'",
+    Case("res-not-utf8", "results", "m/hypernerf/s/main/results.json", "invalid UTF-8 bytes", "not UTF-8", non_utf8),
+    Case("res-truncated", "results", "m/hypernerf/s/main/results.json", "truncated JSON", "malformed results file", truncate),
+    Case("res-no-metrics", "results", "m/hypernerf/s/main/results.json", "key `metrics` removed", "lacks key 'metrics'",
          edit_json(lambda d: _del(d, "metrics"))),
-    Case("res-miou-range", "results", "m/hypernerf/s/results.json", "miou = 2.5", "must be a number in [0, 1]",
+    Case("res-miou-range", "results", "m/hypernerf/s/main/results.json", "miou = 2.5", "must be a number in [0, 1]",
          edit_json(lambda d: _set(d["metrics"], "miou", 2.5))),
-    Case("res-schema", "results", "m/hypernerf/s/results.json", "unknown schema", "unknown results schema",
+    Case("res-schema", "results", "m/hypernerf/s/main/results.json", "unknown schema", "unknown results schema",
          edit_json(lambda d: _set(d, "schema", "other/9"))),
-    Case("res-not-object", "results", "m/hypernerf/s/results.json", "a JSON list", "must be a JSON object",
+    Case("res-not-object", "results", "m/hypernerf/s/main/results.json", "a JSON list", "must be a JSON object",
          edit_json(lambda d: [d])),
 ]
 

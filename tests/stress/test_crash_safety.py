@@ -164,7 +164,8 @@ def chain(scene_root) -> dict:
 
 
 def _results(out: Path) -> dict:
-    return load_results(out / "trase" / "hypernerf" / "synthetic" / "results.json")
+    (path,) = list((out / "trase" / "hypernerf" / "synthetic").glob("*/results.json"))  # one run
+    return load_results(path)
 
 
 def _features(out: Path) -> bytes:

@@ -5,12 +5,14 @@ import pytest
 
 from tests.trase.helpers import exact_masks, object_alpha, tiny_scene
 from trase.prompts import (
+    BenchmarkPrompts,
     Click,
     PromptError,
     click_to_cluster,
     interior_points,
     lift_pixels,
     load_or_make_prompts,
+    make_benchmark_prompts,
     mask_to_clusters,
     oracle_clusters,
 )
@@ -78,9 +80,52 @@ def test_prompts_json_roundtrip(tmp_path):
     p.write_text("{bad")
     with pytest.raises(PromptError, match="prompts.json: not valid JSON"):
         load_or_make_prompts(p, views, lambda i: gts[i])
-    p.write_text(json.dumps({"version": 1}))
+    p.write_text(json.dumps({"version": 2}))
     with pytest.raises(PromptError, match="malformed"):
         load_or_make_prompts(p, views, lambda i: gts[i])
+    p.write_text(json.dumps({"version": 1, "points": [[1, 1]]}))  # before clicks named their frame
+    with pytest.raises(PromptError, match="prompts version 1 .expected 2.; delete it"):
+        load_or_make_prompts(p, views, lambda i: gts[i])
+
+
+def _frames(*boxes_per_frame, shape=(20, 30)):
+    out = []
+    for boxes in boxes_per_frame:
+        m = np.zeros(shape, bool)
+        for r0, r1, c0, c1 in boxes:
+            m[r0:r1, c0:c1] = True
+        out.append(m)
+    return out
+
+
+class _View:
+    def __init__(self, i):
+        from trase.camera import Camera, intrinsics
+
+        self.name = f"v{i}"
+        self.camera = Camera(intrinsics(20, 20, 15, 10), np.eye(4), 30, 20, time=i / 10, name=self.name)
+
+
+def test_benchmark_prompts_click_every_object_in_the_first_frame_it_appears():
+    # frame 0 empty; frame 1: object A; frame 2: A moved by a pixel; frame 3: A and a new B
+    # far from A; frame 4: only B (A left); frame 5: B and a new C touching B (missed: one merged
+    # mask per frame, no identities)
+    a, a2, b, c = (2, 8, 2, 8), (2, 8, 3, 9), (12, 18, 20, 26), (12, 18, 26, 29)
+    gts = _frames([], [a], [a2], [a2, b], [b], [b, c])
+    views = [_View(i) for i in range(len(gts))]
+    bp = make_benchmark_prompts(views, gts, min_area=4)
+    assert [(c.view, c.view_index) for c in bp.clicks] == [("v1", 1), ("v3", 3)]
+    assert bp.frames() == [1, 3] and bp.view_index == 1 and bp.source == "gt-first-appearance"
+    u, v = bp.clicks[1].u, bp.clicks[1].v
+    assert gts[3][int(v), int(u)] and 12 <= v < 18 and 20 <= u < 26  # on B, in B's first frame
+    assert bp.clicks[1].time == pytest.approx(0.3)
+    # the earlier rule: the first non-empty frame only; B never gets a click
+    old = make_benchmark_prompts(views, gts, min_area=4, rule="gt-first-frame")
+    assert [c.view for c in old.clicks] == ["v1"]
+    back = BenchmarkPrompts.from_dict(json.loads(json.dumps(bp.to_dict())))
+    assert back.clicks == bp.clicks
+    with pytest.raises(PromptError, match="unknown benchmark prompt rule"):
+        make_benchmark_prompts(views, gts, rule="whatever")
 
 
 def test_render_rule_visible_drops_occluded_parts():

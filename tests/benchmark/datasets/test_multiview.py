@@ -68,6 +68,22 @@ def test_neu3d_prepare_then_load(tmp_path):
     assert np.isfinite(scene.points).all() and scene.points.shape == (20000, 3)
 
 
+def test_prepared_manifest_is_relative_and_reproducible(tmp_path):
+    import shutil
+
+    raw = write_neu3d(tmp_path / "a" / "sear_steak", n_cams=3, n_frames=2, gt_frames=2)
+    prepare_sequence("neu3d", raw, raw / "prepared", frames=[0, 1])
+    first = (raw / "prepared" / "prepared.json").read_bytes()
+    m = json.loads(first)
+    assert m["source_dir"] == ".." and "created" not in m  # no absolute path, no timestamp
+    moved = tmp_path / "b" / "sear_steak"
+    shutil.move(str(raw), str(moved))
+    assert len(load_scene("neu3d", moved).test) == 2  # a moved folder still loads
+    (moved / "prepared" / "prepared.json").unlink()
+    prepare_sequence("neu3d", moved, moved / "prepared", frames=[0, 1])
+    assert (moved / "prepared" / "prepared.json").read_bytes() == first  # same inputs, same bytes
+
+
 def test_prepare_is_resumable(tmp_path):
     raw = write_neu3d(tmp_path / "sear_steak", n_cams=2, n_frames=3)
     out = tmp_path / "out"

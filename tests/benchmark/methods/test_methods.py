@@ -90,3 +90,22 @@ def test_cpu_preset_clustering_and_steps():
     assert m.default_config(_Spec(n_pixels=5000), preset="cpu")["features"]["n_pixels"] == 2000
     assert m.default_config(_Spec(n_pixels=5000), preset="paper")["features"]["n_pixels"] == 5000
     assert m.default_config(_Spec(), preset="paper")["render_rule"] == "alone"  # the paper's rule
+
+
+def test_each_click_is_lifted_in_its_own_frame(monkeypatch):
+    # prompts from several test frames: a click is lifted with the camera of the frame it was
+    # made in, not the first prompted frame's
+    import types
+
+    import trase.prompts as tp
+    from trase.prompts import BenchmarkPrompts, Click
+
+    _, _, _, views = tiny_scene(n_per=2)
+    seen = []
+    monkeypatch.setattr(tp, "click_to_cluster", lambda g, d, camera, click, *a: seen.append(camera.name) or 0)
+    clicks = [Click(1.0, 1.0, views[0].name, views[0].camera.time, 0),
+              Click(2.0, 2.0, views[2].name, views[2].camera.time, 2)]
+    prompts = BenchmarkPrompts(0, views[0].name, views[0].camera.time, clicks)
+    fitted = types.SimpleNamespace(gaussians=None, deformation=None, labels=np.zeros(4, int), config={})
+    assert TraseMethod().select(fitted, _Scene(train=views, test=views), prompts) == [0]
+    assert seen == [views[0].camera.name, views[2].camera.name]

@@ -1,0 +1,56 @@
+"""``trase-bench runs``: every run under a results directory, with its kind and protocol."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+
+KIND_CHOICES = ["all", "main", "run", "ablation"]
+
+
+@click.command()
+@click.option("--results", "results_dir", type=click.Path(file_okay=False), default="runs", show_default=True,
+              help="Directory searched recursively for runs.")
+@click.option("--kind", type=click.Choice(KIND_CHOICES), default="all", show_default=True,
+              help="main: made with the method's defaults; run: with --set overrides; ablation: study variants.")
+@click.option("--json", "as_json", is_flag=True, help="One JSON object per run instead of a table.")
+def runs(results_dir: str, kind: str, as_json: bool) -> None:
+    """List runs: method, dataset, sequence, name, kind, mIoU (official metric), config hash,
+    directory, and a legend of the protocols (geometry, features preset, masks, prompts,
+    render rule, metric) they were measured under."""
+    from benchmark.runs import find_runs, protocol, protocol_label
+
+    records = find_runs(Path(results_dir), warn=lambda m: click.echo(m, err=True))
+    if kind != "all":
+        records = [r for r in records if r["run"]["kind"] == kind]
+    if not records:
+        click.echo(f"no runs under {results_dir}" + ("" if kind == "all" else f" of kind {kind}"), err=True)
+        return
+    legend: dict[str, str] = {}
+    rows = []
+    for r in records:
+        label = protocol_label(protocol(r))
+        key = legend.setdefault(label, chr(ord("a") + len(legend)) if len(legend) < 26 else str(len(legend)))
+        study = r["run"].get("study") or {}
+        off = r["metrics"]["official"]
+        rows.append({
+            "method": r["method"], "dataset": r["dataset"], "sequence": r["sequence"], "name": r["run"]["name"],
+            "kind": r["run"]["kind"] + (f" {study['name']}/{study['variant']}" if study else ""),
+            "data": r["variant"], "mIoU": off["miou"], "mAcc": off["macc"], "protocol": key,
+            "config": r["config_hash"][:8], "created": str(r.get("created", ""))[:16], "dir": r["_dir"],
+            "overrides": r["run"]["overrides"],
+        })
+    if as_json:
+        for row in rows:
+            row["protocol"] = next(k for k, v in legend.items() if v == row["protocol"])
+            click.echo(json.dumps(row))
+        return
+    import pandas as pd
+
+    df = pd.DataFrame(rows).drop(columns=["overrides"])
+    click.echo(df.to_string(index=False, float_format=lambda x: f"{x:.4f}"))
+    click.echo("\nprotocols:")
+    for label, key in legend.items():
+        click.echo(f"  [{key}] {label}")

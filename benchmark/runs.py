@@ -1,0 +1,169 @@
+"""Run identity: where a run lives, what protocol it followed, which runs a table may use.
+
+A run is one method on one sequence with one resolved config. It lives in
+
+    <out>/<method>/<dataset>/<sequence>/<name>/results.json
+
+where ``name`` is ``--name`` or ``c`` + the first 8 hex digits of the resolved config's hash:
+a rerun with the same config lands in the same directory, a run with another config in
+another, and a named run is never overwritten by a run with another config.
+
+Kinds of run (``results["run"]``):
+
+* main: made with the method's defaults (no ``--set``) outside any study; the leaderboard's
+  default row of a method;
+* run: made with ``--set`` overrides; shown only when selected (``--run``);
+* ablation: a variant of an ablation study (``trase-bench ablate``), kept under
+  ``<out>/ablations/<study>/``; never in a leaderboard unless selected.
+"""
+
+from __future__ import annotations
+
+import re
+import sys
+from pathlib import Path
+
+from benchmark.errors import UserError
+from benchmark.results import LEGACY_SCHEMAS, RUN_KINDS, ResultsError, load_results, read_any_results
+
+NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._=+-]{0,79}$")
+KINDS = RUN_KINDS
+
+
+class RunError(UserError):
+    """A run that cannot be written or chosen; the message names the directory."""
+
+
+def run_name(config_hash: str, name: str | None = None) -> str:
+    """The run's directory name: ``name`` (checked) or ``c<8 hex digits of the config hash>``."""
+    if name is None:
+        return f"c{config_hash[:8]}"
+    if not NAME_RE.match(name):
+        raise RunError(f"--name {name!r}: use letters, digits and . _ = + - (at most 80, not starting "
+                       "with a symbol)")
+    return name
+
+
+def run_dir(out_dir: Path, method: str, dataset: str, sequence: str, name: str) -> Path:
+    return Path(out_dir) / method / dataset / sequence / name
+
+
+def run_info(name: str, overrides: list[str], study: str | None = None, variant: str | None = None) -> dict:
+    """The ``run`` block of a results file: its name, kind, overrides and study."""
+    kind = "ablation" if study else ("run" if overrides else "main")
+    return {"name": name, "kind": kind, "overrides": list(overrides),
+            "study": {"name": study, "variant": variant} if study else None}
+
+
+def check_free(directory: Path, config_hash: str) -> None:
+    """Refuse to overwrite a run made with another config (same config: a rerun, allowed)."""
+    path = Path(directory) / "results.json"
+    if not path.exists():
+        return
+    try:
+        old = read_any_results(path)
+    except ResultsError:
+        raise RunError(f"{directory}: holds an unreadable results.json; remove the directory or choose "
+                       "another --name") from None
+    if old.get("config_hash") != config_hash:
+        raise RunError(f"{directory}: a run with another config exists (config {old.get('config_hash')}, "
+                       f"this one {config_hash}); choose another --name or remove that directory")
+
+
+# -- protocol ---------------------------------------------------------------------------------
+def protocol(record: dict) -> dict:
+    """What a number was measured under, from the run's config and metric: the labels a table
+    prints beside it."""
+    cfg = record.get("config") or {}
+    geo, mcfg = cfg.get("geometry", {}), cfg.get("method", {})
+    src = geo.get("source", "?")
+    clicks = (mcfg.get("prompts") or {}).get("click_rule")
+    prompts = (cfg.get("prompts") or {}).get("rule", "?") + (f", click {clicks}" if clicks else "")
+    if "cgc" in mcfg:
+        prompts += ", cgc patch query"
+    official = (record.get("metrics") or {}).get("official") or {}
+    return {
+        "geometry": f"{src} ({geo.get('preset')} preset)" if src == "reconstruct" else src,
+        "features": mcfg.get("preset", "?"),
+        "masks": (cfg.get("masks") or {}).get("generator", "?"),
+        "prompts": prompts,
+        "render": mcfg.get("render_rule", "alone"),
+        "metric": official.get("metric_version", "?"),
+    }
+
+
+def protocol_label(p: dict) -> str:
+    return "; ".join(f"{k} {v}" for k, v in p.items())
+
+
+# -- finding and choosing runs ------------------------------------------------------------------
+def find_runs(root: Path, warn=None) -> list[dict]:
+    """Every run under ``root`` (validated), each with ``_path`` and ``_dir``. Results files of
+    the layout before run identity (schema 1) are skipped with one line on stderr."""
+    root = Path(root)
+    if not root.is_dir():
+        raise ResultsError(f"{root}: results directory not found")
+    out, legacy = [], []
+    for p in sorted(root.rglob("results.json")):
+        if any(part.startswith(".") for part in p.relative_to(root).parts):
+            continue  # the stage cache and temporary directories
+        rec = read_any_results(p)
+        if rec["schema"] in LEGACY_SCHEMAS:
+            legacy.append(p)
+            continue
+        out.append(_tag(rec, p))
+    if legacy:
+        (warn or _stderr)(f"note: skipped {len(legacy)} results file(s) written before run identity "
+                          f"(e.g. {legacy[0]}); rerun them to use them")
+    return out
+
+
+def load_run(path: Path) -> dict:
+    """One run from its directory or its results.json."""
+    path = Path(path)
+    file = path / "results.json" if path.is_dir() else path
+    if not file.is_file():
+        raise RunError(f"{path}: no results.json (not a run directory)")
+    return _tag(load_results(file), file)
+
+
+def _tag(rec: dict, path: Path) -> dict:
+    rec["_path"], rec["_dir"] = str(path), str(Path(path).parent)
+    return rec
+
+
+def _stderr(msg: str) -> None:
+    print(msg, file=sys.stderr)
+
+
+def kind(record: dict) -> str:
+    return record["run"]["kind"]
+
+
+def row_key(record: dict) -> tuple[str, str, str]:
+    return record["method"], record["dataset"], record["sequence"]
+
+
+def select_runs(records: list[dict], kinds: tuple[str, ...] = ("main",)) -> list[dict]:
+    """The runs of the given kinds (default: the main runs)."""
+    bad = set(kinds) - set(KINDS)
+    if bad:
+        raise RunError(f"unknown run kind {sorted(bad)[0]!r}; choose from {', '.join(KINDS)}")
+    return [r for r in records if kind(r) in kinds]
+
+
+def one_run_per_row(records: list[dict]) -> list[dict]:
+    """A table cell is one run. Two runs with different configs for the same method, dataset
+    and sequence are refused, naming them and how to choose; of runs with the same config (a
+    named rerun of the defaults, say) the newest is kept."""
+    by_row: dict[tuple, list[dict]] = {}
+    for r in records:
+        by_row.setdefault(row_key(r), []).append(r)
+    out = []
+    for (method, dataset, sequence), recs in sorted(by_row.items()):
+        if len({r.get("config_hash") for r in recs}) > 1:
+            dirs = ", ".join(f"{r['_dir']} ({kind(r)}, made {str(r.get('created', '?'))[:16]})" for r in recs)
+            raise RunError(f"{method} on {dataset}/{sequence}: {len(recs)} runs with different configs: {dirs}; "
+                           "choose one with --run DIR (or remove the stale one)")
+        out.append(max(recs, key=lambda r: str(r.get("created", ""))))
+    return out
