@@ -175,9 +175,11 @@ def _flatten(d: dict, prefix: str = "") -> dict:
     return out
 
 
-def differences(name: str, dataset: str, df: pd.DataFrame, overrides: list[str] | None = None) -> list[str]:
+def differences(name: str, dataset: str, df: pd.DataFrame) -> list[str]:
     """What still separates the measured table from the paper's: the data, then every setting
-    whose value differs from the paper protocol's (``paper_config``), with both values."""
+    whose value differs from the paper protocol's (``paper_config`` with the study's and the
+    variant's own overrides; the user's --set values are differences too), with both values.
+    Training settings of a geometry that was not reconstructed are left out (they did nothing)."""
     study = STUDIES[name]
     data = sorted(set(df["data"])) if len(df) else []
     out = []
@@ -191,10 +193,12 @@ def differences(name: str, dataset: str, df: pd.DataFrame, overrides: list[str] 
         if not len(rows):
             continue
         here = _flatten(rows.iloc[0]["_config"])
-        ref = _flatten(paper_config(v.method, dataset, rows.iloc[0]["data"],
-                                    list(study.protocol) + list(overrides or []) + list(v.overrides)))
+        ref = _flatten(paper_config(v.method, dataset, rows.iloc[0]["data"], list(study.protocol) + list(v.overrides)))
+        unused = here.get("geometry.source") != "reconstruct"
         for key in sorted(set(here) | set(ref)):
             if key.split(".")[-1] in BOOKKEEPING or here.get(key) == ref.get(key):
+                continue
+            if unused and (key.startswith("geometry.train.") or key == "geometry.preset"):
                 continue
             seen.setdefault(key, (here.get(key, "(unset)"), ref.get(key, "(unset)")))
     out += [f"{k}: {a} here, {b} in the paper protocol" for k, (a, b) in seen.items()]

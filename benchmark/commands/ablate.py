@@ -41,7 +41,7 @@ def ablate(study, dataset, sequences, data_root, out_dir, overrides, fmt, quiet)
                                           "with synthetic rows)"))
     else:
         click.echo(f"(the paper publishes no {s.title.lower()} figures for {dataset})\n")
-    diffs = differences(study, dataset, df, list(overrides))
+    diffs = differences(study, dataset, df)
     if fmt != "csv" and diffs:
         click.echo("Differences from the paper's protocol:")
         for d in diffs:
