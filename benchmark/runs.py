@@ -82,7 +82,12 @@ def protocol(record: dict) -> dict:
     if "cgc" in mcfg:
         prompts += ", cgc patch query"
     official = (record.get("metrics") or {}).get("official") or {}
-    return {
+    syn = record.get("synthetic_scene")
+    scene = {}
+    if syn:  # which generated scene: another seed or difficulty is another scene under one name
+        scene["scene"] = (f"synthetic v{syn.get('generator_version')} {syn.get('size')} seed {syn.get('seed')} "
+                          f"{syn.get('difficulty')}")
+    return scene | {
         "geometry": f"{src} ({geo.get('preset')} preset)" if src == "reconstruct" else src,
         "features": mcfg.get("preset", "?"),
         "masks": (cfg.get("masks") or {}).get("generator", "?"),
@@ -152,18 +157,28 @@ def select_runs(records: list[dict], kinds: tuple[str, ...] = ("main",)) -> list
     return [r for r in records if kind(r) in kinds]
 
 
+def scene_identity(record: dict) -> str | None:
+    """What the run was measured on beyond its sequence name: the ground truth's checksum (a
+    synthetic scene of another seed has the same name and other ground truth)."""
+    return (record.get("checksums") or {}).get("gt")
+
+
 def one_run_per_row(records: list[dict]) -> list[dict]:
-    """A table cell is one run. Two runs with different configs for the same method, dataset
-    and sequence are refused, naming them and how to choose; of runs with the same config (a
-    named rerun of the defaults, say) the newest is kept."""
+    """A table cell is one run. Two runs with different configs, or on different scenes under
+    one name, for the same method, dataset and sequence are refused, naming them and how to
+    choose; of runs with the same config on the same scene (a named rerun of the defaults, say)
+    the newest is kept."""
     by_row: dict[tuple, list[dict]] = {}
     for r in records:
         by_row.setdefault(row_key(r), []).append(r)
     out = []
     for (method, dataset, sequence), recs in sorted(by_row.items()):
-        if len({r.get("config_hash") for r in recs}) > 1:
+        configs = {r.get("config_hash") for r in recs}
+        scenes = {scene_identity(r) for r in recs}
+        if len(configs) > 1 or len(scenes) > 1:
+            what = "different configs" if len(configs) > 1 else "different scenes (ground truth)"
             dirs = ", ".join(f"{r['_dir']} ({kind(r)}, made {str(r.get('created', '?'))[:16]})" for r in recs)
-            raise RunError(f"{method} on {dataset}/{sequence}: {len(recs)} runs with different configs: {dirs}; "
+            raise RunError(f"{method} on {dataset}/{sequence}: {len(recs)} runs with {what}: {dirs}; "
                            "choose one with --run DIR (or remove the stale one)")
         out.append(max(recs, key=lambda r: str(r.get("created", ""))))
     return out

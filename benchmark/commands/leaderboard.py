@@ -46,7 +46,8 @@ def leaderboard(results_dir: str, run_dirs: tuple[str, ...], kinds: tuple[str, .
     variants = ("synthetic", "real") if variant == "all" else (variant,)
     text = render_all(records, fmt, variants=variants, published=not no_published)
     if not records:
-        warn(f"note: no {'/'.join(kinds or ('main',))} runs under {results_dir}; showing published rows only")
+        shown = "; showing the published rows only" if "real" in variants and not no_published else ""
+        warn(f"note: no {'/'.join(kinds or ('main',))} runs under {results_dir}{shown}")
     if out:
         from benchmark.io import atomic_write_text
 

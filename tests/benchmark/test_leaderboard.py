@@ -62,6 +62,11 @@ def test_two_configs_for_one_row_are_refused_unless_chosen(tmp_path, capsys):
     kept = one_run_per_row([r for r in find_runs(tmp_path) if r["config_hash"] == rec["config_hash"]])
     assert len(kept) == 1 and kept[0]["run"]["name"] == "again"
     assert a.exists()
+    # the same config on another scene of the same name (a synthetic scene of another seed)
+    other = record("trase", "hypernerf", "synthetic", 0.9, 0.9, name="seed1") | {"checksums": {"gt": "other"}}
+    write(tmp_path, other)
+    with pytest.raises(RunError, match="different scenes"):
+        one_run_per_row([r for r in find_runs(tmp_path) if r["config_hash"] == rec["config_hash"]])
 
 
 def test_official_metric_with_v1_beside_where_it_differs(tmp_path):

@@ -104,6 +104,7 @@ def test_pipeline_end_to_end(data_root, tmp_path, capsys):
                  "--variant", "synthetic"]) == 0
     board = capsys.readouterr().out
     assert "HyperNeRF-Mask" in board and "trase-hard [a]" in board and "(published)" not in board
+    assert "[a] scene synthetic v" in board and " seed 0 " in board  # which synthetic scene
     assert main(["report", "--method", "trase", "--dataset", "hypernerf", "--sequence", "synthetic",
                  "--name", run_dir.name, "--out", str(out)]) == 0
     assert (path.parent / "report.html").exists()
