@@ -21,6 +21,7 @@ import numpy as np
 
 from benchmark.io import atomic_write_bytes, atomic_write_text
 from benchmark.results import load_results
+from benchmark.runs import protocol, protocol_label
 from benchmark.scoring import read_mask
 
 MAX_FRAMES_SHOWN = 8
@@ -120,6 +121,10 @@ def make_report(run_dir: str | Path) -> Path:
     )
     official = m.get("official", {})
     title = f"{record['method']} on {record['dataset']} / {record['sequence']} ({record['variant']} data)"
+    run = record.get("run") or {}
+    overrides = " ".join(f"--set {o}" for o in run.get("overrides", [])) or "none"
+    run_line = (f"Run {run.get('name', '?')} ({run.get('kind', '?')}; overrides: {overrides}). "
+                f"Protocol: {protocol_label(protocol(record))}.")
     notes = []
     if missing_images:
         notes.append(f"{missing_images} test image(s) not found: grey backdrop shown.")
@@ -139,6 +144,7 @@ pre{{background:#f6f6f6;padding:8px;overflow:auto;font-size:12px}}</style></head
 <p><b>mIoU {fmt(m['miou'])}</b> &middot; mAcc {fmt(m['macc'])} &middot; pooled IoU {fmt(m['pooled_iou'])}
 &middot; {m['n_frames']} test frames &middot; metric {html.escape(m['metric_version'])}
 {f"&middot; official script rules: mIoU {fmt(official.get('miou'))}, mAcc {fmt(official.get('macc'))}" if official else ""}</p>
+<p>{html.escape(run_line)}</p>
 <p>{' '.join(html.escape(n) for n in notes)}</p>
 <h2>Test views</h2><p>green: correct object pixels, red: false positives, blue: missed.</p>
 {''.join(tiles)}

@@ -39,6 +39,7 @@ def test_report_from_run_dir(tmp_path, capsys):
                  "--out", str(tmp_path)]) == 0
     page = (run / "report.html").read_text()
     assert "mIoU 1.0000" in page and page.count("data:image/png;base64") == 4
+    assert f"Run {rec['run']['name']} (main; overrides: none). Protocol: geometry reconstruct" in page
     assert (run / "report" / "per_frame_iou.png").exists()
     assert main(["report", "--method", "x", "--dataset", "hypernerf", "--sequence", "s",
                  "--out", str(tmp_path)]) == 1
