@@ -77,7 +77,7 @@ def test_filter_threshold_paper_values_one_value_on_cpu():
     for thr in (0.4, 0.6, 0.9, 0.98):
         spec = _Spec(filter_threshold=thr)
         assert m.default_config(spec, preset="paper")["filter_threshold"] == thr
-        assert m.default_config(spec, preset="cpu")["filter_threshold"] == CPU_FILTER_THRESHOLD == 0.8
+        assert m.default_config(spec, preset="cpu")["filter_threshold"] == CPU_FILTER_THRESHOLD == 0.7
 
 
 def test_cpu_preset_clustering_and_steps():
