@@ -13,10 +13,14 @@
   object region of at least ``min_area`` pixels, at the region's distance-transform maximum
   (the most interior pixel; ties broken by row-major order), made in that region's own frame.
   Rule ``gt-first-appearance`` (default): every region of the first non-empty frame, then each
-  region of a later frame that touches no object pixel of the frame before it (within
-  ``link_radius`` px): an object that enters later gets a click in the first frame it appears
-  in, as a person clicking the objects of interest would. A new object that appears touching
-  an old one is missed (the ground truth is one merged mask per frame: no identities).
+  region of a later frame that touches no pixel that was object in any earlier test frame
+  (within ``link_radius`` px): an object that enters later gets a click in the first frame it
+  appears in, as a person clicking the objects of interest would. Linking to every earlier
+  frame, not only the one before, keeps an object that was hidden for a while, or cut into
+  slivers by an occluder, from being taken for a new one (synthetic HyperNeRF: a 3-px sliver
+  of the blob behind the pillar would otherwise get a click, which landed on the background).
+  Missed: a new object that enters where an object has been (the ground truth is one merged
+  mask per frame: no identities).
   Rule ``gt-first-frame``: the first non-empty frame's regions only (prompts version 1).
   Saved to prompts.json and reused.
 * Oracle selection: the clusters whose visible rendered pixels (cluster weight >= 0.5 in the
@@ -256,7 +260,7 @@ def make_benchmark_prompts(test_views: Sequence, gt_masks, min_area: int = 20,
         raise PromptError(f"unknown benchmark prompt rule {rule!r}; choose one of {', '.join(BENCHMARK_RULES)}")
     kernel = np.ones((2 * link_radius + 1, 2 * link_radius + 1), np.uint8)
     clicks: list[Click] = []
-    first, previous = None, None
+    first, seen = None, None  # seen [H, W]: object in some earlier test frame
     for i, (view, gt) in enumerate(zip(test_views, gt_masks)):
         gt = np.asarray(gt, dtype=bool)
         if first is None:
@@ -266,11 +270,12 @@ def make_benchmark_prompts(test_views: Sequence, gt_masks, min_area: int = 20,
         elif rule == "gt-first-frame":
             break
         else:
-            near = cv2.dilate(previous.astype(np.uint8), kernel) > 0 if previous is not None else None
+            near = cv2.dilate(seen.astype(np.uint8), kernel) > 0 if seen.shape == gt.shape else None
             regions = [r for r in _regions(gt, min_area, keep_largest=False)
                        if near is None or not (r[3] & near).any()]
         clicks += [Click(u, v, view.name, float(view.camera.time), i) for _, u, v, _ in regions]
-        previous = gt if gt.any() else None
+        if gt.any():
+            seen = gt.copy() if seen is None or seen.shape != gt.shape else seen | gt
     if first is None:
         raise PromptError("every test frame's ground truth is empty: no object to prompt")
     v0 = test_views[first]

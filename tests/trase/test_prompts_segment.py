@@ -108,10 +108,11 @@ class _View:
 
 def test_benchmark_prompts_click_every_object_in_the_first_frame_it_appears():
     # frame 0 empty; frame 1: object A; frame 2: A moved by a pixel; frame 3: A and a new B
-    # far from A; frame 4: only B (A left); frame 5: B and a new C touching B (missed: one merged
-    # mask per frame, no identities)
+    # far from A; frame 4: only B (A hidden); frame 5: B and a new C touching B (missed: one
+    # merged mask per frame, no identities); frame 6: A back where it was (not new: linked to
+    # every earlier frame, not only the one before)
     a, a2, b, c = (2, 8, 2, 8), (2, 8, 3, 9), (12, 18, 20, 26), (12, 18, 26, 29)
-    gts = _frames([], [a], [a2], [a2, b], [b], [b, c])
+    gts = _frames([], [a], [a2], [a2, b], [b], [b, c], [a, b])
     views = [_View(i) for i in range(len(gts))]
     bp = make_benchmark_prompts(views, gts, min_area=4)
     assert [(c.view, c.view_index) for c in bp.clicks] == [("v1", 1), ("v3", 3)]
