@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import io
+import re
 from importlib import resources
 from pathlib import Path
 
@@ -27,8 +28,9 @@ class Variant:
 
     @property
     def run_name(self) -> str:
-        """The variant's run directory name (benchmark.runs.NAME_RE): '2%' -> '2pct'."""
-        return self.label.replace("%", "pct").replace(" ", "_")
+        """The variant's run directory name (benchmark.runs.NAME_RE): '2%' -> '2pct',
+        '16/no' -> '16-no'."""
+        return re.sub(r"[^A-Za-z0-9._=+-]", "-", self.label.replace("%", "pct"))
 
 
 UNFILTERED = "method.filter_threshold=-1.0"  # -1: every gaussian keeps its cluster

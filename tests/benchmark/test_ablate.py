@@ -71,3 +71,15 @@ def test_differences_name_every_setting_that_is_not_the_papers(tmp_path):
     assert "method.features.iterations: 3000 here, 10000 in the paper protocol" in diffs
     assert not any("filter_threshold" in d or "knn" in d for d in diffs)  # the protocol's own settings
     assert list(summarise(df).columns) == ["variant", "miou", "macc"]
+
+
+def test_every_variant_has_a_valid_run_name():
+    from benchmark.runs import run_name
+
+    for study in STUDIES.values():
+        names = [v.run_name for v in study.variants]
+        assert len(set(names)) == len(names)
+        for n in names:
+            assert run_name("0" * 16, n) == n  # accepted as --name
+    assert [v.run_name for v in STUDIES["feature-dim"].variants][:2] == ["16-no", "16-yes"]
+    assert [v.run_name for v in STUDIES["subsample"].variants] == ["2pct", "10pct", "25pct"]
