@@ -17,8 +17,10 @@
   (within ``link_radius`` px): an object that enters later gets a click in the first frame it
   appears in, as a person clicking the objects of interest would. Linking to every earlier
   frame, not only the one before, keeps an object that was hidden for a while, or cut into
-  slivers by an occluder, from being taken for a new one (synthetic HyperNeRF: a 3-px sliver
-  of the blob behind the pillar would otherwise get a click, which landed on the background).
+  slivers by an occluder, from being taken for a new one (synthetic HyperNeRF, reconstructed
+  geometry: linked to the previous frame only, a 3-px sliver of an occluded object and an
+  object back after one hidden frame got clicks, which added a background cluster: mIoU 0.13
+  against the oracle's 0.74).
   Missed: a new object that enters where an object has been (the ground truth is one merged
   mask per frame: no identities).
   Rule ``gt-first-frame``: the first non-empty frame's regions only (prompts version 1).
