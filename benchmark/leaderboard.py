@@ -280,7 +280,10 @@ def _latex(t: Table) -> str:
              " & " + " & ".join(["mIoU & mAcc"] * len(t.groups)) + r" & s/seq \\", r"\midrule"]
     for label, cells, secs in _cells(t, lambda s: r"\textbf{" + s + "}"):
         lines.append(" & ".join([esc(label)] + cells + [secs]) + r" \\")
-    lines += [r"\bottomrule", r"\end{tabular}", r"\end{table}"]
+    lines += [r"\bottomrule", r"\end{tabular}"]
+    if t.notes:  # protocol footnotes and the metric note
+        lines += [r"\par\footnotesize"] + [esc(n) + r"\\" for n in t.notes]
+    lines += [r"\end{table}"]
     return "\n".join(lines) + "\n"
 
 

@@ -141,9 +141,10 @@ def make_report(run_dir: str | Path) -> Path:
 figure img{{display:block;max-width:260px}}table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:2px 8px}}
 pre{{background:#f6f6f6;padding:8px;overflow:auto;font-size:12px}}</style></head><body>
 <h1>{html.escape(title)}</h1>
-<p><b>mIoU {fmt(m['miou'])}</b> &middot; mAcc {fmt(m['macc'])} &middot; pooled IoU {fmt(m['pooled_iou'])}
-&middot; {m['n_frames']} test frames &middot; metric {html.escape(m['metric_version'])}
-{f"&middot; official script rules: mIoU {fmt(official.get('miou'))}, mAcc {fmt(official.get('macc'))}" if official else ""}</p>
+<p><b>mIoU {fmt(official.get('miou', m['miou']))}</b> &middot; mAcc {fmt(official.get('macc', m['macc']))}
+(metric {html.escape(official.get('metric_version', m['metric_version']))}, the public script's rules)
+&middot; v1: mIoU {fmt(m['miou'])}, mAcc {fmt(m['macc'])}, pooled IoU {fmt(m['pooled_iou'])}
+&middot; {m['n_frames']} test frames</p>
 <p>{html.escape(run_line)}</p>
 <p>{' '.join(html.escape(n) for n in notes)}</p>
 <h2>Test views</h2><p>green: correct object pixels, red: false positives, blue: missed.</p>

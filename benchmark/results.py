@@ -81,8 +81,8 @@ def validate(record: dict, path: Path | str = "results") -> dict:
     if missing:
         raise ResultsError(f"{path}: metrics lack key {missing[0]!r}")
     official = metrics["official"]
-    if not isinstance(official, dict):
-        raise ResultsError(f"{path}: metrics.official must be an object")
+    if not isinstance(official, dict) or not {"miou", "macc"} <= set(official):
+        raise ResultsError(f"{path}: metrics.official must be an object with miou and macc")
     for where, block in (("metrics", metrics), ("metrics.official", official)):
         for k in ("miou", "macc"):
             v = block.get(k)

@@ -420,7 +420,10 @@ def run_sequence(opts: RunOptions, sequence: str | None, reporter: Reporter, ind
     size = (views[0].camera.width, views[0].camera.height) if views else None
     cfg = default_config(method, spec, variant, overrides, size)
     chash = config_hash(cfg)
+    is_default = chash == config_hash(default_config(method, spec, variant, {}, size))
     name = run_name(chash, opts.name)
+    if opts.study:  # a study's variant: its label and config, so a rerun with other --set lands beside it
+        name = f"{name}-{run_name(chash)}"
     out_dir = run_dir(opts.out_dir, opts.method, spec.key, seq, name)
     check_free(out_dir, chash)  # before any work: a run with another config is never overwritten
     cache = StageCache(opts.cache_root)
@@ -467,7 +470,7 @@ def run_sequence(opts: RunOptions, sequence: str | None, reporter: Reporter, ind
     v1, official = ev["v1"].to_dict(), ev["official"].to_dict()
     pred_files = sorted((out_dir / "pred").glob("*.png"))
     record = {
-        "run": run_info(name, opts.overrides, opts.study, opts.study_variant),
+        "run": run_info(name, opts.overrides, opts.study, opts.study_variant, defaults=is_default),
         "method": opts.method,
         "dataset": spec.key,
         "sequence": seq,

@@ -48,9 +48,13 @@ def run_dir(out_dir: Path, method: str, dataset: str, sequence: str, name: str) 
     return Path(out_dir) / method / dataset / sequence / name
 
 
-def run_info(name: str, overrides: list[str], study: str | None = None, variant: str | None = None) -> dict:
-    """The ``run`` block of a results file: its name, kind, overrides and study."""
-    kind = "ablation" if study else ("run" if overrides else "main")
+def run_info(name: str, overrides: list[str], study: str | None = None, variant: str | None = None,
+             defaults: bool | None = None) -> dict:
+    """The ``run`` block of a results file: its name, kind, overrides and study. ``defaults``:
+    whether the resolved config equals the method's defaults (a ``--set`` restating a default
+    still makes a main run); None: judged by the overrides alone."""
+    main = (not overrides) if defaults is None else defaults
+    kind = "ablation" if study else ("main" if main else "run")
     return {"name": name, "kind": kind, "overrides": list(overrides),
             "study": {"name": study, "variant": variant} if study else None}
 
@@ -62,7 +66,7 @@ def check_free(directory: Path, config_hash: str) -> None:
         return
     try:
         old = read_any_results(path)
-    except ResultsError:
+    except UserError:  # unreadable, truncated, not UTF-8, invalid
         raise RunError(f"{directory}: holds an unreadable results.json; remove the directory or choose "
                        "another --name") from None
     if old.get("config_hash") != config_hash:

@@ -46,7 +46,7 @@ from trase.deformation import deformed
 from trase.io import atomic_write_text
 from trase.render import pixel_weights, rasterize
 
-PROMPTS_VERSION = 2  # 2: each click names its own test frame
+PROMPTS_VERSION = 3  # 2: each click names its own test frame; 3: new objects linked to every earlier frame
 CLICK_RULES = ("depth", "weight")
 BENCHMARK_RULES = ("gt-first-appearance", "gt-first-frame")
 

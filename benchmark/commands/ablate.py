@@ -39,7 +39,7 @@ def ablate(study, dataset, sequences, data_root, out_dir, overrides, fmt, quiet)
     if pub is not None:
         click.echo(render_table(pub, fmt, f"{s.title}: {dataset} (published, real data; not comparable "
                                           "with synthetic rows)"))
-    else:
+    elif fmt != "csv":
         click.echo(f"(the paper publishes no {s.title.lower()} figures for {dataset})\n")
     diffs = differences(study, dataset, df)
     if fmt != "csv" and diffs:

@@ -17,7 +17,8 @@ from benchmark.leaderboard import FORMATS, render_all
                    "the main runs under --results. See `trase-bench runs`.")
 @click.option("--kind", "kinds", multiple=True, type=click.Choice(["main", "run", "ablation"]),
               help="Kinds of run taken from --results (repeatable; default: main, i.e. made with the "
-                   "method's defaults). Ablation variants enter only when asked for.")
+                   "method's defaults). Ablation variants enter only when asked for, one per row "
+                   "(several variants of one method: pick with --run).")
 @click.option("--format", "fmt", type=click.Choice(FORMATS), default="markdown", show_default=True)
 @click.option("--variant", type=click.Choice(["all", "synthetic", "real"]), default="all",
               show_default=True, help="Which data variant's tables to show.")

@@ -45,6 +45,14 @@ def test_ablation_variants_and_reruns_stay_out_of_the_main_table(tmp_path):
         one_run_per_row(select_runs(runs, ("main", "ablation")))
 
 
+def test_a_set_that_restates_the_defaults_is_still_the_main_run():
+    from benchmark.runs import run_info
+
+    assert run_info("c1", ["method.features.knn=16"], defaults=True)["kind"] == "main"
+    assert run_info("c1", [], defaults=False)["kind"] == "run"
+    assert run_info("c1", ["x=1"], study="smoothing", variant="K=0", defaults=True)["kind"] == "ablation"
+
+
 def test_two_configs_for_one_row_are_refused_unless_chosen(tmp_path, capsys):
     a = write(tmp_path, record("trase", "hypernerf", "synthetic", 0.7, 0.9))
     b = write(tmp_path, record("trase", "hypernerf", "synthetic", 0.8, 0.9, cfg=config(preset="paper")))
@@ -100,7 +108,9 @@ def test_formats_render(tmp_path):
     for fmt in ("markdown", "latex", "csv", "html"):
         out = render_all(recs, fmt, variants=("synthetic",))
         assert "0.5000" in out or "0.5" in out
-    assert "\\textbf{0.5000}" in render_all(recs, "latex", variants=("synthetic",))
+    latex = render_all(recs, "latex", variants=("synthetic",))
+    assert "\\textbf{0.5000}" in latex and "trase [a]" in latex and "[a] scene" not in latex
+    assert "[a] geometry reconstruct" in latex  # the protocol footnote under the table
 
 
 def test_corrupt_and_legacy_results_files(tmp_path, capsys):

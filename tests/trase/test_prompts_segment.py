@@ -80,11 +80,11 @@ def test_prompts_json_roundtrip(tmp_path):
     p.write_text("{bad")
     with pytest.raises(PromptError, match="prompts.json: not valid JSON"):
         load_or_make_prompts(p, views, lambda i: gts[i])
-    p.write_text(json.dumps({"version": 2}))
+    p.write_text(json.dumps({"version": 3}))
     with pytest.raises(PromptError, match="malformed"):
         load_or_make_prompts(p, views, lambda i: gts[i])
     p.write_text(json.dumps({"version": 1, "points": [[1, 1]]}))  # before clicks named their frame
-    with pytest.raises(PromptError, match="prompts version 1 .expected 2.; delete it"):
+    with pytest.raises(PromptError, match="prompts version 1 .expected 3.; delete it"):
         load_or_make_prompts(p, views, lambda i: gts[i])
 
 
