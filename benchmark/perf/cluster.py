@@ -172,7 +172,7 @@ def scene_features(spec: dict) -> tuple[np.ndarray, str]:
         fit_dir = StageCache(Path(tmp) / "cache").path("fit", rec["stages"]["fit"]["key"])
         feats = np.load(fit_dir / "features.npy")
     desc = (f"trase features of {spec['dataset']}/{spec['sequence']} ({feats.shape[0]} gaussians, "
-            f"{' '.join(spec['overrides'])}; mIoU {rec['metrics']['miou']:.3f})")
+            f"{' '.join(spec['overrides'])}; mIoU {rec['metrics']['official']['miou']:.3f} official)")
     return feats.astype(np.float32), desc
 
 

@@ -134,7 +134,8 @@ def run(quick: bool = False, echo: Callable[[str], None] = print) -> dict:
                     continue
                 entry["wall_seconds"] = time.perf_counter() - t0
                 entry["gaussians"] = int(rec["n_gaussians"])
-                entry["miou"] = rec["metrics"]["miou"]
+                entry["miou"] = rec["metrics"]["official"]["miou"]  # the leaderboard's metric
+                entry["metric"] = rec["metrics"]["official"]["metric_version"]
                 entry["stages"] = stage_table(rec)
                 runs.append(entry)
                 for st, v in entry["stages"].items():
