@@ -34,6 +34,8 @@ STAGE_FILE = "_stage.json"
 STAGE_VERSIONS: dict[str, int] = {
     "features": 2,  # 2: smoothing with K=0 normalises features (raw features before)
     "ceiling": 2,  # 2: object alpha statistics; votes from at most 600 training views
+    "fit": 2,  # 2: records the clustering sample's size (cluster_sample)
+    "prompts": 2,  # 2: a click per object in its first frame, each naming its frame (prompts file v3)
 }
 
 

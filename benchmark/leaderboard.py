@@ -24,12 +24,13 @@ import html
 import io
 import math
 from importlib import resources
+from typing import NamedTuple
 
 import pandas as pd
 
 from benchmark.datasets import DATASETS
 from benchmark.results import total_seconds
-from benchmark.runs import protocol, protocol_label
+from benchmark.runs import ProtocolLegend, protocol, protocol_label
 
 FORMATS = ("markdown", "latex", "csv", "html")
 PUBLISHED_NOTE = (
@@ -41,15 +42,20 @@ METRIC_NOTE = ("Measured cells: the official metric (the public evaluation scrip
                "paper's numbers were made with); the project's v1 metric in brackets where it differs.")
 
 
+class Row(NamedTuple):
+    label: str  # method, its protocol marks, or "(published)"
+    cells: list[float | None]  # [miou, macc] * groups, official metric
+    seconds: float | None  # per sequence
+    v1: list[float | None] | None = None  # the v1 metric's cells (None: published row)
+    protocol: str = ""  # the protocol label(s) behind the marks
+
+
 @dataclasses.dataclass
 class Table:
     title: str
     groups: list[str]  # one per column pair (dataset or sequence)
-    rows: list[tuple[str, list[float | None], float | None]]  # label, [miou, macc]*groups, s/seq
+    rows: list[Row]
     notes: list[str] = dataclasses.field(default_factory=list)
-    # per row, the v1 metric's [miou, macc]*groups (None: published row, or no cell)
-    alt: list[list[float | None] | None] = dataclasses.field(default_factory=list)
-    protocols: list[str] = dataclasses.field(default_factory=list)  # per row, its protocol label(s)
 
     def best(self) -> list[float | None]:
         n = 2 * len(self.groups)
@@ -111,42 +117,26 @@ def _datasets_in(df: pd.DataFrame, variant: str) -> list[str]:
     return [d for d in DATASETS if d in present] + sorted(present - set(DATASETS))
 
 
-class _Protocols:
-    """Footnote markers [a], [b], ... of the protocols in one table, in order of appearance."""
-
-    def __init__(self) -> None:
-        self.keys: dict[str, str] = {}
-
-    def marks(self, labels) -> str:
-        out = []
-        for lab in sorted({x for x in labels if x}):
-            if lab not in self.keys:
-                n = len(self.keys)
-                self.keys[lab] = chr(ord("a") + n) if n < 26 else str(n)
-            out.append(self.keys[lab])
-        return f" [{', '.join(sorted(out))}]" if out else ""
-
-    def notes(self) -> list[str]:
-        return [f"[{k}] {lab}" for lab, k in self.keys.items()]
-
-
 def _label(method: str, source: str, marks: str = "") -> str:
     return f"{method} (published)" if source == "published" else method + marks
 
 
-def _sort(rows: list, *parallel: list) -> tuple[list, ...]:
-    order = sorted(range(len(rows)), key=lambda i: (rows[i][0].endswith("(published)"), rows[i][0]))
-    return ([rows[i] for i in order],) + tuple([p[i] for i in order] for p in parallel)
+def _row(method: str, source: str, sub: pd.DataFrame, cells: list, v1: list, legend: ProtocolLegend) -> Row:
+    if source == "published":
+        return Row(_label(method, source), cells, None)
+    labels = sorted({x for x in sub.protocol if x})
+    return Row(_label(method, source, legend.marks(labels)), cells, float(sub.seconds.mean()), v1,
+               " | ".join(labels))
 
 
-def _protocol_text(sub: pd.DataFrame, source: str) -> str:
-    return "" if source == "published" else " | ".join(sorted({x for x in sub.protocol if x}))
+def _sorted(rows: list[Row]) -> list[Row]:
+    return sorted(rows, key=lambda r: (r.label.endswith("(published)"), r.label))
 
 
 def main_table(df: pd.DataFrame, variant: str) -> Table:
     datasets = _datasets_in(df, variant)
     groups = [DATASETS[d].display_name if d in DATASETS else d for d in datasets]
-    rows, alt, texts, notes, protocols = [], [], [], [], _Protocols()
+    rows, notes, legend = [], [], ProtocolLegend()
     for (method, source), sub in df.groupby(["method", "source"], sort=True):
         cells: list[float | None] = []
         v1: list[float | None] = []
@@ -169,17 +159,12 @@ def main_table(df: pd.DataFrame, variant: str) -> Table:
                 if have:
                     notes.append(f"{method} on {d}: {len(have & set(expected))}/{len(expected)} "
                                  "sequences run, no average")
-        secs = None if source == "published" else float(sub.seconds.mean())
-        marks = "" if source == "published" else protocols.marks(sub.protocol)
-        rows.append((_label(method, source, marks), cells, secs))
-        alt.append(None if source == "published" else v1)
-        texts.append(_protocol_text(sub, source))
-    rows, alt, texts = _sort(rows, alt, texts)
-    notes = protocols.notes() + notes + [METRIC_NOTE]
+        rows.append(_row(method, source, sub, cells, v1, legend))
+    notes = legend.notes() + notes + [METRIC_NOTE]
     if variant == "real":
         notes.append(PUBLISHED_NOTE)
     title = f"Segmentation in novel views ({variant} data): mIoU / mAcc per benchmark"
-    return Table(title, groups, rows, notes, alt, texts)
+    return Table(title, groups, _sorted(rows), notes)
 
 
 def _mean(col: pd.Series) -> float | None:
@@ -189,7 +174,7 @@ def _mean(col: pd.Series) -> float | None:
 
 def sequence_table(df: pd.DataFrame, variant: str, dataset: str) -> Table:
     seqs = _expected_sequences(df, variant, dataset)
-    rows, alt, texts, protocols = [], [], [], _Protocols()
+    rows, legend = [], ProtocolLegend()
     for (method, source), sub in df[df.dataset == dataset].groupby(["method", "source"]):
         cells: list[float | None] = []
         v1: list[float | None] = []
@@ -199,15 +184,9 @@ def sequence_table(df: pd.DataFrame, variant: str, dataset: str) -> Table:
             v1 += [_value(hit.miou_v1), _value(hit.macc_v1)]
         if all(c is None for c in cells):
             continue
-        secs = None if source == "published" else float(sub.seconds.mean())
-        marks = "" if source == "published" else protocols.marks(sub.protocol)
-        rows.append((_label(method, source, marks), cells, secs))
-        alt.append(None if source == "published" else v1)
-        texts.append(_protocol_text(sub, source))
-    rows, alt, texts = _sort(rows, alt, texts)
+        rows.append(_row(method, source, sub, cells, v1, legend))
     name = DATASETS[dataset].display_name if dataset in DATASETS else dataset
-    return Table(f"{name} per sequence ({variant} data)", seqs, rows, protocols.notes() + [METRIC_NOTE], alt,
-                 texts)
+    return Table(f"{name} per sequence ({variant} data)", seqs, _sorted(rows), legend.notes() + [METRIC_NOTE])
 
 
 def _value(col: pd.Series) -> float | None:
@@ -248,8 +227,8 @@ def render(table: Table, fmt: str) -> str:
 def _cells(table: Table, bold: callable) -> list[tuple[str, list[str], str]]:
     best = table.best()
     out = []
-    for r, (label, cells, secs) in enumerate(table.rows):
-        v1 = table.alt[r] if r < len(table.alt) and table.alt[r] else [None] * len(cells)
+    for label, cells, secs, v1, _ in table.rows:
+        v1 = v1 or [None] * len(cells)
         txt = []
         for i, v in enumerate(cells):
             t = bold(_fmt(v)) if v is not None and v == best[i] else _fmt(v)
@@ -272,7 +251,7 @@ def _markdown(t: Table) -> str:
 
 
 def _latex(t: Table) -> str:
-    esc = lambda s: s.replace("_", r"\_").replace("%", r"\%")  # noqa: E731
+    esc = lambda s: s.replace("_", r"\_").replace("%", r"\%")
     lines = [r"\begin{table}[t]", r"\centering", r"\caption{" + esc(t.title) + "}",
              r"\begin{tabular}{l" + "cc" * len(t.groups) + "r}", r"\toprule",
              "Method & " + " & ".join(r"\multicolumn{2}{c}{" + esc(g) + "}" for g in t.groups)
@@ -289,14 +268,14 @@ def _latex(t: Table) -> str:
 
 def _csv(t: Table) -> str:
     rows = []
-    for r, (label, cells, secs) in enumerate(t.rows):
+    for label, cells, secs, v1, protocol_text in t.rows:
         row = {"table": t.title, "method": label}
-        v1 = t.alt[r] if r < len(t.alt) and t.alt[r] else [None] * len(cells)
+        v1 = v1 or [None] * len(cells)
         for i, g in enumerate(t.groups):
             row[f"{g}_miou"], row[f"{g}_macc"] = cells[2 * i], cells[2 * i + 1]
             row[f"{g}_miou_v1"], row[f"{g}_macc_v1"] = v1[2 * i], v1[2 * i + 1]
         row["seconds_per_sequence"] = secs
-        row["protocol"] = t.protocols[r] if r < len(t.protocols) else ""
+        row["protocol"] = protocol_text
         rows.append(row)
     buf = io.StringIO()
     pd.DataFrame(rows).to_csv(buf, index=False)

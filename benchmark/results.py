@@ -83,14 +83,11 @@ def validate(record: dict, path: Path | str = "results") -> dict:
     official = metrics["official"]
     if not isinstance(official, dict) or not {"miou", "macc"} <= set(official):
         raise ResultsError(f"{path}: metrics.official must be an object with miou and macc")
-    for where, block in (("metrics", metrics), ("metrics.official", official)):
-        for k in ("miou", "macc"):
-            v = block.get(k)
-            if v is not None and not (isinstance(v, (int, float)) and 0.0 <= v <= 1.0):
-                raise ResultsError(f"{path}: {where}.{k} must be a number in [0, 1] or null, got {v!r}")
-    v = metrics["pooled_iou"]
-    if v is not None and not (isinstance(v, (int, float)) and 0.0 <= v <= 1.0):
-        raise ResultsError(f"{path}: metrics.pooled_iou must be a number in [0, 1] or null, got {v!r}")
+    scores = [(f"metrics.{k}", metrics[k]) for k in ("miou", "macc", "pooled_iou")] + \
+        [(f"metrics.official.{k}", official[k]) for k in ("miou", "macc")]
+    for where, v in scores:
+        if v is not None and not (isinstance(v, (int, float)) and 0.0 <= v <= 1.0):
+            raise ResultsError(f"{path}: {where} must be a number in [0, 1] or null, got {v!r}")
     return record
 
 

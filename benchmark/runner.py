@@ -309,12 +309,12 @@ def stage_fit(cache: StageCache, method, scene, cfg: dict, masks_rec: StageRecor
 
 
 def stage_prompts(cache: StageCache, scene, cfg: dict, gt_key: str) -> StageRecord:
-    from trase.prompts import BENCHMARK_RULES, PROMPTS_VERSION, load_or_make_prompts
+    from trase.prompts import BENCHMARK_RULES, load_or_make_prompts
 
     pcfg = cfg["prompts"]
     if pcfg["rule"] not in BENCHMARK_RULES:
         raise ConfigError(f"--set prompts.rule={pcfg['rule']}: choose {' or '.join(BENCHMARK_RULES)}")
-    key = cache.key("prompts", {**pcfg, "version": PROMPTS_VERSION}, {"gt": gt_key})
+    key = cache.key("prompts", pcfg, {"gt": gt_key})
 
     def work(d: Path) -> dict:
         bp = load_or_make_prompts(d / "prompts.json", scene.test, lambda i: read_mask(scene.gt_masks[i]),
@@ -421,9 +421,7 @@ def run_sequence(opts: RunOptions, sequence: str | None, reporter: Reporter, ind
     cfg = default_config(method, spec, variant, overrides, size)
     chash = config_hash(cfg)
     is_default = chash == config_hash(default_config(method, spec, variant, {}, size))
-    name = run_name(chash, opts.name)
-    if opts.study:  # a study's variant: its label and config, so a rerun with other --set lands beside it
-        name = f"{name}-{run_name(chash)}"
+    name = run_name(chash, opts.name, with_hash=bool(opts.study))
     out_dir = run_dir(opts.out_dir, opts.method, spec.key, seq, name)
     check_free(out_dir, chash)  # before any work: a run with another config is never overwritten
     cache = StageCache(opts.cache_root)
@@ -470,7 +468,7 @@ def run_sequence(opts: RunOptions, sequence: str | None, reporter: Reporter, ind
     v1, official = ev["v1"].to_dict(), ev["official"].to_dict()
     pred_files = sorted((out_dir / "pred").glob("*.png"))
     record = {
-        "run": run_info(name, opts.overrides, opts.study, opts.study_variant, defaults=is_default),
+        "run": run_info(name, opts.overrides, is_default, opts.study, opts.study_variant),
         "method": opts.method,
         "dataset": spec.key,
         "sequence": seq,

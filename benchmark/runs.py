@@ -10,9 +10,9 @@ another, and a named run is never overwritten by a run with another config.
 
 Kinds of run (``results["run"]``):
 
-* main: made with the method's defaults (no ``--set``) outside any study; the leaderboard's
-  default row of a method;
-* run: made with ``--set`` overrides; shown only when selected (``--run``);
+* main: its config is the method's defaults, outside any study; the leaderboard's default
+  row of a method;
+* run: made with ``--set`` overrides that change the config; shown only when selected;
 * ablation: a variant of an ablation study (``trase-bench ablate``), kept under
   ``<out>/ablations/<study>/``; never in a leaderboard unless selected.
 """
@@ -24,37 +24,44 @@ import sys
 from pathlib import Path
 
 from benchmark.errors import UserError
-from benchmark.results import LEGACY_SCHEMAS, RUN_KINDS, ResultsError, load_results, read_any_results
+from benchmark.results import (
+    LEGACY_SCHEMAS,
+    RUN_KINDS,
+    ResultsError,
+    load_results,
+    read_any_results,
+)
 
 NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._=+-]{0,79}$")
-KINDS = RUN_KINDS
 
 
 class RunError(UserError):
     """A run that cannot be written or chosen; the message names the directory."""
 
 
-def run_name(config_hash: str, name: str | None = None) -> str:
-    """The run's directory name: ``name`` (checked) or ``c<8 hex digits of the config hash>``."""
+def run_name(config_hash: str, name: str | None = None, with_hash: bool = False) -> str:
+    """The run's directory name: ``name`` (checked) or ``c<8 hex digits of the config hash>``;
+    ``with_hash``: ``<name>-c<hash>`` (a study's variant: its label, and a rerun with other
+    --set values lands beside it)."""
+    tag = f"c{config_hash[:8]}"
     if name is None:
-        return f"c{config_hash[:8]}"
+        return tag
     if not NAME_RE.match(name):
         raise RunError(f"--name {name!r}: use letters, digits and . _ = + - (at most 80, not starting "
                        "with a symbol)")
-    return name
+    return f"{name}-{tag}" if with_hash else name
 
 
 def run_dir(out_dir: Path, method: str, dataset: str, sequence: str, name: str) -> Path:
     return Path(out_dir) / method / dataset / sequence / name
 
 
-def run_info(name: str, overrides: list[str], study: str | None = None, variant: str | None = None,
-             defaults: bool | None = None) -> dict:
+def run_info(name: str, overrides: list[str], defaults: bool, study: str | None = None,
+             variant: str | None = None) -> dict:
     """The ``run`` block of a results file: its name, kind, overrides and study. ``defaults``:
     whether the resolved config equals the method's defaults (a ``--set`` restating a default
-    still makes a main run); None: judged by the overrides alone."""
-    main = (not overrides) if defaults is None else defaults
-    kind = "ablation" if study else ("main" if main else "run")
+    still makes a main run)."""
+    kind = "ablation" if study else ("main" if defaults else "run")
     return {"name": name, "kind": kind, "overrides": list(overrides),
             "study": {"name": study, "variant": variant} if study else None}
 
@@ -103,6 +110,27 @@ def protocol(record: dict) -> dict:
 
 def protocol_label(p: dict) -> str:
     return "; ".join(f"{k} {v}" for k, v in p.items())
+
+
+class ProtocolLegend:
+    """Footnote markers [a], [b], ... for protocol labels, in order of first appearance."""
+
+    def __init__(self) -> None:
+        self.keys: dict[str, str] = {}  # label -> marker
+
+    def key(self, label: str) -> str:
+        if label not in self.keys:
+            n = len(self.keys)
+            self.keys[label] = chr(ord("a") + n) if n < 26 else str(n)
+        return self.keys[label]
+
+    def marks(self, labels) -> str:
+        """' [a, c]' for the labels (empty ones ignored), '' for none."""
+        keys = sorted(self.key(lab) for lab in labels if lab)
+        return f" [{', '.join(keys)}]" if keys else ""
+
+    def notes(self) -> list[str]:
+        return [f"[{k}] {lab}" for lab, k in self.keys.items()]
 
 
 # -- finding and choosing runs ------------------------------------------------------------------
@@ -155,9 +183,9 @@ def row_key(record: dict) -> tuple[str, str, str]:
 
 def select_runs(records: list[dict], kinds: tuple[str, ...] = ("main",)) -> list[dict]:
     """The runs of the given kinds (default: the main runs)."""
-    bad = set(kinds) - set(KINDS)
+    bad = set(kinds) - set(RUN_KINDS)
     if bad:
-        raise RunError(f"unknown run kind {sorted(bad)[0]!r}; choose from {', '.join(KINDS)}")
+        raise RunError(f"unknown run kind {min(bad)!r}; choose from {', '.join(RUN_KINDS)}")
     return [r for r in records if kind(r) in kinds]
 
 

@@ -190,9 +190,9 @@ def model_storage(gaussians: GaussianModel, deformation, feature_dim: int) -> di
     ``total_mib`` is in MiB (2^20 bytes): the paper's feature-dimension table (16 -> 128 dims:
     +80 "MB" on NeRF-DS's 186k gaussians) matches 2^20, not 10^6."""
     n = int(gaussians.num_gaussians)
-    per_gaussian = sum(int(t.shape[1:].numel()) for t in (gaussians.means, gaussians.log_scales, gaussians.quats,
-                                                          gaussians.sh_dc, gaussians.sh_rest)) + 1  # + opacity
-    g_bytes = n * per_gaussian * FLOAT_BYTES
+    g = gaussians
+    g_bytes = sum(int(t.numel()) for t in (g.means, g.log_scales, g.quats, g.opacity_logits, g.sh_dc, g.sh_rest)) \
+        * FLOAT_BYTES
     f_bytes = n * int(feature_dim) * FLOAT_BYTES
     d_bytes = 0 if deformation is None else sum(int(p.numel()) for p in deformation.state_dict().values()) * FLOAT_BYTES
     total = g_bytes + f_bytes + d_bytes

@@ -23,7 +23,8 @@
   against the oracle's 0.74).
   Missed: a new object that enters where an object has been (the ground truth is one merged
   mask per frame: no identities).
-  Rule ``gt-first-frame``: the first non-empty frame's regions only (prompts version 1).
+  Rule ``gt-first-frame``: the first non-empty frame's regions only (the rule before prompts
+  file version 2).
   Saved to prompts.json and reused.
 * Oracle selection: the clusters whose visible rendered pixels (cluster weight >= 0.5 in the
   full render) lie mostly (> ``min_inside``) inside the ground truth over all test frames:

@@ -6,7 +6,14 @@ from pathlib import Path
 
 import click
 
-from benchmark.ablate import STUDIES, differences, published_table, render_table, run_study, summarise
+from benchmark.ablate import (
+    STUDIES,
+    differences,
+    published_table,
+    render_table,
+    run_study,
+    summarise,
+)
 
 
 @click.command()

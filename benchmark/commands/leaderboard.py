@@ -36,7 +36,7 @@ def leaderboard(results_dir: str, run_dirs: tuple[str, ...], kinds: tuple[str, .
     """
     from benchmark.runs import find_runs, load_run, one_run_per_row, select_runs
 
-    warn = lambda m: click.echo(m, err=True)  # noqa: E731
+    warn = lambda m: click.echo(m, err=True)
     if run_dirs:
         if kinds:
             raise click.UsageError("--kind chooses runs under --results; with --run the runs are given")

@@ -46,7 +46,7 @@ def run(method, dataset, sequences, data_root, out_dir, cache_dir, overrides, na
     for path in run_pipeline(opts):
         r = load_results(path)
         m, official = r["metrics"], r["metrics"]["official"]
-        fmt = lambda x: "n/a" if x is None else f"{x:.4f}"  # noqa: E731
+        fmt = lambda x: "n/a" if x is None else f"{x:.4f}"
         oracle = r.get("oracle") or {}
         ceiling = f", geometry ceiling {fmt(r['ceiling'].get('miou'))}" if r.get("ceiling") else ""
         v1 = "" if (m["miou"], m["macc"]) == (official["miou"], official["macc"]) else \

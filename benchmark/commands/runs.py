@@ -20,7 +20,7 @@ def runs(results_dir: str, kind: str, as_json: bool) -> None:
     """List runs: method, dataset, sequence, name, kind, mIoU (official metric), config hash,
     directory, and a legend of the protocols (geometry, features preset, masks, prompts,
     render rule, metric) they were measured under."""
-    from benchmark.runs import find_runs, protocol, protocol_label
+    from benchmark.runs import ProtocolLegend, find_runs, protocol, protocol_label
 
     records = find_runs(Path(results_dir), warn=lambda m: click.echo(m, err=True))
     if kind != "all":
@@ -28,29 +28,28 @@ def runs(results_dir: str, kind: str, as_json: bool) -> None:
     if not records:
         click.echo(f"no runs under {results_dir}" + ("" if kind == "all" else f" of kind {kind}"), err=True)
         return
-    legend: dict[str, str] = {}
+    legend = ProtocolLegend()
     rows = []
     for r in records:
         label = protocol_label(protocol(r))
-        key = legend.setdefault(label, chr(ord("a") + len(legend)) if len(legend) < 26 else str(len(legend)))
         study = r["run"].get("study") or {}
         off = r["metrics"]["official"]
         rows.append({
             "method": r["method"], "dataset": r["dataset"], "sequence": r["sequence"], "name": r["run"]["name"],
             "kind": r["run"]["kind"] + (f" {study['name']}/{study['variant']}" if study else ""),
-            "data": r["variant"], "mIoU": off["miou"], "mAcc": off["macc"], "protocol": key,
+            "data": r["variant"], "mIoU": off["miou"], "mAcc": off["macc"], "protocol": legend.key(label),
             "config": r["config_hash"][:8], "created": str(r.get("created", ""))[:16], "dir": r["_dir"],
             "overrides": r["run"]["overrides"],
         })
     if as_json:
+        labels = {k: lab for lab, k in legend.keys.items()}
         for row in rows:
-            row["protocol"] = next(k for k, v in legend.items() if v == row["protocol"])
-            click.echo(json.dumps(row))
+            click.echo(json.dumps(row | {"protocol": labels[row["protocol"]]}))
         return
     import pandas as pd
 
     df = pd.DataFrame(rows).drop(columns=["overrides"])
     click.echo(df.to_string(index=False, float_format=lambda x: f"{x:.4f}"))
     click.echo("\nprotocols:")
-    for label, key in legend.items():
-        click.echo(f"  [{key}] {label}")
+    for note in legend.notes():
+        click.echo(f"  {note}")

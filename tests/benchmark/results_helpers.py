@@ -22,7 +22,7 @@ def record(method, dataset, sequence, miou, macc, variant="synthetic", seconds=1
     v1 = v1 or (miou, macc)
     return {
         "method": method, "dataset": dataset, "sequence": sequence, "variant": variant,
-        "run": run_info(name or run_name(h), list(overrides), study, "v" if study else None),
+        "run": run_info(name or run_name(h), list(overrides), not overrides, study, "v" if study else None),
         "metrics": {"miou": v1[0], "macc": v1[1], "pooled_iou": miou, "metric_version": "v1/bin1", "n_frames": 3,
                     "official": {"miou": miou, "macc": macc, "pooled_iou": miou, "metric_version": "official/bin1"}},
         "stages": {"features": {"seconds": seconds}},

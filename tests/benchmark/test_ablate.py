@@ -4,7 +4,14 @@ import numpy as np
 import pandas as pd
 import torch
 
-from benchmark.ablate import STUDIES, UNFILTERED, differences, paper_config, published_table, summarise
+from benchmark.ablate import (
+    STUDIES,
+    UNFILTERED,
+    differences,
+    paper_config,
+    published_table,
+    summarise,
+)
 from benchmark.config import merge, parse_overrides
 
 

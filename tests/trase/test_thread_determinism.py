@@ -12,11 +12,11 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).parent))
 
-from recon_scene import write_scene  # noqa: E402
+from recon_scene import write_scene
 
-from tests.trase.helpers import exact_masks, tiny_scene  # noqa: E402
-from trase.features import FeatureConfig, train_features  # noqa: E402
-from trase.reconstruct import ReconstructionConfig, reconstruct  # noqa: E402
+from tests.trase.helpers import exact_masks, tiny_scene
+from trase.features import FeatureConfig, train_features
+from trase.reconstruct import ReconstructionConfig, reconstruct
 
 pytestmark = pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="needs 2 numba threads")
 
