@@ -113,8 +113,9 @@ def _extra(col: str, rec: dict) -> float | int | None:
 
 def run_study(name: str, dataset: str, out_dir: Path, data_root: Path | None = None,
               sequences: list[str] | None = None, overrides: list[str] | None = None,
-              progress: bool = True) -> pd.DataFrame:
-    """Run every variant of a study (reusing cached stages) -> one row per variant and sequence."""
+              progress: bool = True, seeds: list[int] | None = None) -> pd.DataFrame:
+    """Run every variant of a study (reusing cached stages) -> one row per variant, sequence
+    and run seed (``seeds``: each its own run, benchmark.runner.RunOptions.seeds)."""
     from benchmark.runner import RunOptions, run
 
     if name not in STUDIES:
@@ -126,11 +127,11 @@ def run_study(name: str, dataset: str, out_dir: Path, data_root: Path | None = N
         opts = RunOptions(method=v.method, dataset=dataset, sequences=sequences, data_root=data_root,
                           out_dir=Path(out_dir) / "ablations" / name, cache_dir=Path(out_dir) / ".cache",
                           overrides=list(study.protocol) + list(overrides or []) + list(v.overrides),
-                          progress=progress, name=v.run_name, study=name, study_variant=v.label)
+                          progress=progress, name=v.run_name, study=name, study_variant=v.label, seeds=seeds)
         for path in run(opts):
             rec = load_results(path)
             official = rec["metrics"]["official"]
-            row = {"variant": v.label, "method": v.method, "sequence": rec["sequence"],
+            row = {"variant": v.label, "method": v.method, "sequence": rec["sequence"], "seed": rec["run"]["seed"],
                    "data": rec["variant"], "miou": official["miou"], "macc": official["macc"],
                    "total_s": total_seconds(rec)}
             row.update({c: _extra(c, rec) for c in study.columns})
@@ -140,10 +141,23 @@ def run_study(name: str, dataset: str, out_dir: Path, data_root: Path | None = N
 
 
 def summarise(df: pd.DataFrame) -> pd.DataFrame:
-    """Mean over sequences per variant, in the study's variant order."""
+    """Mean over sequences per variant, in the study's variant order. With several run seeds:
+    the mean over seeds of those means, ``miou_std``/``macc_std`` (sample std over seeds) and
+    ``seeds`` (how many)."""
     order = list(dict.fromkeys(df["variant"]))
-    num = df.drop(columns=["method", "sequence", "data", "_config"], errors="ignore").groupby(
-        "variant", sort=False).mean(numeric_only=True)
+    if "seed" not in df:
+        df = df.assign(seed=0)
+    per_seed = df.drop(columns=["method", "sequence", "data", "_config"], errors="ignore").groupby(
+        ["variant", "seed"], sort=False).mean(numeric_only=True).reset_index()
+    num = per_seed.drop(columns=["seed"]).groupby("variant", sort=False).mean(numeric_only=True)
+    n_seeds = per_seed.groupby("variant", sort=False)["seed"].nunique()
+    if n_seeds.max() > 1:
+        std = per_seed.groupby("variant", sort=False)[["miou", "macc"]].std(ddof=1)
+        cols = list(num.columns)
+        num["miou_std"], num["macc_std"], num["seeds"] = std["miou"], std["macc"], n_seeds
+        at = cols.index("macc") + 1 if "macc" in cols else len(cols)
+        num = num[cols[:at] + ["miou_std", "macc_std"] + cols[at:] + ["seeds"]]
+        num = num.rename(columns={"miou_std": "miou ±", "macc_std": "macc ±"})
     return num.loc[order].reset_index()
 
 
@@ -232,20 +246,42 @@ def render_table(df: pd.DataFrame, fmt: str, title: str) -> str:
         return buf.getvalue()
     cols = list(df.columns)
     best = {c: df[c].max() for c in ("miou", "macc") if c in df}
+    # ≈: within the spread over seeds of its column's best (the order is not established)
+    near = {c: _within_spread(df, c) for c in best if f"{c} ±" in df}
 
-    def cell(c, x):
+    def cell(c, x, i):
         if isinstance(x, float):
-            s = "—" if pd.isna(x) else f"{x:.4f}" if c in ("miou", "macc", "intra", "inter") else f"{x:.2f}"
+            s = "—" if pd.isna(x) else f"{x:.4f}" if c in ("miou", "macc", "intra", "inter") or c.endswith("±") \
+                else f"{x:.2f}"
             if c in best and x == best[c]:
                 s = f"**{s}**" if fmt == "markdown" else r"\textbf{" + s + "}"
+            if c in near and near[c][i]:
+                s = ("≈" if fmt == "markdown" else r"$\approx$") + s
             return s
         return str(x)
 
     if fmt == "latex":
         lines = [r"\begin{tabular}{" + "l" * len(cols) + "}", r"\toprule", " & ".join(cols) + r" \\",
                  r"\midrule"]
-        lines += [" & ".join(cell(c, r[c]) for c in cols) + r" \\" for _, r in df.iterrows()]
+        lines += [" & ".join(cell(c, r[c], i) for c in cols) + r" \\" for i, (_, r) in enumerate(df.iterrows())]
         return "\n".join([f"% {title}"] + lines + [r"\bottomrule", r"\end{tabular}"]) + "\n"
     lines = [f"### {title}", "", "| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-    lines += ["| " + " | ".join(cell(c, r[c]) for c in cols) + " |" for _, r in df.iterrows()]
+    lines += ["| " + " | ".join(cell(c, r[c], i) for c in cols) + " |" for i, (_, r) in enumerate(df.iterrows())]
+    if near:
+        lines += ["", SPREAD_NOTE]
     return "\n".join(lines) + "\n"
+
+
+SPREAD_NOTE = ("± : standard deviation over run seeds (ddof 1); ≈ : within the spread of the column's best "
+               "(|difference| < the larger of the two deviations).")
+
+
+def _within_spread(df: pd.DataFrame, col: str) -> list[bool]:
+    """Per row: not the best of ``col`` but closer to it than either row's std over seeds."""
+    best = df[col].max()
+    best_sd = df.loc[df[col] == best, f"{col} ±"].max()
+    out = []
+    for v, sd in zip(df[col], df[f"{col} ±"]):
+        spreads = [x for x in (sd, best_sd) if pd.notna(x)]
+        out.append(bool(pd.notna(v) and v != best and spreads and best - v < max(spreads)))
+    return out

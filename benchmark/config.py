@@ -65,3 +65,21 @@ def merge(base: dict, overrides: dict, path: str = "") -> dict:
         else:
             out[k] = v
     return out
+
+
+def parse_seeds(text: str) -> list[int]:
+    """``--seeds``: ``"3"`` -> [0, 1, 2] (the first N run seeds); ``"0,4,7"`` -> those seeds."""
+    text = text.strip()
+    try:
+        if "," not in text:
+            n = int(text)
+            if n < 1:
+                raise ValueError
+            return list(range(n))
+        seeds = [int(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise ConfigError(f"--seeds {text!r}: give a count (3: seeds 0, 1, 2) or a list (0,4,7) of "
+                          "whole numbers >= 0") from None
+    if not seeds or min(seeds) < 0 or len(set(seeds)) != len(seeds):
+        raise ConfigError(f"--seeds {text!r}: give distinct whole numbers >= 0")
+    return seeds

@@ -14,7 +14,10 @@ follow the supplementary. Rules:
 * published numbers appear only beside real results, as separate rows labelled
   ``(published)``, with the supplementary's own average;
 * a dataset average is shown only when the method ran every sequence of that dataset
-  (real: the paper's list; synthetic: every synthetic sequence any method ran).
+  (real: the paper's list; synthetic: every synthetic sequence any method ran);
+* a config run with several seeds is one row: the mean over seeds, ± the standard deviation
+  (sample, ddof 1) and the seed count; a cell within the spread of its column's best is marked
+  ``≈`` (the order of the two is not established).
 """
 
 from __future__ import annotations
@@ -42,12 +45,19 @@ METRIC_NOTE = ("Measured cells: the official metric (the public evaluation scrip
                "paper's numbers were made with); the project's v1 metric in brackets where it differs.")
 
 
+SPREAD_NOTE = ("± : standard deviation over run seeds (sample, ddof 1); seeds: how many. ≈ : within the "
+               "spread of the column's best (|difference| < the larger of the two deviations), so the "
+               "order of the two is not established.")
+
+
 class Row(NamedTuple):
     label: str  # method, its protocol marks, or "(published)"
-    cells: list[float | None]  # [miou, macc] * groups, official metric
+    cells: list[float | None]  # [miou, macc] * groups, official metric (mean over seeds)
     seconds: float | None  # per sequence
     v1: list[float | None] | None = None  # the v1 metric's cells (None: published row)
     protocol: str = ""  # the protocol label(s) behind the marks
+    spread: list[float | None] | None = None  # std over seeds per cell (None: one seed)
+    seeds: int | None = None  # seeds per cell (the fewest; None: published row)
 
 
 @dataclasses.dataclass
@@ -59,8 +69,22 @@ class Table:
 
     def best(self) -> list[float | None]:
         n = 2 * len(self.groups)
-        cols = [[r[1][i] for r in self.rows if r[1][i] is not None] for i in range(n)]
+        cols = [[r.cells[i] for r in self.rows if r.cells[i] is not None] for i in range(n)]
         return [max(c) if c else None for c in cols]
+
+    def has_seeds(self) -> bool:
+        return any(r.seeds is not None and r.seeds > 1 for r in self.rows)
+
+    def within_spread(self, row: Row, i: int) -> bool:
+        """Whether cell i of ``row`` is not the best but closer to it than either spread."""
+        best = self.best()[i]
+        v = row.cells[i]
+        if v is None or best is None or v == best:
+            return False
+        spreads = [row.spread[i] if row.spread else None]
+        spreads += [r.spread[i] for r in self.rows if r.spread and r.cells[i] == best]
+        spreads = [x for x in spreads if x is not None and not math.isnan(x)]
+        return bool(spreads) and best - v < max(spreads)
 
 
 # -- data ------------------------------------------------------------------------------------
@@ -72,6 +96,7 @@ def measured_frame(records: list[dict]) -> pd.DataFrame:
             "dataset": r["dataset"],
             "sequence": r["sequence"],
             "method": r["method"],
+            "seed": r["run"]["seed"],
             "miou": r["metrics"]["official"]["miou"],
             "macc": r["metrics"]["official"]["macc"],
             "miou_v1": r["metrics"]["miou"],
@@ -85,7 +110,7 @@ def measured_frame(records: list[dict]) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=COLUMNS)
 
 
-COLUMNS = ["variant", "dataset", "sequence", "method", "miou", "macc", "miou_v1", "macc_v1", "seconds",
+COLUMNS = ["variant", "dataset", "sequence", "method", "seed", "miou", "macc", "miou_v1", "macc_v1", "seconds",
            "source", "protocol"]
 
 
@@ -99,6 +124,7 @@ def published_frame() -> pd.DataFrame:
     df["seconds"] = math.nan
     df["miou_v1"] = df["macc_v1"] = math.nan
     df["protocol"] = ""
+    df["seed"] = -1
     return df
 
 
@@ -121,12 +147,26 @@ def _label(method: str, source: str, marks: str = "") -> str:
     return f"{method} (published)" if source == "published" else method + marks
 
 
-def _row(method: str, source: str, sub: pd.DataFrame, cells: list, v1: list, legend: ProtocolLegend) -> Row:
+def _row(method: str, source: str, sub: pd.DataFrame, cells: list, v1: list, legend: ProtocolLegend,
+         spread: list | None = None, seeds: int | None = None) -> Row:
     if source == "published":
         return Row(_label(method, source), cells, None)
     labels = sorted({x for x in sub.protocol if x})
     return Row(_label(method, source, legend.marks(labels)), cells, float(sub.seconds.mean()), v1,
-               " | ".join(labels))
+               " | ".join(labels), spread, seeds)
+
+
+def _over_seeds(sub: pd.DataFrame, sequences: list[str], col: str) -> tuple[float | None, float | None, int]:
+    """Mean over ``sequences`` of one metric, for each seed run on all of them -> (mean over
+    those seeds, their std (ddof 1; None for one seed), seed count). (None, None, 0) when a
+    sequence lacks a value."""
+    have = sub[sub.sequence.isin(sequences)]
+    per_seed = have.groupby("seed")[col].agg(["mean", "count"])
+    per_seed = per_seed[per_seed["count"] == len(sequences)]["mean"]
+    if not len(per_seed) or per_seed.isna().any():
+        return None, None, 0
+    spread = float(per_seed.std(ddof=1)) if len(per_seed) > 1 else None
+    return float(per_seed.mean()), spread, len(per_seed)
 
 
 def _sorted(rows: list[Row]) -> list[Row]:
@@ -140,6 +180,8 @@ def main_table(df: pd.DataFrame, variant: str) -> Table:
     for (method, source), sub in df.groupby(["method", "source"], sort=True):
         cells: list[float | None] = []
         v1: list[float | None] = []
+        spread: list[float | None] = []
+        counts: list[int] = []
         for d in datasets:
             dsub = sub[sub.dataset == d]
             if source == "published":
@@ -150,26 +192,29 @@ def main_table(df: pd.DataFrame, variant: str) -> Table:
             expected = _expected_sequences(df, variant, d)
             have = set(dsub.sequence)
             if expected and set(expected) <= have:
-                dsub = dsub[dsub.sequence.isin(expected)]
-                cells += [_mean(dsub.miou), _mean(dsub.macc)]
-                v1 += [_mean(dsub.miou_v1), _mean(dsub.macc_v1)]
+                for col in ("miou", "macc"):
+                    mean, std, n = _over_seeds(dsub, expected, col)
+                    cells.append(mean)
+                    spread.append(std)
+                    counts.append(n)
+                v1 += [_over_seeds(dsub, expected, "miou_v1")[0], _over_seeds(dsub, expected, "macc_v1")[0]]
             else:
                 cells += [None, None]
                 v1 += [None, None]
+                spread += [None, None]
                 if have:
                     notes.append(f"{method} on {d}: {len(have & set(expected))}/{len(expected)} "
                                  "sequences run, no average")
-        rows.append(_row(method, source, sub, cells, v1, legend))
+        seeds = min((c for c in counts if c), default=1) if source != "published" else None
+        rows.append(_row(method, source, sub, cells, v1, legend, spread or None, seeds))
+    table_rows = _sorted(rows)
     notes = legend.notes() + notes + [METRIC_NOTE]
+    if any(r.seeds and r.seeds > 1 for r in rows):
+        notes.append(SPREAD_NOTE)
     if variant == "real":
         notes.append(PUBLISHED_NOTE)
     title = f"Segmentation in novel views ({variant} data): mIoU / mAcc per benchmark"
-    return Table(title, groups, _sorted(rows), notes)
-
-
-def _mean(col: pd.Series) -> float | None:
-    vals = col.dropna()
-    return float(vals.mean()) if len(vals) == len(col) and len(col) else None
+    return Table(title, groups, table_rows, notes)
 
 
 def sequence_table(df: pd.DataFrame, variant: str, dataset: str) -> Table:
@@ -178,15 +223,29 @@ def sequence_table(df: pd.DataFrame, variant: str, dataset: str) -> Table:
     for (method, source), sub in df[df.dataset == dataset].groupby(["method", "source"]):
         cells: list[float | None] = []
         v1: list[float | None] = []
+        spread: list[float | None] = []
+        counts: list[int] = []
         for s in seqs:
-            hit = sub[sub.sequence == s]
-            cells += [_value(hit.miou), _value(hit.macc)]
-            v1 += [_value(hit.miou_v1), _value(hit.macc_v1)]
+            if source == "published":
+                hit = sub[sub.sequence == s]
+                cells += [_value(hit.miou), _value(hit.macc)]
+                v1 += [None, None]
+                continue
+            for col in ("miou", "macc"):
+                mean, std, n = _over_seeds(sub, [s], col)
+                cells.append(mean)
+                spread.append(std)
+                counts.append(n)
+            v1 += [_over_seeds(sub, [s], "miou_v1")[0], _over_seeds(sub, [s], "macc_v1")[0]]
         if all(c is None for c in cells):
             continue
-        rows.append(_row(method, source, sub, cells, v1, legend))
+        seeds = min((c for c in counts if c), default=1) if source != "published" else None
+        rows.append(_row(method, source, sub, cells, v1, legend, spread or None, seeds))
     name = DATASETS[dataset].display_name if dataset in DATASETS else dataset
-    return Table(f"{name} per sequence ({variant} data)", seqs, _sorted(rows), legend.notes() + [METRIC_NOTE])
+    notes = legend.notes() + [METRIC_NOTE]
+    if any(r.seeds and r.seeds > 1 for r in rows):
+        notes.append(SPREAD_NOTE)
+    return Table(f"{name} per sequence ({variant} data)", seqs, _sorted(rows), notes)
 
 
 def _value(col: pd.Series) -> float | None:
@@ -195,7 +254,8 @@ def _value(col: pd.Series) -> float | None:
 
 def build_tables(records: list[dict], variant: str, published: bool = True) -> list[Table]:
     """Main table then one per-sequence table per dataset with measured results. ``records``:
-    the chosen runs, one per (method, dataset, sequence) (``benchmark.runs.one_run_per_row``)."""
+    the chosen runs, one config per (method, dataset, sequence), one run per seed
+    (``benchmark.runs.one_config_per_row``)."""
     df = measured_frame([r for r in records if r["variant"] == variant])
     if variant == "real" and published:
         pub = published_frame()
@@ -224,41 +284,54 @@ def render(table: Table, fmt: str) -> str:
     return {"markdown": _markdown, "latex": _latex, "csv": _csv, "html": _html}[fmt](table)
 
 
-def _cells(table: Table, bold: callable) -> list[tuple[str, list[str], str]]:
+def _cells(table: Table, bold: callable, pm: str = "±", approx: str = "≈") -> list[tuple[str, list[str], str]]:
+    """(label, cell texts, time text [, seeds text]) per row: the mean (bold if best), ± its
+    spread, ≈ when within the spread of the best, the v1 metric where it differs."""
     best = table.best()
+    seeds_col = table.has_seeds()
     out = []
-    for label, cells, secs, v1, _ in table.rows:
-        v1 = v1 or [None] * len(cells)
+    for row in table.rows:
+        v1 = row.v1 or [None] * len(row.cells)
         txt = []
-        for i, v in enumerate(cells):
+        for i, v in enumerate(row.cells):
             t = bold(_fmt(v)) if v is not None and v == best[i] else _fmt(v)
+            sd = row.spread[i] if row.spread else None
+            if v is not None and sd is not None:
+                t += f" {pm} {_fmt(sd)}"
+            if table.within_spread(row, i):
+                t = f"{approx}{t}"
             if v is not None and v1[i] is not None and _fmt(v1[i]) != _fmt(v):
                 t += f" (v1 {_fmt(v1[i])})"
             txt.append(t)
-        out.append((label, txt, _fmt_time(secs)))
+        entry = (row.label, txt, _fmt_time(row.seconds))
+        if seeds_col:
+            entry += ("—" if row.seeds is None else str(row.seeds),)
+        out.append(entry)
     return out
 
 
 def _markdown(t: Table) -> str:
     head = ["method"] + [f"{g} mIoU" if i % 2 == 0 else f"{g} mAcc"
-                         for g in t.groups for i in range(2)] + ["s/seq"]
+                         for g in t.groups for i in range(2)] + ["s/seq"] + (["seeds"] if t.has_seeds() else [])
     lines = [f"### {t.title}", "", "| " + " | ".join(head) + " |",
              "|" + "|".join(["---"] + ["---:"] * (len(head) - 1)) + "|"]
-    for label, cells, secs in _cells(t, lambda s: f"**{s}**"):
-        lines.append("| " + " | ".join([label] + cells + [secs]) + " |")
+    for label, cells, secs, *seeds in _cells(t, lambda s: f"**{s}**"):
+        lines.append("| " + " | ".join([label] + cells + [secs] + seeds) + " |")
     lines += [""] + [f"- {n}" for n in t.notes]
     return "\n".join(lines).rstrip() + "\n"
 
 
 def _latex(t: Table) -> str:
     esc = lambda s: s.replace("_", r"\_").replace("%", r"\%")
+    extra = t.has_seeds()
     lines = [r"\begin{table}[t]", r"\centering", r"\caption{" + esc(t.title) + "}",
-             r"\begin{tabular}{l" + "cc" * len(t.groups) + "r}", r"\toprule",
+             r"\begin{tabular}{l" + "cc" * len(t.groups) + "r" + ("r" if extra else "") + "}", r"\toprule",
              "Method & " + " & ".join(r"\multicolumn{2}{c}{" + esc(g) + "}" for g in t.groups)
-             + r" & Time \\",
-             " & " + " & ".join(["mIoU & mAcc"] * len(t.groups)) + r" & s/seq \\", r"\midrule"]
-    for label, cells, secs in _cells(t, lambda s: r"\textbf{" + s + "}"):
-        lines.append(" & ".join([esc(label)] + cells + [secs]) + r" \\")
+             + r" & Time" + (" & Seeds" if extra else "") + r" \\",
+             " & " + " & ".join(["mIoU & mAcc"] * len(t.groups)) + r" & s/seq" + (" & " if extra else "")
+             + r" \\", r"\midrule"]
+    for label, cells, secs, *seeds in _cells(t, lambda s: r"\textbf{" + s + "}", pm=r"$\pm$", approx=r"$\approx$"):
+        lines.append(" & ".join([esc(label)] + cells + [secs] + seeds) + r" \\")
     lines += [r"\bottomrule", r"\end{tabular}"]
     if t.notes:  # protocol footnotes and the metric note
         lines += [r"\par\footnotesize"] + [esc(n) + r"\\" for n in t.notes]
@@ -268,14 +341,17 @@ def _latex(t: Table) -> str:
 
 def _csv(t: Table) -> str:
     rows = []
-    for label, cells, secs, v1, protocol_text in t.rows:
-        row = {"table": t.title, "method": label}
-        v1 = v1 or [None] * len(cells)
+    for r in t.rows:
+        row = {"table": t.title, "method": r.label}
+        v1 = r.v1 or [None] * len(r.cells)
+        spread = r.spread or [None] * len(r.cells)
         for i, g in enumerate(t.groups):
-            row[f"{g}_miou"], row[f"{g}_macc"] = cells[2 * i], cells[2 * i + 1]
+            row[f"{g}_miou"], row[f"{g}_macc"] = r.cells[2 * i], r.cells[2 * i + 1]
+            row[f"{g}_miou_std"], row[f"{g}_macc_std"] = spread[2 * i], spread[2 * i + 1]
             row[f"{g}_miou_v1"], row[f"{g}_macc_v1"] = v1[2 * i], v1[2 * i + 1]
-        row["seconds_per_sequence"] = secs
-        row["protocol"] = protocol_text
+        row["seconds_per_sequence"] = r.seconds
+        row["seeds"] = r.seeds
+        row["protocol"] = r.protocol
         rows.append(row)
     buf = io.StringIO()
     pd.DataFrame(rows).to_csv(buf, index=False)
@@ -284,16 +360,18 @@ def _csv(t: Table) -> str:
 
 def _html(t: Table) -> str:
     e = html.escape
+    extra = t.has_seeds()
     head = "".join(f'<th colspan="2">{e(g)}</th>' for g in t.groups)
     sub = "".join("<th>mIoU</th><th>mAcc</th>" for _ in t.groups)
     body = "".join(
         "<tr><td>" + e(label) + "</td>" + "".join(f"<td>{c}</td>" for c in cells)
-        + f"<td>{secs}</td></tr>"
-        for label, cells, secs in _cells(t, lambda s: f"<b>{s}</b>")
+        + f"<td>{secs}</td>" + "".join(f"<td>{x}</td>" for x in seeds) + "</tr>"
+        for label, cells, secs, *seeds in _cells(t, lambda s: f"<b>{s}</b>")
     )
     notes = "".join(f"<li>{e(n)}</li>" for n in t.notes)
+    seeds_head = "<th rowspan=2>seeds</th>" if extra else ""
     return (f"<h3>{e(t.title)}</h3><table><thead><tr><th rowspan=2>method</th>{head}"
-            f"<th>s/seq</th></tr><tr>{sub}<th></th></tr></thead><tbody>{body}</tbody></table>"
+            f"<th>s/seq</th>{seeds_head}</tr><tr>{sub}<th></th></tr></thead><tbody>{body}</tbody></table>"
             + (f"<ul>{notes}</ul>" if notes else "") + "\n")
 
 

@@ -17,8 +17,10 @@ from pathlib import Path
 from benchmark.errors import UserError
 from benchmark.io import atomic_write_json, read_json
 
-SCHEMA = "trase-bench/results/2"  # 2: run identity (``run``, one directory per config)
-LEGACY_SCHEMAS = ("trase-bench/results/1",)  # readable, never tabulated (benchmark.runs)
+# 2: run identity (``run``, one directory per config); 3: the run seed (``run.seed``, and
+# ``run.group``: the config hash without the seed, shared by the seeds of one config)
+SCHEMA = "trase-bench/results/3"
+LEGACY_SCHEMAS = ("trase-bench/results/1", "trase-bench/results/2")  # readable, never tabulated
 REQUIRED = ("schema", "method", "dataset", "sequence", "variant", "metrics", "run", "config", "config_hash")
 REQUIRED_METRICS = ("miou", "macc", "pooled_iou", "metric_version", "n_frames", "official")
 RUN_KINDS = ("main", "run", "ablation")
@@ -63,7 +65,7 @@ def validate(record: dict, path: Path | str = "results") -> dict:
     if not isinstance(record, dict):
         raise ResultsError(f"{path}: results must be a JSON object")
     if "schema" in record and record["schema"] in LEGACY_SCHEMAS:
-        raise ResultsError(f"{path}: results written before run identity ({record['schema']}); rerun it")
+        raise ResultsError(f"{path}: results written by an older version ({record['schema']}); rerun it")
     missing = [k for k in REQUIRED if k not in record]
     if missing:
         raise ResultsError(f"{path}: results file lacks key {missing[0]!r}")
@@ -72,6 +74,10 @@ def validate(record: dict, path: Path | str = "results") -> dict:
     run = record["run"]
     if not isinstance(run, dict) or run.get("kind") not in RUN_KINDS or not run.get("name"):
         raise ResultsError(f"{path}: 'run' must name the run and its kind ({', '.join(RUN_KINDS)})")
+    seed = run.get("seed")
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0 or not isinstance(run.get("group"), str):
+        raise ResultsError(f"{path}: 'run' must give its seed (a whole number >= 0) and group (config hash "
+                           "without the seed)")
     if record["variant"] not in ("real", "synthetic"):
         raise ResultsError(f"{path}: variant must be 'real' or 'synthetic', got {record['variant']!r}")
     metrics = record["metrics"]

@@ -47,6 +47,16 @@ class RunOptions:
     name: str | None = None  # run directory name; None: c<config hash> (benchmark.runs)
     study: str | None = None  # set by ablation studies: the run is a variant of this study
     study_variant: str | None = None
+    seeds: list[int] | None = None  # run seeds (each its own run, --set seed=S); None: as --set says
+
+    def per_seed(self) -> list[RunOptions]:
+        """One options object per run seed (just this one without ``seeds``)."""
+        if not self.seeds:
+            return [self]
+        if any(o.strip().startswith("seed=") for o in self.overrides):
+            raise ConfigError("give the run seed either with --seeds or with --set seed=S, not both")
+        return [dataclasses.replace(self, seeds=None, overrides=[*self.overrides, f"seed={s}"])
+                for s in self.seeds]
 
     @property
     def cache_root(self) -> Path:
@@ -106,10 +116,42 @@ def cpu_train_downscale(image_size: tuple[int, int] | None) -> float:
     return float(ds)
 
 
+# where the run seed goes: every random choice of the method's pipeline (gaussian
+# initialisation and densification, pixel/mask sampling of feature training, the clustering
+# sample). The 2D masks are the benchmark's input and keep their own seed (masks.seed).
+SEED_PATHS = (("geometry", "train", "seed"), ("method", "features", "seed"), ("method", "clustering", "seed"))
+
+
+def run_seed(overrides: dict) -> int:
+    """The run seed of ``--set seed=S`` (default 0), checked."""
+    seed = overrides.get("seed", 0)
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise ConfigError(f"--set seed={seed!r}: the run seed is a whole number >= 0")
+    return seed
+
+
+def apply_seed(cfg: dict, seed: int) -> dict:
+    """Write the run seed into every section that has a seed (SEED_PATHS), in place."""
+    cfg["seed"] = seed
+    for path in SEED_PATHS:
+        node = cfg
+        for p in path[:-1]:
+            node = node.get(p) if isinstance(node, dict) else None
+        if isinstance(node, dict) and path[-1] in node:
+            node[path[-1]] = seed
+    return cfg
+
+
+def without_seed(overrides: dict) -> dict:
+    return {k: v for k, v in overrides.items() if k != "seed"}
+
+
 def default_config(method, spec, variant: str, overrides: dict,
                    image_size: tuple[int, int] | None = None) -> dict:
-    """Full config of one run: defaults for the dataset and variant, then ``overrides``.
-    ``image_size`` (W, H) of the benchmark images picks the cpu preset's training resolution."""
+    """Full config of one run: defaults for the dataset and variant, the run seed (``--set
+    seed=S``, written into every seeded section), then ``overrides`` (an explicit
+    ``method.features.seed`` still wins). ``image_size`` (W, H) of the benchmark images picks
+    the cpu preset's training resolution."""
     import torch
 
     from trase.reconstruct import ReconstructionConfig
@@ -145,7 +187,7 @@ def default_config(method, spec, variant: str, overrides: dict,
         # (trase.prompts; "gt-first-frame": the first non-empty frame only)
         "prompts": {"rule": "gt-first-appearance"},
     }
-    return merge(base, overrides)
+    return merge(apply_seed(base, run_seed(overrides)), overrides)
 
 
 def scene_fingerprint(scene) -> str:
@@ -420,8 +462,10 @@ def run_sequence(opts: RunOptions, sequence: str | None, reporter: Reporter, ind
     size = (views[0].camera.width, views[0].camera.height) if views else None
     cfg = default_config(method, spec, variant, overrides, size)
     chash = config_hash(cfg)
-    is_default = chash == config_hash(default_config(method, spec, variant, {}, size))
-    name = run_name(chash, opts.name, with_hash=bool(opts.study))
+    # runs that differ only in their seed share this hash: one row of a table, over seeds
+    group = config_hash(default_config(method, spec, variant, without_seed(overrides), size))
+    is_default = group == config_hash(default_config(method, spec, variant, {}, size))
+    name = run_name(group, opts.name, with_hash=bool(opts.study), seed=cfg["seed"])
     out_dir = run_dir(opts.out_dir, opts.method, spec.key, seq, name)
     check_free(out_dir, chash)  # before any work: a run with another config is never overwritten
     cache = StageCache(opts.cache_root)
@@ -468,7 +512,8 @@ def run_sequence(opts: RunOptions, sequence: str | None, reporter: Reporter, ind
     v1, official = ev["v1"].to_dict(), ev["official"].to_dict()
     pred_files = sorted((out_dir / "pred").glob("*.png"))
     record = {
-        "run": run_info(name, opts.overrides, is_default, opts.study, opts.study_variant),
+        "run": run_info(name, opts.overrides, is_default, opts.study, opts.study_variant, seed=cfg["seed"],
+                        group=group),
         "method": opts.method,
         "dataset": spec.key,
         "sequence": seq,
@@ -497,7 +542,7 @@ def run_sequence(opts: RunOptions, sequence: str | None, reporter: Reporter, ind
         if fitted.gaussians is not None else None,
         "config": cfg,
         "config_hash": chash,
-        "seeds": {"masks": cfg["masks"]["seed"], "geometry": cfg["geometry"]["train"].get("seed"),
+        "seeds": {"run": cfg["seed"], "masks": cfg["masks"]["seed"], "geometry": cfg["geometry"]["train"].get("seed"),
                   "features": cfg["method"].get("features", {}).get("seed"),
                   "clustering": cfg["method"].get("clustering", {}).get("seed")},
         "checksums": {"gt": gt_key, "pred": sha256_files(pred_files)[:16]},
@@ -514,9 +559,12 @@ def run_sequence(opts: RunOptions, sequence: str | None, reporter: Reporter, ind
 
 
 def run(opts: RunOptions) -> list[Path]:
-    """Run one method on the requested sequences; returns the results.json paths."""
+    """Run one method on the requested sequences (for each run seed); returns the
+    results.json paths."""
     from benchmark.datasets import get_dataset
 
+    if opts.seeds:
+        return [p for one in opts.per_seed() for p in run(one)]
     spec = get_dataset(opts.dataset)
     sequences = opts.sequences or default_sequences(spec, opts.data_root)
     reporter = Reporter(opts.progress, len(sequences))

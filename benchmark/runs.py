@@ -39,17 +39,19 @@ class RunError(UserError):
     """A run that cannot be written or chosen; the message names the directory."""
 
 
-def run_name(config_hash: str, name: str | None = None, with_hash: bool = False) -> str:
+def run_name(config_hash: str, name: str | None = None, with_hash: bool = False, seed: int = 0) -> str:
     """The run's directory name: ``name`` (checked) or ``c<8 hex digits of the config hash>``;
     ``with_hash``: ``<name>-c<hash>`` (a study's variant: its label, and a rerun with other
-    --set values lands beside it)."""
+    --set values lands beside it). ``config_hash`` is the hash without the run seed, and a
+    seed other than 0 adds ``-s<seed>``: the seeds of one config sit side by side."""
     tag = f"c{config_hash[:8]}"
+    suffix = f"-s{seed}" if seed else ""
     if name is None:
-        return tag
+        return tag + suffix
     if not NAME_RE.match(name):
         raise RunError(f"--name {name!r}: use letters, digits and . _ = + - (at most 80, not starting "
                        "with a symbol)")
-    return f"{name}-{tag}" if with_hash else name
+    return (f"{name}-{tag}" if with_hash else name) + suffix
 
 
 def run_dir(out_dir: Path, method: str, dataset: str, sequence: str, name: str) -> Path:
@@ -57,13 +59,15 @@ def run_dir(out_dir: Path, method: str, dataset: str, sequence: str, name: str) 
 
 
 def run_info(name: str, overrides: list[str], defaults: bool, study: str | None = None,
-             variant: str | None = None) -> dict:
-    """The ``run`` block of a results file: its name, kind, overrides and study. ``defaults``:
-    whether the resolved config equals the method's defaults (a ``--set`` restating a default
-    still makes a main run)."""
+             variant: str | None = None, seed: int = 0, group: str | None = None) -> dict:
+    """The ``run`` block of a results file: its name, kind, overrides, study, run seed and
+    group (the config hash without the seed). ``defaults``: whether the resolved config, seed
+    aside, equals the method's defaults (a ``--set`` restating a default still makes a main
+    run; so does another seed)."""
     kind = "ablation" if study else ("main" if defaults else "run")
     return {"name": name, "kind": kind, "overrides": list(overrides),
-            "study": {"name": study, "variant": variant} if study else None}
+            "study": {"name": study, "variant": variant} if study else None,
+            "seed": int(seed), "group": group}
 
 
 def check_free(directory: Path, config_hash: str) -> None:
@@ -136,7 +140,8 @@ class ProtocolLegend:
 # -- finding and choosing runs ------------------------------------------------------------------
 def find_runs(root: Path, warn=None) -> list[dict]:
     """Every run under ``root`` (validated), each with ``_path`` and ``_dir``. Results files of
-    the layout before run identity (schema 1) are skipped with one line on stderr."""
+    older schemas (1: before run identity, 2: before run seeds) are skipped with one line on
+    stderr."""
     root = Path(root)
     if not root.is_dir():
         raise ResultsError(f"{root}: results directory not found")
@@ -150,7 +155,7 @@ def find_runs(root: Path, warn=None) -> list[dict]:
             continue
         out.append(_tag(rec, p))
     if legacy:
-        (warn or _stderr)(f"note: skipped {len(legacy)} results file(s) written before run identity "
+        (warn or _stderr)(f"note: skipped {len(legacy)} results file(s) written by an older version "
                           f"(e.g. {legacy[0]}); rerun them to use them")
     return out
 
@@ -195,22 +200,34 @@ def scene_identity(record: dict) -> str | None:
     return (record.get("checksums") or {}).get("gt")
 
 
-def one_run_per_row(records: list[dict]) -> list[dict]:
-    """A table cell is one run. Two runs with different configs, or on different scenes under
-    one name, for the same method, dataset and sequence are refused, naming them and how to
-    choose; of runs with the same config on the same scene (a named rerun of the defaults, say)
-    the newest is kept."""
+def seed(record: dict) -> int:
+    return int(record["run"]["seed"])
+
+
+def group(record: dict) -> str:
+    return record["run"]["group"]
+
+
+def one_config_per_row(records: list[dict]) -> list[dict]:
+    """A table cell is one config, measured over one or more run seeds. Two runs whose configs
+    differ beyond the seed, or on different scenes under one name, for the same method,
+    dataset and sequence are refused, naming them and how to choose; of runs with the same
+    config and seed on the same scene (a named rerun of the defaults, say) the newest is kept.
+    Returns one run per (row, seed)."""
     by_row: dict[tuple, list[dict]] = {}
     for r in records:
         by_row.setdefault(row_key(r), []).append(r)
     out = []
     for (method, dataset, sequence), recs in sorted(by_row.items()):
-        configs = {r.get("config_hash") for r in recs}
+        configs = {group(r) for r in recs}
         scenes = {scene_identity(r) for r in recs}
         if len(configs) > 1 or len(scenes) > 1:
             what = "different configs" if len(configs) > 1 else "different scenes (ground truth)"
             dirs = ", ".join(f"{r['_dir']} ({kind(r)}, made {str(r.get('created', '?'))[:16]})" for r in recs)
             raise RunError(f"{method} on {dataset}/{sequence}: {len(recs)} runs with {what}: {dirs}; "
                            "choose one with --run DIR (or remove the stale one)")
-        out.append(max(recs, key=lambda r: str(r.get("created", ""))))
+        newest: dict[int, dict] = {}
+        for r in sorted(recs, key=lambda r: str(r.get("created", ""))):
+            newest[seed(r)] = r
+        out += [newest[s] for s in sorted(newest)]
     return out

@@ -25,8 +25,10 @@ from benchmark.ablate import (
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", help="Applied to every variant.")
 @click.option("--format", "fmt", type=click.Choice(["markdown", "latex", "csv"]), default="markdown",
               show_default=True)
+@click.option("--seeds", default=None, metavar="N|S,S,...",
+              help="Run seeds per variant: a count (3: seeds 0, 1, 2) or a list; the table shows mean ± std.")
 @click.option("--quiet", is_flag=True)
-def ablate(study, dataset, sequences, data_root, out_dir, overrides, fmt, quiet) -> None:
+def ablate(study, dataset, sequences, data_root, out_dir, overrides, fmt, seeds, quiet) -> None:
     """Run every variant of STUDY (reusing cached masks and geometry) and print its table.
 
     Studies: smoothing (K 0/16/32), feature-dim (16/32/64/128, each with and without filtering,
@@ -37,8 +39,11 @@ def ablate(study, dataset, sequences, data_root, out_dir, overrides, fmt, quiet)
     one. Variants are runs of the study under <out>/ablations/STUDY/ and never enter a
     leaderboard unless asked for.
     """
+    from benchmark.config import parse_seeds
+
     df = run_study(study, dataset, Path(out_dir), Path(data_root) if data_root else None,
-                   list(sequences) or None, list(overrides), progress=not quiet)
+                   list(sequences) or None, list(overrides), progress=not quiet,
+                   seeds=parse_seeds(seeds) if seeds else None)
     s = STUDIES[study]
     data = ", ".join(sorted(set(df["data"])))
     click.echo(render_table(summarise(df), fmt, f"{s.title}: {dataset} ({data} data, measured, official metric)"))

@@ -34,7 +34,7 @@ def leaderboard(results_dir: str, run_dirs: tuple[str, ...], kinds: tuple[str, .
     differs). Synthetic and real results are separate tables; published numbers are labelled
     rows beside real results only.
     """
-    from benchmark.runs import find_runs, load_run, one_run_per_row, select_runs
+    from benchmark.runs import find_runs, load_run, one_config_per_row, select_runs
 
     warn = lambda m: click.echo(m, err=True)
     if run_dirs:
@@ -43,7 +43,7 @@ def leaderboard(results_dir: str, run_dirs: tuple[str, ...], kinds: tuple[str, .
         records = [load_run(Path(p)) for p in run_dirs]
     else:
         records = select_runs(find_runs(Path(results_dir), warn=warn), kinds or ("main",))
-    records = one_run_per_row(records)
+    records = one_config_per_row(records)
     variants = ("synthetic", "real") if variant == "all" else (variant,)
     text = render_all(records, fmt, variants=variants, published=not no_published)
     if not records:

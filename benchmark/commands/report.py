@@ -32,8 +32,18 @@ def report(method: str, dataset: str, sequence: str, name: str | None, out_dir: 
             raise UserError(f"{seq_dir}: no main run of {method} on {dataset}/{sequence}; run "
                             f"`trase-bench run --method {method} --dataset {dataset}` or pass --name "
                             f"({', '.join(d.name for d in runs) or 'no runs there'})")
-        if len({r["config_hash"] for r in mains}) > 1:
+        if len({r["run"]["group"] for r in mains}) > 1:
             raise UserError(f"{seq_dir}: {len(mains)} main runs with different configs "
                             f"({', '.join(Path(r['_dir']).name for r in mains)}); choose one with --name")
-        run = max(mains, key=lambda r: str(r.get("created", "")))
+        # the lowest seed (its siblings' scores are in the report), newest if rerun
+        run = min(mains, key=lambda r: (r["run"]["seed"], -_time(r)))
     click.echo(f"wrote {make_report(Path(run['_dir']))}")
+
+
+def _time(record: dict) -> float:
+    import datetime
+
+    try:
+        return datetime.datetime.fromisoformat(str(record.get("created"))).timestamp()
+    except ValueError:
+        return 0.0

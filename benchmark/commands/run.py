@@ -24,9 +24,13 @@ import click
 @click.option("--name", default=None,
               help="Name of the run's directory (default: c + 8 hex digits of the resolved config's hash). "
                    "A run with another config under this name is never overwritten.")
+@click.option("--seeds", default=None, metavar="N|S,S,...",
+              help="Run seeds: a count (3: seeds 0, 1, 2) or a list (0,4,7). Each seed is its own run "
+                   "(<name>-s<seed>; seed 0 keeps the plain name); tables show mean ± std over seeds. "
+                   "One seed: --set seed=S.")
 @click.option("--jobs", type=int, default=1, show_default=True, help="Sequences run in parallel.")
 @click.option("--quiet", is_flag=True, help="No progress output.")
-def run(method, dataset, sequences, data_root, out_dir, cache_dir, overrides, name, jobs, quiet) -> None:
+def run(method, dataset, sequences, data_root, out_dir, cache_dir, overrides, name, seeds, jobs, quiet) -> None:
     """Run masks -> geometry -> features/clustering -> prompts -> evaluation per sequence.
 
     Each stage is cached under a key of its inputs and config: reruns and other methods on
@@ -34,13 +38,14 @@ def run(method, dataset, sequences, data_root, out_dir, cache_dir, overrides, na
     one directory per config, so a rerun with other --set values never replaces a result. A run
     without --set is the method's main run (what `trase-bench leaderboard` shows by default).
     """
+    from benchmark.config import parse_seeds
     from benchmark.runner import RunOptions
     from benchmark.runner import run as run_pipeline
 
     opts = RunOptions(method=method, dataset=dataset, sequences=list(sequences) or None,
                       data_root=Path(data_root) if data_root else None, out_dir=Path(out_dir),
                       cache_dir=Path(cache_dir) if cache_dir else None, overrides=list(overrides),
-                      jobs=jobs, progress=not quiet, name=name)
+                      jobs=jobs, progress=not quiet, name=name, seeds=parse_seeds(seeds) if seeds else None)
     from benchmark.results import load_results
 
     for path in run_pipeline(opts):
@@ -52,5 +57,5 @@ def run(method, dataset, sequences, data_root, out_dir, cache_dir, overrides, na
         v1 = "" if (m["miou"], m["macc"]) == (official["miou"], official["macc"]) else \
             f" (v1: {fmt(m['miou'])} / {fmt(m['macc'])})"
         click.echo(f"{r['method']} {r['dataset']}/{r['sequence']} ({r['variant']}, run "
-                   f"{r['run']['name']}, {r['run']['kind']}): mIoU {fmt(official['miou'])} mAcc {fmt(official['macc'])}{v1}  "
+                   f"{r['run']['name']}, {r['run']['kind']}, seed {r['run']['seed']}): mIoU {fmt(official['miou'])} mAcc {fmt(official['macc'])}{v1}  "
                    f"[oracle mIoU {fmt(oracle.get('miou'))}{ceiling}]  -> {path}")

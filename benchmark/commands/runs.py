@@ -17,8 +17,8 @@ KIND_CHOICES = ["all", "main", "run", "ablation"]
               help="main: made with the method's defaults; run: with --set overrides; ablation: study variants.")
 @click.option("--json", "as_json", is_flag=True, help="One JSON object per run instead of a table.")
 def runs(results_dir: str, kind: str, as_json: bool) -> None:
-    """List runs: method, dataset, sequence, name, kind, mIoU (official metric), config hash,
-    directory, and a legend of the protocols (geometry, features preset, masks, prompts,
+    """List runs: method, dataset, sequence, name, kind, run seed, mIoU (official metric),
+    config hash, directory, and a legend of the protocols (geometry, features preset, masks, prompts,
     render rule, metric) they were measured under."""
     from benchmark.runs import ProtocolLegend, find_runs, protocol, protocol_label
 
@@ -37,6 +37,7 @@ def runs(results_dir: str, kind: str, as_json: bool) -> None:
         rows.append({
             "method": r["method"], "dataset": r["dataset"], "sequence": r["sequence"], "name": r["run"]["name"],
             "kind": r["run"]["kind"] + (f" {study['name']}/{study['variant']}" if study else ""),
+            "seed": r["run"]["seed"],
             "data": r["variant"], "mIoU": off["miou"], "mAcc": off["macc"], "protocol": legend.key(label),
             "config": r["config_hash"][:8], "created": str(r.get("created", ""))[:16], "dir": r["_dir"],
             "overrides": r["run"]["overrides"],

@@ -14,15 +14,17 @@ def config(preset="cpu", **method):
 
 
 def record(method, dataset, sequence, miou, macc, variant="synthetic", seconds=10.0, overrides=(),
-           study=None, cfg=None, v1=None, name=None):
+           study=None, cfg=None, v1=None, name=None, seed=0):
     """A results record; ``miou``/``macc`` are the official metric, ``v1`` (miou, macc) the
-    project's (default: the same)."""
+    project's (default: the same); ``seed``: the run seed (the group hash is the config's)."""
     cfg = cfg or config()
-    h = config_hash(cfg)
+    group = config_hash(cfg)
+    h = config_hash(cfg | {"seed": seed})
     v1 = v1 or (miou, macc)
     return {
         "method": method, "dataset": dataset, "sequence": sequence, "variant": variant,
-        "run": run_info(name or run_name(h), list(overrides), not overrides, study, "v" if study else None),
+        "run": run_info(name or run_name(group, seed=seed), list(overrides), not overrides, study,
+                        "v" if study else None, seed=seed, group=group),
         "metrics": {"miou": v1[0], "macc": v1[1], "pooled_iou": miou, "metric_version": "v1/bin1", "n_frames": 3,
                     "official": {"miou": miou, "macc": macc, "pooled_iou": miou, "metric_version": "official/bin1"}},
         "stages": {"features": {"seconds": seconds}},

@@ -2,6 +2,7 @@
 
 import numpy as np
 import pandas as pd
+import pytest
 import torch
 
 from benchmark.ablate import (
@@ -10,6 +11,7 @@ from benchmark.ablate import (
     differences,
     paper_config,
     published_table,
+    render_table,
     summarise,
 )
 from benchmark.config import merge, parse_overrides
@@ -90,3 +92,23 @@ def test_every_variant_has_a_valid_run_name():
             assert run_name("0" * 16, n) == n  # accepted as --name
     assert [v.run_name for v in STUDIES["feature-dim"].variants][:2] == ["16-no", "16-yes"]
     assert [v.run_name for v in STUDIES["subsample"].variants] == ["2pct", "10pct", "25pct"]
+
+
+def test_summarise_over_seeds_gives_mean_spread_and_marks_close_rows():
+    rows = []
+    for seed, (a, b) in enumerate(((0.80, 0.70), (0.90, 0.72), (0.85, 0.74))):
+        for seq in ("s1", "s2"):  # two sequences: the seed's value is their mean
+            rows += [{"variant": "K=0", "method": "trase", "sequence": seq, "seed": seed, "data": "synthetic",
+                      "miou": a + (0.01 if seq == "s1" else -0.01), "macc": 0.9, "fit_s": 1.0},
+                     {"variant": "K=16", "method": "trase", "sequence": seq, "seed": seed, "data": "synthetic",
+                      "miou": b, "macc": 0.9, "fit_s": 2.0}]
+    s = summarise(pd.DataFrame(rows))
+    assert list(s.columns) == ["variant", "miou", "macc", "miou ±", "macc ±", "fit_s", "seeds"]
+    k0 = s[s.variant == "K=0"].iloc[0]
+    assert k0["miou"] == pytest.approx(0.85) and k0["miou ±"] == pytest.approx(0.05) and k0["seeds"] == 3
+    md = render_table(s, "markdown", "t")
+    assert "**0.8500**" in md and "0.0500" in md
+    assert "≈0.7200" not in md  # 0.13 below the best: a real difference
+    close = s.copy()
+    close.loc[close.variant == "K=16", "miou"] = 0.83  # within the best's spread of 0.05
+    assert "≈0.8300" in render_table(close, "markdown", "t")

@@ -5,12 +5,12 @@ import pytest
 from benchmark.cli import main
 from benchmark.leaderboard import build_tables, render, render_all
 from benchmark.results import ResultsError, write_results
-from benchmark.runs import RunError, find_runs, one_run_per_row, select_runs
+from benchmark.runs import RunError, find_runs, one_config_per_row, select_runs
 from tests.benchmark.results_helpers import config, record, write
 
 
 def _main_runs(root):
-    return one_run_per_row(select_runs(find_runs(root)))
+    return one_config_per_row(select_runs(find_runs(root)))
 
 
 def test_synthetic_table_best_in_bold_and_no_published_rows(tmp_path):
@@ -42,7 +42,7 @@ def test_ablation_variants_and_reruns_stay_out_of_the_main_table(tmp_path):
     assert t[0].rows[0][1][:2] == [0.1221, 0.9] and t[1].rows[0][1][:2] == [0.1221, 0.9]
     # asked for: the variants enter, and their different configs are refused, named
     with pytest.raises(RunError, match="4 runs with different configs"):
-        one_run_per_row(select_runs(runs, ("main", "ablation")))
+        one_config_per_row(select_runs(runs, ("main", "ablation")))
 
 
 def test_a_set_that_restates_the_defaults_is_still_the_main_run():
@@ -67,14 +67,14 @@ def test_two_configs_for_one_row_are_refused_unless_chosen(tmp_path, capsys):
     rec = record("trase", "hypernerf", "synthetic", 0.7, 0.9, name="again")
     rec["created"] = "2099-01-01T00:00:00+00:00"
     write(tmp_path, rec)
-    kept = one_run_per_row([r for r in find_runs(tmp_path) if r["config_hash"] == rec["config_hash"]])
+    kept = one_config_per_row([r for r in find_runs(tmp_path) if r["config_hash"] == rec["config_hash"]])
     assert len(kept) == 1 and kept[0]["run"]["name"] == "again"
     assert a.exists()
     # the same config on another scene of the same name (a synthetic scene of another seed)
     other = record("trase", "hypernerf", "synthetic", 0.9, 0.9, name="seed1") | {"checksums": {"gt": "other"}}
     write(tmp_path, other)
     with pytest.raises(RunError, match="different scenes"):
-        one_run_per_row([r for r in find_runs(tmp_path) if r["config_hash"] == rec["config_hash"]])
+        one_config_per_row([r for r in find_runs(tmp_path) if r["config_hash"] == rec["config_hash"]])
 
 
 def test_official_metric_with_v1_beside_where_it_differs(tmp_path):
@@ -116,15 +116,59 @@ def test_formats_render(tmp_path):
 def test_corrupt_and_legacy_results_files(tmp_path, capsys):
     p = tmp_path / "x" / "results.json"
     p.parent.mkdir()
-    p.write_text(json.dumps({"schema": "trase-bench/results/2", "method": "m"}))
+    p.write_text(json.dumps({"schema": "trase-bench/results/3", "method": "m"}))
     with pytest.raises(ResultsError, match="results.json: results file lacks key 'dataset'"):
         find_runs(tmp_path)
-    p.write_text(json.dumps({"schema": "trase-bench/results/1", "method": "m"}))
-    notes = []
-    assert find_runs(tmp_path, warn=notes.append) == []
-    assert "written before run identity" in notes[0]
-    with pytest.raises(ResultsError, match="before run identity"):
-        write_results(tmp_path / "y.json", {"schema": "trase-bench/results/1"})
+    for old in ("1", "2"):
+        p.write_text(json.dumps({"schema": f"trase-bench/results/{old}", "method": "m"}))
+        notes = []
+        assert find_runs(tmp_path, warn=notes.append) == []
+        assert "written by an older version" in notes[0]
+        with pytest.raises(ResultsError, match="older version"):
+            write_results(tmp_path / "y.json", {"schema": f"trase-bench/results/{old}"})
+    bad = record("trase", "nerfds", "synthetic", 0.5, 0.5)
+    bad["run"]["seed"] = -1
+    with pytest.raises(ResultsError, match="seed"):
+        write_results(tmp_path / "z.json", bad)
+
+
+def test_seeds_of_one_config_are_one_row_with_mean_and_spread(tmp_path):
+    for s, miou in ((0, 0.80), (1, 0.90), (2, 0.85)):
+        write(tmp_path, record("trase", "hypernerf", "synthetic", miou, 0.99, seed=s))
+    write(tmp_path, record("cgc", "hypernerf", "synthetic", 0.84, 0.98, cfg=config(knn=0)))
+    recs = _main_runs(tmp_path)
+    names = {r["run"]["seed"]: r["run"]["name"] for r in recs if r["method"] == "trase"}
+    group = recs[-1]["run"]["group"][:8]
+    assert names == {0: f"c{group}", 1: f"c{group}-s1", 2: f"c{group}-s2"}  # side by side
+    assert sorted(r["run"]["seed"] for r in recs if r["method"] == "trase") == [0, 1, 2]
+    t = build_tables(recs, "synthetic")[0]
+    rows = {r.label.split(" ")[0]: r for r in t.rows}
+    assert rows["trase"].cells[0] == pytest.approx(0.85) and rows["trase"].seeds == 3
+    assert rows["trase"].spread[0] == pytest.approx(0.05)  # sample std of 0.80, 0.90, 0.85
+    assert rows["cgc"].seeds == 1 and rows["cgc"].spread[0] is None
+    md = render(t, "markdown")
+    assert "**0.8500** ± 0.0500" in md and "| seeds |" in md
+    assert "≈0.8400" in md  # 0.01 below the best, within its spread of 0.05
+    assert "0.9900** ± 0.0000" in md and "≈0.9800" not in md  # mAcc: no spread, a real gap
+    csv = render(t, "csv")
+    assert "HyperNeRF-Mask_miou_std" in csv and ",3," in csv
+    # per-sequence table: the same mean and spread
+    seq = build_tables(recs, "synthetic")[1]
+    assert {r.label.split(" ")[0]: r.seeds for r in seq.rows} == {"cgc": 1, "trase": 3}
+    for fmt in ("latex", "html"):
+        assert "0.0500" in render(t, fmt)
+
+
+def test_a_rerun_of_one_seed_keeps_the_newest_and_other_configs_are_still_refused(tmp_path):
+    write(tmp_path, record("trase", "nerfds", "synthetic", 0.5, 0.9, seed=1))
+    again = record("trase", "nerfds", "synthetic", 0.6, 0.9, seed=1, name="again")
+    again["created"] = "2099-01-01T00:00:00+00:00"
+    write(tmp_path, again)
+    kept = _main_runs(tmp_path)
+    assert len(kept) == 1 and kept[0]["run"]["name"] == "again"
+    write(tmp_path, record("trase", "nerfds", "synthetic", 0.7, 0.9, seed=2, cfg=config(knn=0)))
+    with pytest.raises(RunError, match="different configs"):
+        _main_runs(tmp_path)
 
 
 def test_cli_leaderboard_and_runs(tmp_path, capsys):

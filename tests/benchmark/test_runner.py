@@ -157,3 +157,47 @@ def test_cpu_preset_training_resolution_follows_the_images():
     assert (train["position_lr_max_steps"], train["deform_lr_max_steps"]) == (20_000, 20_000)  # no annealing in 2000 steps
     cfg = default_config(get_method("trase"), spec, "real", {"geometry": {"preset": "cpu"}}, (960, 536))
     assert cfg["geometry"]["train"]["image_downscale"] == 2.0
+
+
+def test_run_seed_reaches_every_seeded_section_and_explicit_settings_win():
+    from benchmark.config import parse_seeds
+    from benchmark.datasets import get_dataset
+    from benchmark.methods import get_method
+    from benchmark.runner import default_config
+
+    spec, method = get_dataset("hypernerf"), get_method("trase")
+    cfg = default_config(method, spec, "synthetic", parse_overrides(["seed=3"]), (160, 120))
+    assert cfg["seed"] == 3
+    assert cfg["geometry"]["train"]["seed"] == cfg["method"]["features"]["seed"] == 3
+    assert cfg["method"]["clustering"]["seed"] == 3 and cfg["masks"]["seed"] == 0  # masks: the input
+    cfg = default_config(method, spec, "synthetic", parse_overrides(["seed=3", "method.features.seed=7"]))
+    assert cfg["method"]["features"]["seed"] == 7 and cfg["method"]["clustering"]["seed"] == 3
+    for bad in ("seed=-1", "seed=1.5", 'seed="a"', "seed=true"):
+        with pytest.raises(ConfigError, match="run seed"):
+            default_config(method, spec, "synthetic", parse_overrides([bad]))
+    assert parse_seeds("3") == [0, 1, 2] and parse_seeds("0,4,7") == [0, 4, 7] and parse_seeds("5,") == [5]
+    for bad in ("0", "-1", "a", "1,1", "1,-2"):
+        with pytest.raises(ConfigError, match="--seeds"):
+            parse_seeds(bad)
+
+
+def test_seeds_are_runs_side_by_side_and_one_leaderboard_row(data_root, tmp_path, capsys):
+    out = tmp_path / "runs"
+    args = ["run", "--method", "trase", "--dataset", "hypernerf", "--sequence", "synthetic", "--data-root",
+            str(data_root), "--out", str(out), "--quiet", "--seeds", "2"]
+    for s in FAST:
+        args += ["--set", s]
+    assert main(args) == 0
+    first, second = _runs(out)
+    a, b = (load_results(d / "results.json") for d in (first, second))
+    assert (a["run"]["seed"], b["run"]["seed"]) == (0, 1) and a["run"]["group"] == b["run"]["group"]
+    assert first.name == "c" + a["run"]["group"][:8] and second.name == first.name + "-s1"
+    assert a["config_hash"] != b["config_hash"] and b["seeds"]["features"] == b["seeds"]["clustering"] == 1
+    assert a["stages"]["masks"]["key"] == b["stages"]["masks"]["key"]  # the input is shared
+    assert a["stages"]["features"]["key"] != b["stages"]["features"]["key"]
+    capsys.readouterr()
+    assert main(["leaderboard", "--results", str(out), "--variant", "synthetic", "--kind", "run"]) == 0
+    board = capsys.readouterr().out
+    assert "| seeds |" in board and " ± " in board and board.split("###")[1].count("| trase [a]") == 1
+    assert main(args + ["--set", "seed=1"]) == 1
+    assert "either with --seeds or with --set seed" in capsys.readouterr().err
