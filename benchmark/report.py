@@ -80,6 +80,81 @@ def _iou_plot(record: dict) -> bytes:
     return buf.getvalue()
 
 
+def _click_tiles(record: dict, frames: list[dict]) -> list[str]:
+    """One image per prompted frame: the run's clicks (white rings, labelled with the cluster
+    each chose) and the other click sets' clicks (small dots, one colour per set)."""
+    import cv2
+
+    prompts = record.get("prompts") or {}
+    main = prompts.get("clicks", [])
+    chosen = record.get("click_clusters") or [None] * len(main)
+    alts = prompts.get("alternatives", [])
+    by_frame: dict[int, list] = {}
+    for c, k in zip(main, chosen):
+        by_frame.setdefault(int(c["view_index"]), []).append((c, k, 0))
+    for j, cs in enumerate(alts, start=1):
+        for c in cs:
+            by_frame.setdefault(int(c["view_index"]), []).append((c, None, j))
+    palette = [(255, 200, 0), (0, 220, 255), (255, 80, 200), (120, 255, 120), (255, 140, 60)]
+    tiles = []
+    for i in sorted(by_frame)[:MAX_FRAMES_SHOWN]:
+        if not 0 <= i < len(frames):
+            continue
+        f = frames[i]
+        gt = read_mask(f["gt"])
+        img = np.ascontiguousarray(overlay(_read_rgb(Path(f["image"]), gt.shape), np.zeros_like(gt), gt))
+        scale = max(1, 320 // max(gt.shape))
+        img = cv2.resize(img, (gt.shape[1] * scale, gt.shape[0] * scale), interpolation=cv2.INTER_NEAREST)
+        for c, k, j in sorted(by_frame[i], key=lambda x: -x[2]):  # the run's own clicks on top
+            pt = (int(c["u"] * scale), int(c["v"] * scale))
+            if j == 0:
+                cv2.circle(img, pt, 3 * scale, (255, 255, 255), max(1, scale // 2))
+                cv2.putText(img, "none" if k is None or k < 0 else str(k), (pt[0] + 3 * scale, pt[1]),
+                            cv2.FONT_HERSHEY_SIMPLEX, 0.35 * scale, (255, 255, 255), 1)
+            else:
+                cv2.circle(img, pt, max(1, scale), palette[(j - 1) % len(palette)], -1)
+        caption = f"frame {f['frame']}: {sum(1 for x in by_frame[i] if x[2] == 0)} click(s) of the run"
+        tiles.append(f"<figure>{_img_tag(_png(img), caption)}<figcaption>{html.escape(caption)}</figcaption></figure>")
+    return tiles
+
+
+def _click_set_rows(record: dict) -> str:
+    sets = (record.get("click_sets") or {}).get("sets", [])
+    rows = []
+    for e in sets:
+        clicks = ", ".join(f"f{c[0]} ({c[1]:.0f},{c[2]:.0f})" for c in e.get("clicks", []))
+        rows.append(f"<tr><td>{e['set']}{' (run)' if e['set'] == 0 else ''}</td><td>{html.escape(clicks)}</td>"
+                    f"<td>{html.escape(str(e.get('click_clusters', '—')))}</td>"
+                    f"<td>{html.escape(str(e.get('selected', '—')))}</td><td>{e['miou']:.4f}</td></tr>")
+    return "".join(rows)
+
+
+def _seed_section(record: dict, run_dir: Path) -> str:
+    """The other seeds of this config beside this run (its sequence directory), with the
+    clustering agreement between them."""
+    from benchmark.runs import find_runs
+    from benchmark.stability import format_summary, seed_siblings, seed_summary
+
+    try:
+        candidates = find_runs(run_dir.parent, warn=lambda m: None)
+    except Exception:  # noqa: BLE001 - a broken sibling must not stop this run's report
+        return ""
+    sibs = seed_siblings(record, candidates)
+    if len(sibs) < 2:
+        return "<p>One seed of this config (run others with <code>--seeds N</code>).</p>"
+    fmt = lambda x: "—" if x is None else f"{x:.4f}"
+    rows = "".join(
+        f"<tr><td>{r['run']['seed']}</td><td>{html.escape(r['run']['name'])}</td>"
+        f"<td>{fmt(r['metrics']['official']['miou'])}</td><td>{fmt((r.get('oracle') or {}).get('miou'))}</td>"
+        f"<td>{fmt((r.get('ceiling') or {}).get('miou'))}</td><td>{r.get('n_clusters', '—')}</td>"
+        f"<td>{html.escape(str(r.get('selected_clusters')))}</td></tr>" for r in sibs)
+    summary = format_summary(seed_summary(sibs))
+    return (f"<p>{html.escape(summary)} (ARI: adjusted Rand index of the clusterings, per pixel of the "
+            "shown test views and, with one geometry, per gaussian; 1 = the same partition)</p>"
+            "<table><tr><th>seed</th><th>run</th><th>mIoU</th><th>oracle</th><th>ceiling</th><th>clusters</th>"
+            f"<th>chosen</th></tr>{rows}</table>")
+
+
 def _img_tag(data: bytes, alt: str) -> str:
     return f'<img alt="{html.escape(alt)}" src="data:image/png;base64,{base64.b64encode(data).decode()}">'
 
@@ -150,6 +225,12 @@ pre{{background:#f6f6f6;padding:8px;overflow:auto;font-size:12px}}</style></head
 <h2>Test views</h2><p>green: correct object pixels, red: false positives, blue: missed.</p>
 {''.join(tiles)}
 <h2>Per-frame scores</h2>{_img_tag(plot, 'per-frame IoU')}
+<h2>Prompts</h2><p>White rings: the run's clicks, labelled with the cluster each chose; dots: the other
+click sets (the same objects elsewhere in their first frames). Ground truth in blue.</p>
+{''.join(_click_tiles(record, frames))}
+<table><tr><th>click set</th><th>clicks (frame (u,v))</th><th>cluster per click</th><th>chosen</th><th>mIoU</th></tr>
+{_click_set_rows(record)}</table>
+<h2>Seeds</h2>{_seed_section(record, run_dir)}
 <h2>Stages</h2><table><tr><th>stage</th><th>seconds</th><th>peak RSS MiB</th><th></th></tr>{stage_rows}</table>
 <p>{record.get('n_gaussians', 'n/a')} gaussians; model {(record.get('storage') or {}).get('total_mib', 0):.1f} MiB (gaussians, features and deformation, float32).</p>
 <h2>Config</h2><pre>{html.escape(json.dumps(record.get('config', {}), indent=2))}</pre>

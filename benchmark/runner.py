@@ -185,7 +185,10 @@ def default_config(method, spec, variant: str, overrides: dict,
         "method": method.default_config(spec),
         # clicks on every object of interest, in the first test frame it appears in
         # (trase.prompts; "gt-first-frame": the first non-empty frame only)
-        "prompts": {"rule": "gt-first-appearance"},
+        "prompts": {"rule": "gt-first-appearance",
+                    # click sets scored beside the run's own (trase.prompts): 1 = the single-click
+                    # protocol alone
+                    "click_sets": 5},
     }
     return merge(apply_seed(base, run_seed(overrides)), overrides)
 
@@ -356,12 +359,16 @@ def stage_prompts(cache: StageCache, scene, cfg: dict, gt_key: str) -> StageReco
     pcfg = cfg["prompts"]
     if pcfg["rule"] not in BENCHMARK_RULES:
         raise ConfigError(f"--set prompts.rule={pcfg['rule']}: choose {' or '.join(BENCHMARK_RULES)}")
+    n_sets = pcfg.get("click_sets", 1)
+    if isinstance(n_sets, bool) or not isinstance(n_sets, int) or n_sets < 1:
+        raise ConfigError(f"--set prompts.click_sets={n_sets!r}: a whole number >= 1 (1: the run's own clicks only)")
     key = cache.key("prompts", pcfg, {"gt": gt_key})
 
     def work(d: Path) -> dict:
         bp = load_or_make_prompts(d / "prompts.json", scene.test, lambda i: read_mask(scene.gt_masks[i]),
-                                  rule=pcfg["rule"])
-        return {"view": bp.view, "n_clicks": len(bp.clicks), "frames": bp.frames()}
+                                  rule=pcfg["rule"], click_sets=n_sets)
+        return {"view": bp.view, "n_clicks": len(bp.clicks), "frames": bp.frames(),
+                "click_sets": 1 + len(bp.alternatives)}
 
     return cache.run("prompts", key, work, pcfg)
 
@@ -392,13 +399,43 @@ def render_clusters(fitted, camera) -> np.ndarray:
     return (out.color.clamp(0, 1).numpy() * 255).astype(np.uint8)
 
 
+def score_click_sets(method, fitted, scene, prompts, gts: list[np.ndarray], names: list[str]) -> dict | None:
+    """Official mIoU of every click set (trase.prompts: set 0 is the score's own clicks) ->
+    per set (its clicks' clusters, the clusters chosen, mIoU) and median / worst / best.
+    None with a single set."""
+    sets = prompts.click_sets()
+    if len(sets) < 2:
+        return None
+    rendered: dict[tuple, list[np.ndarray]] = {}  # clusters -> masks: sets that agree render once
+    out = []
+    for j, p in enumerate(sets):
+        entry: dict = {"set": j, "clicks": [[c.view_index, round(c.u, 1), round(c.v, 1)] for c in p.clicks]}
+        if getattr(method, "selects_clusters", False) and fitted.gaussians is not None:
+            per_click = method.click_clusters(fitted, scene, p)
+            chosen = tuple(sorted({k for k in per_click if k >= 0}))
+            if chosen not in rendered:
+                rendered[chosen] = method.render_selection(fitted, scene, list(chosen))
+            preds = rendered[chosen]
+            entry |= {"click_clusters": per_click, "selected": list(chosen)}
+        else:
+            preds = method.segment(fitted, scene, p)
+        entry["miou"] = score_masks(dict(zip(names, preds)), dict(zip(names, gts)), "official").miou
+        out.append(entry)
+    scores = np.array([e["miou"] for e in out], dtype=float)
+    return {"n": len(out), "median": float(np.median(scores)), "worst": float(scores.min()),
+            "best": float(scores.max()), "sets": out,
+            "note": "official mIoU per click set; set 0 gives the run's score"}
+
+
 def evaluate(method, fitted, scene, prompts, directory: Path) -> dict:
-    """Predicted masks for every test view -> pred/*.png, scores (v1 and official), oracle."""
+    """Predicted masks for every test view -> pred/*.png, scores (v1 and official), oracle,
+    scores of the other click sets."""
     import cv2
 
     preds = method.segment(fitted, scene, prompts)
     if len(preds) != len(scene.test):
         raise RuntimeError(f"{method.name}.segment returned {len(preds)} masks for {len(scene.test)} test views")
+    selected = list(fitted.stats.get("selected_clusters", []))
     gts = [read_mask(p) for p in scene.gt_masks]
     names = [f"{i:05d}" for i in range(len(scene.test))]
     with atomic_directory(directory / "pred") as d:
@@ -409,11 +446,18 @@ def evaluate(method, fitted, scene, prompts, directory: Path) -> dict:
         for n in shown:
             rgb = render_clusters(fitted, scene.test[names.index(n)].camera)
             cv2.imwrite(str(d / f"{n}.png"), rgb[..., ::-1])
+        if fitted.gaussians is not None:  # for agreement between seeds (benchmark.stability)
+            from benchmark.stability import save_cluster_maps
+
+            save_cluster_maps(d, fitted, {n: scene.test[names.index(n)].camera for n in shown})
     out = {
         "v1": score_masks(dict(zip(names, preds)), dict(zip(names, gts)), "v1"),
         "official": score_masks(dict(zip(names, preds)), dict(zip(names, gts)), "official"),
-        "selected": list(fitted.stats.get("selected_clusters", [])),
+        "selected": selected,
+        "click_sets": score_click_sets(method, fitted, scene, prompts, gts, names),
     }
+    if getattr(method, "selects_clusters", False) and fitted.gaussians is not None:
+        out["click_clusters"] = method.click_clusters(fitted, scene, prompts)
     if hasattr(method, "segment_oracle"):
         opreds, oclusters = method.segment_oracle(fitted, scene, gts)
         out["oracle"] = score_masks(dict(zip(names, opreds)), dict(zip(names, gts)), "v1")
@@ -490,6 +534,7 @@ def run_sequence(opts: RunOptions, sequence: str | None, reporter: Reporter, ind
 
     from benchmark.cache import PeakMemory
     from benchmark.methods import FittedModel
+    from benchmark.stability import geometry_checksum
     from trase.checkpoint import model_storage
     from trase.prompts import BenchmarkPrompts
 
@@ -536,8 +581,11 @@ def run_sequence(opts: RunOptions, sequence: str | None, reporter: Reporter, ind
         "n_gaussians": int(fitted.features.shape[0]),
         "n_clusters": int(fitted.stats.get("n_clusters", 0)),
         "selected_clusters": ev["selected"],
+        "click_clusters": ev.get("click_clusters"),  # per click of the prompts, in order
+        "click_sets": ev["click_sets"],
         "feature_space": fitted.stats.get("feature_space"),
         # the model itself (gaussians + features + deformation, float32), as the paper's storage
+        "geometry_checksum": geometry_checksum(fitted.gaussians) if fitted.gaussians is not None else None,
         "storage": model_storage(fitted.gaussians, fitted.deformation, int(fitted.features.shape[1]))
         if fitted.gaussians is not None else None,
         "config": cfg,

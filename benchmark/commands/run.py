@@ -48,7 +48,8 @@ def run(method, dataset, sequences, data_root, out_dir, cache_dir, overrides, na
                       jobs=jobs, progress=not quiet, name=name, seeds=parse_seeds(seeds) if seeds else None)
     from benchmark.results import load_results
 
-    for path in run_pipeline(opts):
+    paths = run_pipeline(opts)
+    for path in paths:
         r = load_results(path)
         m, official = r["metrics"], r["metrics"]["official"]
         fmt = lambda x: "n/a" if x is None else f"{x:.4f}"
@@ -56,6 +57,19 @@ def run(method, dataset, sequences, data_root, out_dir, cache_dir, overrides, na
         ceiling = f", geometry ceiling {fmt(r['ceiling'].get('miou'))}" if r.get("ceiling") else ""
         v1 = "" if (m["miou"], m["macc"]) == (official["miou"], official["macc"]) else \
             f" (v1: {fmt(m['miou'])} / {fmt(m['macc'])})"
+        sets = r.get("click_sets")
+        if sets:
+            ceiling += f", click sets median {fmt(sets['median'])} worst {fmt(sets['worst'])} of {sets['n']}"
         click.echo(f"{r['method']} {r['dataset']}/{r['sequence']} ({r['variant']}, run "
                    f"{r['run']['name']}, {r['run']['kind']}, seed {r['run']['seed']}): mIoU {fmt(official['miou'])} mAcc {fmt(official['macc'])}{v1}  "
                    f"[oracle mIoU {fmt(oracle.get('miou'))}{ceiling}]  -> {path}")
+    if opts.seeds and len(opts.seeds) > 1:
+        from benchmark.runs import load_run
+        from benchmark.stability import format_summary, seed_summary
+
+        by_seq: dict[str, list[dict]] = {}
+        for path in paths:
+            rec = load_run(path)
+            by_seq.setdefault(rec["sequence"], []).append(rec)
+        for seq, recs in by_seq.items():
+            click.echo(f"{method} {dataset}/{seq} over {format_summary(seed_summary(recs))}")

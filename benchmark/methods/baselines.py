@@ -88,6 +88,8 @@ class CGCMethod(TraseMethod):
         fitted.stats["min_mask_pixels"] = resolved
         return fitted
 
+    selects_clusters = False  # clicks query features in a patch, not clusters
+
     def segment(self, fitted: FittedModel, scene, prompts) -> list[np.ndarray]:
         import torch
 

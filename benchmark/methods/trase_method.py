@@ -168,29 +168,40 @@ class TraseMethod(Method):
         return self.group(feats, config, gaussians, deformation, info)
 
     # -- segment -----------------------------------------------------------------------
-    def select(self, fitted: FittedModel, scene, prompts) -> list[int]:
-        """Prompt clicks -> chosen cluster ids (clicks on no surface choose nothing)."""
+    # segment = select clusters by clicks, then render_selection (evaluate re-renders a click
+    # set that chose the same clusters from memory)
+    selects_clusters = True
+
+    def click_clusters(self, fitted: FittedModel, scene, prompts) -> list[int]:
+        """The cluster each prompt click chose, in click order (-1: a click on no surface)."""
         from trase.prompts import click_to_cluster
 
         pcfg = fitted.config.get("prompts", {})
         min_alpha = float(pcfg.get("min_alpha", 0.5))
         rule, radius = str(pcfg.get("click_rule", "depth")), int(pcfg.get("click_radius", 1))
-        chosen = set()
+        out = []
         for c in prompts.clicks:
             view = click_view(scene, prompts, c)
-            k = click_to_cluster(fitted.gaussians, fitted.deformation, view.camera, c, fitted.labels, min_alpha,
-                                 rule, radius)
-            if k >= 0:
-                chosen.add(k)
-        return sorted(chosen)
+            out.append(int(click_to_cluster(fitted.gaussians, fitted.deformation, view.camera, c, fitted.labels,
+                                            min_alpha, rule, radius)))
+        return out
+
+    def select(self, fitted: FittedModel, scene, prompts) -> list[int]:
+        """Prompt clicks -> chosen cluster ids (clicks on no surface choose nothing)."""
+        return sorted({k for k in self.click_clusters(fitted, scene, prompts) if k >= 0})
 
     def segment(self, fitted: FittedModel, scene, prompts) -> list[np.ndarray]:
+        clusters = self.select(fitted, scene, prompts) if fitted.gaussians is not None else []
+        fitted.stats["selected_clusters"] = clusters
+        return self.render_selection(fitted, scene, clusters)
+
+    def render_selection(self, fitted: FittedModel, scene, clusters: list[int]) -> list[np.ndarray]:
+        """Masks [H, W] bool of the test views for the chosen clusters (the method's filter and
+        rendering rule)."""
         from trase.segment import render_masks, select_gaussians
 
         if fitted.gaussians is None:
             raise MethodError("segment needs the fitted model's geometry (FittedModel.gaussians is None)")
-        clusters = self.select(fitted, scene, prompts)
-        fitted.stats["selected_clusters"] = clusters
         sel = select_gaussians(fitted.labels, clusters, fitted.keep)
         thr = float(fitted.config.get("alpha_threshold", 0.5))
         rule = str(fitted.config.get("render_rule", "alone"))

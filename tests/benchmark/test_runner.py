@@ -195,9 +195,27 @@ def test_seeds_are_runs_side_by_side_and_one_leaderboard_row(data_root, tmp_path
     assert a["config_hash"] != b["config_hash"] and b["seeds"]["features"] == b["seeds"]["clustering"] == 1
     assert a["stages"]["masks"]["key"] == b["stages"]["masks"]["key"]  # the input is shared
     assert a["stages"]["features"]["key"] != b["stages"]["features"]["key"]
-    capsys.readouterr()
+    # click sets: set 0 is the run's own clicks and score; the others are scored beside it
+    sets = a["click_sets"]
+    assert sets["n"] == 5 == len(sets["sets"]) and a["stages"]["prompts"]["info"]["click_sets"] == 5
+    assert sets["sets"][0]["miou"] == a["metrics"]["official"]["miou"]
+    assert sets["sets"][0]["selected"] == a["selected_clusters"]
+    assert sets["sets"][0]["click_clusters"] == a["click_clusters"]
+    assert len(a["click_clusters"]) == len(a["prompts"]["clicks"])
+    assert sets["worst"] <= sets["median"] <= sets["best"]
+    # clustering agreement between the seeds: same (ground-truth) geometry, so per gaussian too
+    assert a["geometry_checksum"] == b["geometry_checksum"]
+    assert (first / "clusters" / "labels.npy").is_file() and list((first / "clusters").glob("ids_*.png"))
+    out_text = capsys.readouterr().out
+    assert "over seeds 0,1: mIoU " in out_text and "pixel ARI" in out_text and "gaussian ARI" in out_text
     assert main(["leaderboard", "--results", str(out), "--variant", "synthetic", "--kind", "run"]) == 0
     board = capsys.readouterr().out
     assert "| seeds |" in board and " ± " in board and board.split("###")[1].count("| trase [a]") == 1
+    assert main(["report", "--method", "trase", "--dataset", "hypernerf", "--sequence", "synthetic",
+                 "--out", str(out), "--name", first.name]) == 0
+    page = (first / "report.html").read_text()
+    assert "cluster per click" in page and "seeds 0,1: mIoU" in page and "gaussian ARI" in page
+    clicked = {c["view_index"] for cs in [a["prompts"]["clicks"], *a["prompts"]["alternatives"]] for c in cs}
+    assert page.count("<figcaption>frame ") == len(clicked) > 1  # one picture per clicked frame
     assert main(args + ["--set", "seed=1"]) == 1
     assert "either with --seeds or with --set seed" in capsys.readouterr().err

@@ -129,6 +129,43 @@ def test_benchmark_prompts_click_every_object_in_the_first_frame_it_appears():
         make_benchmark_prompts(views, gts, rule="whatever")
 
 
+def test_click_sets_click_the_same_objects_elsewhere_in_their_first_frames():
+    a, a2, b, b2 = (2, 8, 2, 8), (2, 8, 3, 9), (10, 19, 18, 28), (10, 19, 17, 27)
+    gts = _frames([], [a], [a2], [a2, b], [b2], [b2])
+    views = [_View(i) for i in range(len(gts))]
+    one = make_benchmark_prompts(views, gts, min_area=4)
+    bp = make_benchmark_prompts(views, gts, min_area=4, click_sets=5)
+    assert bp.clicks == one.clicks and one.alternatives == []  # set 0: the single-click protocol
+    assert len(bp.alternatives) == 4 and all(len(cs) == 2 for cs in bp.alternatives)
+    for j, cs in enumerate(bp.alternatives, start=1):
+        for k, c in enumerate(cs):
+            track = [1, 2, 3] if k == 0 else [3, 4, 5]  # A from frame 1, B from frame 3
+            assert c.view_index == track[(j - 1) % 3] and c.view == f"v{c.view_index}"
+            gt = gts[c.view_index]
+            assert gt[int(c.v), int(c.u)]  # on the object
+            box = (a, a2, a2)[track.index(c.view_index)] if k == 0 else (b, b2, b2)[track.index(c.view_index)]
+            assert box[0] <= c.v < box[1] and box[2] <= c.u < box[3]  # on this object, not the other
+    # the interior half of B (9x10): never on its one-pixel rim
+    assert all(11 <= c.v < 18 for cs in bp.alternatives for c in cs[1:])
+    assert make_benchmark_prompts(views, gts, min_area=4, click_sets=5) == bp  # deterministic
+    sets = bp.click_sets()
+    assert len(sets) == 5 and sets[0].clicks == bp.clicks and sets[3].clicks == bp.alternatives[2]
+    back = BenchmarkPrompts.from_dict(json.loads(json.dumps(bp.to_dict())))
+    assert back == bp
+    d = bp.to_dict()
+    d["alternatives"][0] = d["alternatives"][0][:1]
+    with pytest.raises(PromptError, match="malformed prompts file.*another number of clicks"):
+        BenchmarkPrompts.from_dict(d)
+    with pytest.raises(PromptError, match="click_sets=0"):
+        make_benchmark_prompts(views, gts, click_sets=0)
+    # an object seen in one frame only: every set clicks it there
+    short = make_benchmark_prompts(views[:2], gts[:2], min_area=4, click_sets=3)
+    assert [c.view_index for cs in short.alternatives for c in cs] == [1, 1]
+    first_frame = make_benchmark_prompts(views, gts, min_area=4, rule="gt-first-frame", click_sets=4)
+    assert [c.view_index for c in first_frame.clicks] == [1]
+    assert [cs[0].view_index for cs in first_frame.alternatives] == [1, 2, 3]
+
+
 def test_render_rule_visible_drops_occluded_parts():
     """Looking along x, blob 1 hides most of blob 0: 'alone' (paper) predicts blob 0's whole
     outline, 'visible' only what is seen, which is what a view's ground truth marks."""

@@ -1,0 +1,71 @@
+"""Clustering agreement between seeds: id maps, ARI per gaussian and per pixel."""
+
+import types
+
+import cv2
+import numpy as np
+import pytest
+
+from benchmark.stability import (
+    CHUNK,
+    cluster_id_map,
+    gaussian_ari,
+    geometry_checksum,
+    pixel_ari,
+    save_cluster_maps,
+    seed_agreement,
+    seed_summary,
+)
+from tests.trase.helpers import exact_masks, tiny_scene
+
+
+def test_cluster_id_map_is_the_dominant_cluster_and_chunks_agree(monkeypatch):
+    gm, deform, ids, views = tiny_scene()
+    v = views[1]
+    got = cluster_id_map(gm, deform, ids, v.camera)
+    want = exact_masks(gm, deform, ids, v).masks  # per object: alpha >= 0.5, dominant object
+    assert got.shape == (v.camera.height, v.camera.width) and len(want) == 2
+    assert set(np.unique(got)) == {-1, 0, 1}
+    for obj in (0, 1):
+        assert np.array_equal(got == obj, want[obj])
+    # many clusters, rendered CHUNK at a time: the same map up to the renaming
+    fine = ids * 40 + np.arange(ids.size) % 40  # 80 clusters, 3 chunks
+    coarse = np.where(cluster_id_map(gm, deform, fine, v.camera) >= 0,
+                      cluster_id_map(gm, deform, fine, v.camera) // 40, -1)
+    assert CHUNK < 80 and ((coarse == got).mean() > 0.97)
+
+
+def test_ari_per_gaussian_and_pixel(tmp_path):
+    gm, deform, ids, views = tiny_scene()
+    cams = {f"{i:05d}": view.camera for i, view in enumerate(views[:2])}
+    fitted = types.SimpleNamespace(gaussians=gm, deformation=deform, labels=ids)
+    renamed = types.SimpleNamespace(gaussians=gm, deformation=deform, labels=1 - ids)
+    split = types.SimpleNamespace(gaussians=gm, deformation=deform,
+                                  labels=np.arange(ids.size) % 2)  # unrelated to the objects
+    for name, f in (("a", fitted), ("b", renamed), ("c", split)):
+        save_cluster_maps(tmp_path / name, f, cams)
+    assert gaussian_ari(tmp_path / "a", tmp_path / "b") == pytest.approx(1.0)  # renaming only
+    assert pixel_ari(tmp_path / "a", tmp_path / "b") == pytest.approx(1.0)
+    assert abs(gaussian_ari(tmp_path / "a", tmp_path / "c")) < 0.05
+    assert pixel_ari(tmp_path / "a", tmp_path / "c") < 0.5
+    ids_png = cv2.imread(str(tmp_path / "a" / "ids_00000.png"), cv2.IMREAD_UNCHANGED)
+    assert ids_png.dtype == np.uint16 and ids_png.max() == 2  # 0 = no surface
+
+    def rec(seed, d, geo="g1"):
+        return {"run": {"seed": seed, "group": "x"}, "_dir": str(d.parent), "geometry_checksum": geo,
+                "metrics": {"official": {"miou": 0.5 + 0.1 * seed}}, "oracle": None, "ceiling": {"miou": 0.9}}
+
+    for name in "abc":
+        (tmp_path / name).rename(tmp_path / name / ".." / f"{name}_clusters")
+        (tmp_path / name).mkdir()
+        (tmp_path / f"{name}_clusters").rename(tmp_path / name / "clusters")
+    ag = seed_agreement([rec(1, tmp_path / "b" / "clusters"), rec(0, tmp_path / "a" / "clusters")])
+    assert ag["pairs"][0]["seeds"] == [0, 1] and ag["gaussian_ari"] == pytest.approx(1.0)
+    other_geometry = seed_agreement([rec(0, tmp_path / "a" / "clusters"), rec(1, tmp_path / "c" / "clusters", "g2")])
+    assert other_geometry["gaussian_ari"] is None and other_geometry["pixel_ari"] is not None
+    assert seed_agreement([rec(0, tmp_path / "a" / "clusters")]) is None
+    s = seed_summary([rec(0, tmp_path / "a" / "clusters"), rec(1, tmp_path / "b" / "clusters"),
+                      rec(2, tmp_path / "c" / "clusters")])
+    assert s["miou"]["mean"] == pytest.approx(0.6) and s["miou"]["std"] == pytest.approx(0.1) and s["miou"]["n"] == 3
+    assert s["oracle"] is None and s["ceiling"]["std"] == pytest.approx(0.0)
+    assert geometry_checksum(gm) == geometry_checksum(tiny_scene()[0]) != geometry_checksum(tiny_scene(seed=1)[0])
