@@ -16,6 +16,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     # name: (import path of the click command, one-line help shown by --help)
     "ablate": ("benchmark.commands.ablate:ablate", "The paper's ablation studies, run and tabulated."),
     "datasets": ("benchmark.commands.datasets:datasets", "List the five *-Mask benchmarks (--json for data)."),
+    "figures": ("benchmark.commands.figures:figures",
+                "The README's figures: five formats x seeds, measured and written from their data."),
     "leaderboard": ("benchmark.commands.leaderboard:leaderboard",
                     "Leaderboards (markdown/latex/csv/html) from results files."),
     "masks": ("benchmark.commands.masks:masks", "Per-image anything-masks for a sequence's training views."),

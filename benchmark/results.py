@@ -43,11 +43,23 @@ def package_versions() -> dict[str, str]:
 
 
 def machine_info() -> dict:
-    return {
+    """Where a result was made, including what changes its bits on another machine: the
+    instruction set torch's kernels use and the CPU numba compiles for (docs/determinism.md)."""
+    out = {
         "platform": platform.platform(),
         "processor": platform.machine(),
         "cpu_count": os.cpu_count(),
     }
+    try:
+        import numba
+        import torch
+        from llvmlite import binding
+
+        out["torch_cpu_capability"] = torch.backends.cpu.get_cpu_capability()
+        out["numba_cpu"] = numba.config.CPU_NAME or binding.get_host_cpu_name()
+    except (ImportError, AttributeError, RuntimeError):
+        pass
+    return out
 
 
 def write_results(path: Path, record: dict) -> None:

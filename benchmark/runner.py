@@ -456,7 +456,9 @@ def evaluate(method, fitted, scene, prompts, directory: Path) -> dict:
         "selected": selected,
         "click_sets": score_click_sets(method, fitted, scene, prompts, gts, names),
     }
-    if getattr(method, "selects_clusters", False) and fitted.gaussians is not None:
+    if out["click_sets"] and "click_clusters" in out["click_sets"]["sets"][0]:
+        out["click_clusters"] = out["click_sets"]["sets"][0]["click_clusters"]
+    elif getattr(method, "selects_clusters", False) and fitted.gaussians is not None:
         out["click_clusters"] = method.click_clusters(fitted, scene, prompts)
     if hasattr(method, "segment_oracle"):
         opreds, oclusters = method.segment_oracle(fitted, scene, gts)

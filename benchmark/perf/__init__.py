@@ -17,6 +17,7 @@ SUITES: dict[str, tuple[str, str]] = {
     "features": ("benchmark.perf.features:run", "Feature step: whole step on the synthetic scene (rasterizer vs fast path, R/F/X/O), fused vs dense objective, render grid."),
     "reconstruct": ("benchmark.perf.reconstruct:run", "Test PSNR vs wall-clock time of the CPU reconstruction (synthetic HyperNeRF), old and new CPU preset."),
     "pipeline": ("benchmark.perf.pipeline:run", "Per-stage time and peak memory of the runner per synthetic dataset, 2 sizes; exponents."),
+    "determinism": ("benchmark.perf.determinism:run", "A fixed seed under other thread counts and instruction sets (fresh processes): bit-identical or by how much not."),
     "pareto": ("benchmark.perf.pareto:run", "mIoU vs features+fit+evaluate time over a settings grid for one scene; PNG with the Pareto front."),
 }
 

@@ -1,0 +1,50 @@
+"""``trase-bench figures``: the README's figures, measured and written from their data."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+
+@click.command()
+@click.option("--out", "out_dir", type=click.Path(file_okay=False), default="runs/figures", show_default=True,
+              help="Where the runs go (their stage cache inside): reruns reuse what is there.")
+@click.option("--seeds", default="3", show_default=True, metavar="N|S,S,...", help="Run seeds per format and geometry.")
+@click.option("--format", "formats", multiple=True, help="Only these formats (repeatable; default all five).")
+@click.option("--geometry", "geometries", multiple=True, type=click.Choice(["reconstruct", "ground-truth"]),
+              help="Only this geometry source (repeatable; default both).")
+@click.option("--collect-only", is_flag=True, help="Summarise the runs already under --out; run nothing.")
+@click.option("--data", "data_path", type=click.Path(dir_okay=False), default="docs/figures.json", show_default=True,
+              help="The summary written (and read by --write-readme).")
+@click.option("--write-readme", "readme", type=click.Path(dir_okay=False), default=None, is_flag=False,
+              flag_value="README.md", help="Rewrite this README's figures block from --data (default README.md).")
+@click.option("--quiet", is_flag=True)
+def figures(out_dir, seeds, formats, geometries, collect_only, data_path, readme, quiet) -> None:
+    """Run trase on the five built-in formats (reconstructed and ground-truth geometry, each for
+    --seeds run seeds), summarise mean ± std over seeds into --data with the commit and machine,
+    print the table, and with --write-readme put it into the README's figures block.
+
+    The whole measurement is about 2 h 30 min on 2 CPU cores (15 reconstructions); every stage
+    is cached under --out, so an interrupted run resumes.
+    """
+    from benchmark.config import parse_seeds
+    from benchmark.figures import FORMATS, GEOMETRIES, collect, render_block, replace_block, write_json
+
+    formats = tuple(formats) or FORMATS
+    geometries = tuple(geometries) or GEOMETRIES
+    if not collect_only:
+        from benchmark.figures import run_all
+
+        run_all(Path(out_dir), parse_seeds(seeds), formats, geometries, progress=not quiet)
+    data = collect(Path(out_dir), formats, geometries)
+    write_json(Path(data_path), data)
+    block = render_block(data)
+    click.echo(block)
+    click.echo(f"wrote {data_path}")
+    if readme:
+        from benchmark.io import atomic_write_text
+
+        path = Path(readme)
+        atomic_write_text(path, replace_block(path.read_text(), block, str(path)))
+        click.echo(f"wrote the figures block of {path}")

@@ -1,0 +1,121 @@
+"""What a fixed seed gives on another machine: the same stages under other thread counts and
+instruction sets, compared with this machine's defaults.
+
+Each variant runs in a fresh process (the instruction set is chosen when torch and numba
+load): the runner's geometry training for a few hundred iterations on the synthetic
+HyperNeRF-format scene, then feature training on that scene's ground-truth geometry. Variants:
+
+* ``numba 1 thread``: the rasterizer's and the fast path's parallel loops on one thread;
+* ``torch 2 threads``: torch's intra-op threads (the cpu preset fixes them in the config);
+* ``torch default ISA`` (``ATEN_CPU_CAPABILITY=default``): torch's kernels without AVX2/AVX-512,
+  as on an older or other CPU;
+* ``numba generic CPU`` (``NUMBA_CPU_NAME=generic``): numba compiled for a baseline x86-64
+  (the fastmath kernels may reassociate and contract differently on another vector width).
+
+Printed per variant: whether the gaussians and the features are bit-identical to the
+baseline's, the largest difference, and the test PSNR. What a difference does downstream
+(clusters, clicks, mIoU) is a whole run's business: see docs/determinism.md.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+
+VARIANTS: dict[str, dict[str, str]] = {
+    "baseline": {},
+    "numba 1 thread": {"NUMBA_NUM_THREADS": "1"},
+    "torch 2 threads": {"TRASE_PERF_TORCH_THREADS": "2"},
+    "torch default ISA": {"ATEN_CPU_CAPABILITY": "default"},
+    "numba generic CPU": {"NUMBA_CPU_NAME": "generic"},
+}
+QUICK = {"size": "tiny", "iterations": 60, "feature_steps": 30}
+FULL = {"size": "small", "iterations": 400, "feature_steps": 300}
+
+
+def child(out: str, size: str, iterations: int, feature_steps: int) -> None:
+    """One variant (in its own process): geometry and features -> ``out``.npz + .json."""
+    import numpy as np
+
+    from benchmark.datasets import get_dataset, load_scene
+    from benchmark.datasets.synthetic import ensure_synthetic
+    from benchmark.perf.reconstruct import runner_train_config
+    from trase.checkpoint import load_synthetic_geometry
+    from trase.features import FeatureConfig, train_features
+    from trase.reconstruct import ReconstructionConfig, evaluate_psnr, reconstruct
+
+    spec = get_dataset("hypernerf")
+    scene_dir = ensure_synthetic("hypernerf", size=size)
+    scene = load_scene("hypernerf", scene_dir)
+    cam = scene.test[0].camera
+    train = runner_train_config("hypernerf", (cam.width, cam.height))
+    threads = os.environ.get("TRASE_PERF_TORCH_THREADS")
+    train |= {"iterations": iterations, "checkpoint_interval": iterations}
+    if threads:
+        train["torch_threads"] = int(threads)
+    work = Path(out + "_work")
+    g, deform = reconstruct(scene.train, scene.points, scene.point_colors, ReconstructionConfig(**train), work,
+                            resume=False, progress=False)
+    psnr = evaluate_psnr(g, deform, scene.test)
+
+    import masks as masklib
+    from benchmark.runner import synthetic_instance_maps
+
+    gt_g, gt_deform, _ = load_synthetic_geometry(Path(scene.extras["synthetic_manifest"]).parent / "geometry.npz")
+    from masks.generators.base import make_generator
+
+    gen = make_generator("synthetic", seed=0)
+    mask_dir = work / "masks"
+    masklib.generate_scene_masks(scene.train, gen, mask_dir, progress=False,
+                                 instance_maps=synthetic_instance_maps(scene))
+    fcfg = FeatureConfig.preset("cpu", n_pixels=min(int(spec.n_pixels), 2000), n_masks=float(spec.n_masks))
+    fcfg = FeatureConfig(**(fcfg.to_dict() | {"iterations": feature_steps}
+                            | ({"torch_threads": int(threads)} if threads else {})))
+    res = train_features(gt_g, gt_deform, scene.train, lambda v: masklib.load(masklib.mask_path(mask_dir, v.name)),
+                         fcfg, cache_dir=work / "pixel_weights", progress=False)
+    np.savez(out + ".npz", means=g.means.detach().numpy(), opacity=g.opacity_logits.detach().numpy(),
+             features=res.features.detach().numpy())
+    Path(out + ".json").write_text(json.dumps({"psnr": psnr, "gaussians": int(g.num_gaussians)}))
+
+
+def run(quick: bool, echo: Callable[[str], None]) -> dict:
+    import numpy as np
+
+    s = QUICK if quick else FULL
+    echo(f"  synthetic HyperNeRF ({s['size']}): {s['iterations']} geometry iterations, {s['feature_steps']} feature "
+         "steps on ground-truth geometry; each variant in a fresh process")
+    results = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for name, env in VARIANTS.items():
+            out = str(Path(tmp) / name.replace(" ", "_"))
+            code = ("from benchmark.perf.determinism import child; "
+                    f"child({out!r}, {s['size']!r}, {s['iterations']}, {s['feature_steps']})")
+            numba_cache = {"NUMBA_CACHE_DIR": str(Path(tmp) / "numba")} if "NUMBA_CPU_NAME" in env else {}
+            proc = subprocess.run([sys.executable, "-c", code], env={**os.environ, **env, **numba_cache},
+                                  capture_output=True, text=True)
+            if proc.returncode:
+                raise RuntimeError(f"determinism variant {name!r} failed:\n{proc.stderr[-2000:]}")
+            arrays = dict(np.load(out + ".npz"))
+            info = json.loads(Path(out + ".json").read_text())
+            results[name] = (arrays, info)
+    base, base_info = results["baseline"]
+    rows = {}
+    echo(f"  {'variant':<20} {'gaussians':>9} {'PSNR':>7}  geometry                    features")
+    for name, (arrays, info) in results.items():
+        row = {"env": VARIANTS[name], **info}
+        for part, keys in (("geometry", ("means", "opacity")), ("features", ("features",))):
+            same_shape = all(arrays[k].shape == base[k].shape for k in keys)
+            identical = same_shape and all(np.array_equal(arrays[k], base[k]) for k in keys)
+            diff = max(float(np.abs(arrays[k] - base[k]).max()) for k in keys) if same_shape else None
+            row[part] = {"identical": identical, "max_abs_diff": diff}
+        rows[name] = row
+        show = lambda p: ("identical" if row[p]["identical"] else  # noqa: E731
+                          f"differs (max {row[p]['max_abs_diff']:.1e})" if row[p]["max_abs_diff"] is not None
+                          else "differs (other gaussian count)")
+        echo(f"  {name:<20} {info['gaussians']:>9} {info['psnr']:7.3f}  {show('geometry'):<27} {show('features')}")
+    return {"settings": s, "variants": rows, "baseline_psnr": base_info["psnr"]}
