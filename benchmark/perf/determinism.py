@@ -6,7 +6,8 @@ load): the runner's geometry training for a few hundred iterations on the synthe
 HyperNeRF-format scene, then feature training on that scene's ground-truth geometry. Variants:
 
 * ``numba 1 thread``: the rasterizer's and the fast path's parallel loops on one thread;
-* ``torch 2 threads``: torch's intra-op threads (the cpu preset fixes them in the config);
+* ``torch 1 thread`` / ``torch 2 threads``: torch's intra-op threads for both stages (the cpu
+  preset fixes them in the config: 2 for the geometry, 1 for the features);
 * ``torch default ISA`` (``ATEN_CPU_CAPABILITY=default``): torch's kernels without AVX2/AVX-512,
   as on an older or other CPU;
 * ``numba generic CPU`` (``NUMBA_CPU_NAME=generic``): numba compiled for a baseline x86-64
@@ -30,7 +31,8 @@ from pathlib import Path
 VARIANTS: dict[str, dict[str, str]] = {
     "baseline": {},
     "numba 1 thread": {"NUMBA_NUM_THREADS": "1"},
-    "torch 2 threads": {"TRASE_PERF_TORCH_THREADS": "2"},
+    "torch 1 thread": {"TRASE_PERF_TORCH_THREADS": "1"},  # geometry: the cpu preset has 2
+    "torch 2 threads": {"TRASE_PERF_TORCH_THREADS": "2"},  # features: the cpu preset has 1
     "torch default ISA": {"ATEN_CPU_CAPABILITY": "default"},
     "numba generic CPU": {"NUMBA_CPU_NAME": "generic"},
 }
