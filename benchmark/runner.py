@@ -399,14 +399,15 @@ def render_clusters(fitted, camera) -> np.ndarray:
     return (out.color.clamp(0, 1).numpy() * 255).astype(np.uint8)
 
 
-def score_click_sets(method, fitted, scene, prompts, gts: list[np.ndarray], names: list[str]) -> dict | None:
+def score_click_sets(method, fitted, scene, prompts, gts: list[np.ndarray], names: list[str],
+                     rendered: dict[tuple, list[np.ndarray]] | None = None) -> dict | None:
     """Official mIoU of every click set (trase.prompts: set 0 is the score's own clicks) ->
     per set (its clicks' clusters, the clusters chosen, mIoU) and median / worst / best.
-    None with a single set."""
+    None with a single set. ``rendered``: masks already rendered, by chosen clusters."""
     sets = prompts.click_sets()
     if len(sets) < 2:
         return None
-    rendered: dict[tuple, list[np.ndarray]] = {}  # clusters -> masks: sets that agree render once
+    rendered = dict(rendered or {})  # clusters -> masks: sets that agree render once
     out = []
     for j, p in enumerate(sets):
         entry: dict = {"set": j, "clicks": [[c.view_index, round(c.u, 1), round(c.v, 1)] for c in p.clicks]}
@@ -454,7 +455,8 @@ def evaluate(method, fitted, scene, prompts, directory: Path) -> dict:
         "v1": score_masks(dict(zip(names, preds)), dict(zip(names, gts)), "v1"),
         "official": score_masks(dict(zip(names, preds)), dict(zip(names, gts)), "official"),
         "selected": selected,
-        "click_sets": score_click_sets(method, fitted, scene, prompts, gts, names),
+        "click_sets": score_click_sets(method, fitted, scene, prompts, gts, names,
+                                       {tuple(sorted(selected)): preds}),
     }
     if out["click_sets"] and "click_clusters" in out["click_sets"]["sets"][0]:
         out["click_clusters"] = out["click_sets"]["sets"][0]["click_clusters"]
