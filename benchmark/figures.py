@@ -37,14 +37,16 @@ def _git_commit(root: Path) -> str:
 
 
 def run_all(out_dir: Path, seeds: list[int], formats=FORMATS, geometries=GEOMETRIES, progress: bool = True) -> None:
-    """Every (format, geometry) main-protocol run for every seed, into ``out_dir`` (cached)."""
+    """Every (format, geometry) main-protocol run for every seed, into ``out_dir`` (stages
+    cached; a run already there with this config is kept, so an interrupted measurement
+    resumes where it stopped)."""
     from benchmark.runner import RunOptions, run
 
     for geo in geometries:
         for ds in formats:
             overrides = [] if geo == "reconstruct" else ["geometry.source=ground-truth"]
             run(RunOptions(method="trase", dataset=ds, out_dir=Path(out_dir), overrides=overrides, seeds=seeds,
-                           progress=progress))
+                           progress=progress, keep_existing=True))
 
 
 def collect(out_dir: Path, formats=FORMATS, geometries=GEOMETRIES) -> dict:

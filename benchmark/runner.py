@@ -48,6 +48,7 @@ class RunOptions:
     study: str | None = None  # set by ablation studies: the run is a variant of this study
     study_variant: str | None = None
     seeds: list[int] | None = None  # run seeds (each its own run, --set seed=S); None: as --set says
+    keep_existing: bool = False  # a run whose directory holds results of this config is not redone
 
     def per_seed(self) -> list[RunOptions]:
         """One options object per run seed (just this one without ``seeds``)."""
@@ -516,6 +517,11 @@ def run_sequence(opts: RunOptions, sequence: str | None, reporter: Reporter, ind
     name = run_name(group, opts.name, with_hash=bool(opts.study), seed=cfg["seed"])
     out_dir = run_dir(opts.out_dir, opts.method, spec.key, seq, name)
     check_free(out_dir, chash)  # before any work: a run with another config is never overwritten
+    if opts.keep_existing and (out_dir / "results.json").is_file():
+        if opts.progress:
+            print(f"  [{seq}] kept: {out_dir} holds this config's results", file=sys.stderr, flush=True)
+        reporter.finish()
+        return out_dir / "results.json"
     cache = StageCache(opts.cache_root)
     scene_key = scene_fingerprint(scene)
     gt_key = sha256_files(list(scene.gt_masks))[:16]
