@@ -78,8 +78,8 @@ def parse_seeds(text: str) -> list[int]:
             return list(range(n))
         seeds = [int(x) for x in text.split(",") if x.strip()]
     except ValueError:
-        raise ConfigError(f"--seeds {text!r}: give a count (3: seeds 0, 1, 2) or a list (0,4,7) of "
-                          "whole numbers >= 0") from None
+        raise ConfigError(f"--seeds {text!r}: give a count >= 1 (3: seeds 0, 1, 2) or a list (0,4,7; one "
+                          "seed S: 'S,') of whole numbers >= 0") from None
     if not seeds or min(seeds) < 0 or len(set(seeds)) != len(seeds):
         raise ConfigError(f"--seeds {text!r}: give distinct whole numbers >= 0")
     return seeds

@@ -1,0 +1,40 @@
+"""The README's figures come from docs/figures.json through one renderer."""
+
+from pathlib import Path
+
+import pytest
+
+from benchmark.errors import UserError
+from benchmark.figures import BEGIN, END, SCHEMA, read_figures, readme_block, render_block, replace_block
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _data():
+    st = lambda m, s: {"mean": m, "std": s, "n": 3}  # noqa: E731
+    summary = {"seeds": [0, 1, 2], "miou": st(0.9, 0.01), "oracle": st(0.91, 0.01), "ceiling": st(0.92, 0.0),
+               "click_sets_median": st(0.88, 0.02), "click_sets_worst": st(0.5, 0.1),
+               "agreement": {"pixel_ari": 0.95, "gaussian_ari": None, "pairs": []}}
+    return {"schema": SCHEMA, "commit": "abc1234", "date": "2026-11-24", "machine": {"cpus": 2, "processor": "x86_64"},
+            "rows": [{"format": "hypernerf", "geometry": "reconstruct", "summary": summary,
+                      "test_psnr": [27.0, 27.2, 26.8], "seconds": [200.0, 210.0, 190.0]}]}
+
+
+def test_block_renders_mean_and_spread_and_replaces_only_itself():
+    block = render_block(_data())
+    assert "| HyperNeRF | reconstructed | 27.00 ± 0.20 | 0.920 ± 0.000 | 0.910 ± 0.010 | **0.900 ± 0.010** |" in block
+    assert "0.880 ± 0.020 / 0.500 ± 0.100 | 0.950 | 3 |" in block and "commit `abc1234`" in block
+    text = f"intro\n{BEGIN}\nold\n{END}\nrest\n"
+    new = replace_block(text, block)
+    assert new.startswith("intro\n") and new.endswith(f"{END}\nrest\n") and readme_block(new) == block
+    with pytest.raises(UserError, match="exactly one figures block"):
+        replace_block("no markers", block)
+    with pytest.raises(UserError, match="schema"):
+        render_block({"schema": "x"})
+
+
+def test_readme_figures_are_the_rendering_of_their_data_file():
+    readme = (ROOT / "README.md").read_text()
+    data = read_figures(ROOT / "docs" / "figures.json")
+    assert readme_block(readme) == render_block(data), \
+        "README figures block differs from docs/figures.json: run `trase-bench figures --collect-only --write-readme`"
