@@ -30,7 +30,7 @@ def _git_commit(root: Path) -> str:
         out = subprocess.run(["git", "-C", str(root), "rev-parse", "--short", "HEAD"], capture_output=True,
                              text=True, check=True, timeout=10)
         dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
-                               capture_output=True, text=True, timeout=10).stdout.strip()
+                               capture_output=True, text=True, timeout=10, check=False).stdout.strip()
         return out.stdout.strip() + ("+changes" if dirty else "")
     except (OSError, subprocess.SubprocessError):
         return "unknown"
@@ -114,12 +114,12 @@ def render_block(data: dict) -> str:
              "technicolor": "Technicolor"}
     m = data["machine"]
     lines = [
-        f"Measured at commit `{data['commit']}` on {data['date']} ({m.get('cpus', '?')} CPU cores, "
-        f"{m.get('processor', '?')}), `trase-bench figures` (the main protocol of each format, official "
-        "metric; mean ± standard deviation over the run seeds, seeds counted in the last column):",
+        (f"Measured at commit `{data['commit']}` on {data['date']} ({m.get('cpus', '?')} CPU cores, "
+         f"{m.get('processor', '?')}), `trase-bench figures` (the main protocol of each format, official "
+         "metric; mean ± standard deviation over the run seeds, seeds counted in the last column):"),
         "",
-        "| format | geometry | test PSNR (dB) | geometry ceiling | oracle | mIoU | click sets: median / worst "
-        "| clusters agree (pixel ARI) | seeds |",
+        ("| format | geometry | test PSNR (dB) | geometry ceiling | oracle | mIoU | click sets: median / worst "
+         "| clusters agree (pixel ARI) | seeds |"),
         "|---|---|---|---|---|---|---|---|---|",
     ]
     for row in data["rows"]:

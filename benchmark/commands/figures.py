@@ -29,7 +29,14 @@ def figures(out_dir, seeds, formats, geometries, collect_only, data_path, readme
     is cached under --out, so an interrupted run resumes.
     """
     from benchmark.config import parse_seeds
-    from benchmark.figures import FORMATS, GEOMETRIES, collect, render_block, replace_block, write_json
+    from benchmark.figures import (
+        FORMATS,
+        GEOMETRIES,
+        collect,
+        render_block,
+        replace_block,
+        write_json,
+    )
 
     formats = tuple(formats) or FORMATS
     geometries = tuple(geometries) or GEOMETRIES

@@ -99,7 +99,7 @@ def run(quick: bool, echo: Callable[[str], None]) -> dict:
                     f"child({out!r}, {s['size']!r}, {s['iterations']}, {s['feature_steps']})")
             numba_cache = {"NUMBA_CACHE_DIR": str(Path(tmp) / "numba")} if "NUMBA_CPU_NAME" in env else {}
             proc = subprocess.run([sys.executable, "-c", code], env={**os.environ, **env, **numba_cache},
-                                  capture_output=True, text=True)
+                                  capture_output=True, text=True, check=False)
             if proc.returncode:
                 raise RuntimeError(f"determinism variant {name!r} failed:\n{proc.stderr[-2000:]}")
             arrays = dict(np.load(out + ".npz"))
@@ -116,8 +116,14 @@ def run(quick: bool, echo: Callable[[str], None]) -> dict:
             diff = max(float(np.abs(arrays[k] - base[k]).max()) for k in keys) if same_shape else None
             row[part] = {"identical": identical, "max_abs_diff": diff}
         rows[name] = row
-        show = lambda p: ("identical" if row[p]["identical"] else  # noqa: E731
-                          f"differs (max {row[p]['max_abs_diff']:.1e})" if row[p]["max_abs_diff"] is not None
-                          else "differs (other gaussian count)")
-        echo(f"  {name:<20} {info['gaussians']:>9} {info['psnr']:7.3f}  {show('geometry'):<27} {show('features')}")
+        echo(f"  {name:<20} {info['gaussians']:>9} {info['psnr']:7.3f}  {_show(row['geometry']):<27} "
+             f"{_show(row['features'])}")
     return {"settings": s, "variants": rows, "baseline_psnr": base_info["psnr"]}
+
+
+def _show(part: dict) -> str:
+    if part["identical"]:
+        return "identical"
+    if part["max_abs_diff"] is None:
+        return "differs (other gaussian count)"
+    return f"differs (max {part['max_abs_diff']:.1e})"

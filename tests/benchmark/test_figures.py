@@ -5,13 +5,21 @@ from pathlib import Path
 import pytest
 
 from benchmark.errors import UserError
-from benchmark.figures import BEGIN, END, SCHEMA, read_figures, readme_block, render_block, replace_block
+from benchmark.figures import (
+    BEGIN,
+    END,
+    SCHEMA,
+    read_figures,
+    readme_block,
+    render_block,
+    replace_block,
+)
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
 def _data():
-    st = lambda m, s: {"mean": m, "std": s, "n": 3}  # noqa: E731
+    st = lambda m, s: {"mean": m, "std": s, "n": 3}
     summary = {"seeds": [0, 1, 2], "miou": st(0.9, 0.01), "oracle": st(0.91, 0.01), "ceiling": st(0.92, 0.0),
                "click_sets_median": st(0.88, 0.02), "click_sets_worst": st(0.5, 0.1),
                "agreement": {"pixel_ari": 0.95, "gaussian_ari": None, "pairs": []}}
