@@ -268,20 +268,17 @@ def render_table(df: pd.DataFrame, fmt: str, title: str) -> str:
     lines = [f"### {title}", "", "| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     lines += ["| " + " | ".join(cell(c, r[c], i) for c in cols) + " |" for i, (_, r) in enumerate(df.iterrows())]
     if near:
+        from benchmark.leaderboard import SPREAD_NOTE
+
         lines += ["", SPREAD_NOTE]
     return "\n".join(lines) + "\n"
 
 
-SPREAD_NOTE = ("± : standard deviation over run seeds (ddof 1); ≈ : within the spread of the column's best "
-               "(|difference| < the larger of the two deviations).")
-
-
 def _within_spread(df: pd.DataFrame, col: str) -> list[bool]:
-    """Per row: not the best of ``col`` but closer to it than either row's std over seeds."""
+    """Per row: within the spread of the column's best (benchmark.leaderboard.within_spread)."""
+    from benchmark.leaderboard import within_spread
+
     best = df[col].max()
     best_sd = df.loc[df[col] == best, f"{col} ±"].max()
-    out = []
-    for v, sd in zip(df[col], df[f"{col} ±"]):
-        spreads = [x for x in (sd, best_sd) if pd.notna(x)]
-        out.append(bool(pd.notna(v) and v != best and spreads and best - v < max(spreads)))
-    return out
+    return [within_spread(None if pd.isna(v) else v, best, (sd, best_sd))
+            for v, sd in zip(df[col], df[f"{col} ±"])]

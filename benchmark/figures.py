@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import datetime
 import json
+import os
 import platform
 import subprocess
 from pathlib import Path
@@ -51,8 +52,8 @@ def run_all(out_dir: Path, seeds: list[int], formats=FORMATS, geometries=GEOMETR
 
 def collect(out_dir: Path, formats=FORMATS, geometries=GEOMETRIES) -> dict:
     """Summaries of the runs under ``out_dir`` per (format, geometry), with provenance."""
-    from benchmark.runs import find_runs
-    from benchmark.stability import seed_siblings, seed_summary
+    from benchmark.runs import find_runs, seed_siblings
+    from benchmark.stability import seed_summary
 
     records = find_runs(Path(out_dir))
     rows = []
@@ -77,13 +78,8 @@ def collect(out_dir: Path, formats=FORMATS, geometries=GEOMETRIES) -> dict:
                          "preset": sibs[0]["config"]["geometry"]["preset"]})
     if not rows:
         raise UserError(f"{out_dir}: no trase runs on the synthetic formats; run `trase-bench figures` first")
-    machine = {"platform": platform.platform(), "processor": platform.processor() or platform.machine()}
-    try:
-        import os
-
-        machine["cpus"] = len(os.sched_getaffinity(0))
-    except (AttributeError, OSError):
-        pass
+    machine = {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
+               "cpus": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()}
     return {"schema": SCHEMA, "commit": _git_commit(Path(__file__).resolve().parent.parent),
             "date": datetime.date.today().isoformat(), "machine": machine, "rows": rows}
 

@@ -75,16 +75,20 @@ class Table:
     def has_seeds(self) -> bool:
         return any(r.seeds is not None and r.seeds > 1 for r in self.rows)
 
-    def within_spread(self, row: Row, i: int) -> bool:
-        """Whether cell i of ``row`` is not the best but closer to it than either spread."""
-        best = self.best()[i]
-        v = row.cells[i]
-        if v is None or best is None or v == best:
-            return False
+    def within_spread(self, row: Row, i: int, best: float | None) -> bool:
+        """Whether cell i of ``row`` is within the spread of the column's ``best``."""
         spreads = [row.spread[i] if row.spread else None]
         spreads += [r.spread[i] for r in self.rows if r.spread and r.cells[i] == best]
-        spreads = [x for x in spreads if x is not None and not math.isnan(x)]
-        return bool(spreads) and best - v < max(spreads)
+        return within_spread(row.cells[i], best, spreads)
+
+
+def within_spread(value: float | None, best: float | None, spreads) -> bool:
+    """Not the best, but closer to it than the larger of ``spreads`` (std over seeds of the
+    two; None / NaN ignored): their order is not established. Tables mark such cells ≈."""
+    spreads = [x for x in spreads if x is not None and not math.isnan(x)]
+    if value is None or best is None or value == best or not spreads:
+        return False
+    return best - value < max(spreads)
 
 
 # -- data ------------------------------------------------------------------------------------
@@ -147,8 +151,8 @@ def _label(method: str, source: str, marks: str = "") -> str:
     return f"{method} (published)" if source == "published" else method + marks
 
 
-def _row(method: str, source: str, sub: pd.DataFrame, cells: list, v1: list, legend: ProtocolLegend,
-         spread: list | None = None, seeds: int | None = None) -> Row:
+def _row(method: str, source: str, sub: pd.DataFrame, cells: list, v1: list | None,
+         spread: list | None = None, seeds: int | None = None, legend: ProtocolLegend | None = None) -> Row:
     if source == "published":
         return Row(_label(method, source), cells, None)
     labels = sorted({x for x in sub.protocol if x})
@@ -178,73 +182,67 @@ def main_table(df: pd.DataFrame, variant: str) -> Table:
     groups = [DATASETS[d].display_name if d in DATASETS else d for d in datasets]
     rows, notes, legend = [], [], ProtocolLegend()
     for (method, source), sub in df.groupby(["method", "source"], sort=True):
-        cells: list[float | None] = []
-        v1: list[float | None] = []
-        spread: list[float | None] = []
-        counts: list[int] = []
-        for d in datasets:
-            dsub = sub[sub.dataset == d]
-            if source == "published":
-                avg = dsub[dsub.sequence == "_average"]
+        if source == "published":
+            cells: list[float | None] = []
+            for d in datasets:
+                avg = sub[(sub.dataset == d) & (sub.sequence == "_average")]
                 cells += [float(avg.miou.iloc[0]), float(avg.macc.iloc[0])] if len(avg) else [None, None]
-                v1 += [None, None]
-                continue
+            rows.append(_row(method, source, sub, cells, None, legend=legend))
+            continue
+        spans = []  # per dataset: (its runs, the sequences averaged); runs None: not all ran
+        for d in datasets:
             expected = _expected_sequences(df, variant, d)
+            dsub = sub[sub.dataset == d]
             have = set(dsub.sequence)
-            if expected and set(expected) <= have:
-                for col in ("miou", "macc"):
-                    mean, std, n = _over_seeds(dsub, expected, col)
-                    cells.append(mean)
-                    spread.append(std)
-                    counts.append(n)
-                v1 += [_over_seeds(dsub, expected, "miou_v1")[0], _over_seeds(dsub, expected, "macc_v1")[0]]
-            else:
-                cells += [None, None]
-                v1 += [None, None]
-                spread += [None, None]
-                if have:
-                    notes.append(f"{method} on {d}: {len(have & set(expected))}/{len(expected)} "
-                                 "sequences run, no average")
-        seeds = min((c for c in counts if c), default=1) if source != "published" else None
-        rows.append(_row(method, source, sub, cells, v1, legend, spread or None, seeds))
-    table_rows = _sorted(rows)
-    notes = legend.notes() + notes + [METRIC_NOTE]
-    if any(r.seeds and r.seeds > 1 for r in rows):
-        notes.append(SPREAD_NOTE)
+            complete = bool(expected) and set(expected) <= have
+            spans.append((dsub if complete else None, expected))
+            if have and not complete:
+                notes.append(f"{method} on {d}: {len(have & set(expected))}/{len(expected)} "
+                             "sequences run, no average")
+        rows.append(_row(method, source, sub, *_measured(spans), legend=legend))
+    notes = legend.notes() + notes + [METRIC_NOTE] + ([SPREAD_NOTE] if _any_seeds(rows) else [])
     if variant == "real":
         notes.append(PUBLISHED_NOTE)
     title = f"Segmentation in novel views ({variant} data): mIoU / mAcc per benchmark"
-    return Table(title, groups, table_rows, notes)
+    return Table(title, groups, _sorted(rows), notes)
+
+
+def _measured(spans: list[tuple[pd.DataFrame | None, list[str]]]) -> tuple[list, list, list | None, int]:
+    """Cells of a measured row, one (mIoU, mAcc) pair per (runs, sequences) span (runs None:
+    no cell) -> (cells, v1 cells, spread over seeds, seeds: the fewest behind a cell)."""
+    cells, v1, spread, counts = [], [], [], []
+    for part, sequences in spans:
+        if part is None:
+            cells += [None, None]
+            v1 += [None, None]
+            spread += [None, None]
+            continue
+        for col in ("miou", "macc"):
+            mean, std, n = _over_seeds(part, sequences, col)
+            cells.append(mean)
+            spread.append(std)
+            counts.append(n)
+        v1 += [_over_seeds(part, sequences, "miou_v1")[0], _over_seeds(part, sequences, "macc_v1")[0]]
+    return cells, v1, spread or None, min((c for c in counts if c), default=1)
+
+
+def _any_seeds(rows: list[Row]) -> bool:
+    return any(r.seeds and r.seeds > 1 for r in rows)
 
 
 def sequence_table(df: pd.DataFrame, variant: str, dataset: str) -> Table:
     seqs = _expected_sequences(df, variant, dataset)
     rows, legend = [], ProtocolLegend()
     for (method, source), sub in df[df.dataset == dataset].groupby(["method", "source"]):
-        cells: list[float | None] = []
-        v1: list[float | None] = []
-        spread: list[float | None] = []
-        counts: list[int] = []
-        for s in seqs:
-            if source == "published":
-                hit = sub[sub.sequence == s]
-                cells += [_value(hit.miou), _value(hit.macc)]
-                v1 += [None, None]
-                continue
-            for col in ("miou", "macc"):
-                mean, std, n = _over_seeds(sub, [s], col)
-                cells.append(mean)
-                spread.append(std)
-                counts.append(n)
-            v1 += [_over_seeds(sub, [s], "miou_v1")[0], _over_seeds(sub, [s], "macc_v1")[0]]
-        if all(c is None for c in cells):
-            continue
-        seeds = min((c for c in counts if c), default=1) if source != "published" else None
-        rows.append(_row(method, source, sub, cells, v1, legend, spread or None, seeds))
+        if source == "published":
+            cells = [x for q in seqs for x in (_value(sub[sub.sequence == q].miou), _value(sub[sub.sequence == q].macc))]
+            row = _row(method, source, sub, cells, None, legend=legend)
+        else:
+            row = _row(method, source, sub, *_measured([(sub, [q]) for q in seqs]), legend=legend)
+        if any(c is not None for c in row.cells):
+            rows.append(row)
     name = DATASETS[dataset].display_name if dataset in DATASETS else dataset
-    notes = legend.notes() + [METRIC_NOTE]
-    if any(r.seeds and r.seeds > 1 for r in rows):
-        notes.append(SPREAD_NOTE)
+    notes = legend.notes() + [METRIC_NOTE] + ([SPREAD_NOTE] if _any_seeds(rows) else [])
     return Table(f"{name} per sequence ({variant} data)", seqs, _sorted(rows), notes)
 
 
@@ -298,7 +296,7 @@ def _cells(table: Table, bold: callable, pm: str = "±", approx: str = "≈") ->
             sd = row.spread[i] if row.spread else None
             if v is not None and sd is not None:
                 t += f" {pm} {_fmt(sd)}"
-            if table.within_spread(row, i):
+            if table.within_spread(row, i, best[i]):
                 t = f"{approx}{t}"
             if v is not None and v1[i] is not None and _fmt(v1[i]) != _fmt(v):
                 t += f" (v1 {_fmt(v1[i])})"

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmark.errors import UserError
 from benchmark.io import atomic_write_bytes, atomic_write_text
 from benchmark.results import load_results
 from benchmark.runs import protocol, protocol_label
@@ -132,13 +133,13 @@ def _click_set_rows(record: dict) -> str:
 def _seed_section(record: dict, run_dir: Path) -> str:
     """The other seeds of this config beside this run (its sequence directory), with the
     clustering agreement between them."""
-    from benchmark.runs import find_runs
-    from benchmark.stability import format_summary, seed_siblings, seed_summary
+    from benchmark.runs import find_runs, seed_siblings
+    from benchmark.stability import format_summary, seed_summary
 
     try:
         candidates = find_runs(run_dir.parent, warn=lambda m: None)
-    except Exception:  # noqa: BLE001 - a broken sibling must not stop this run's report
-        return ""
+    except UserError as exc:  # a broken sibling must not stop this run's report
+        return f"<p>Other seeds not read: {html.escape(str(exc))}</p>"
     sibs = seed_siblings(record, candidates)
     if len(sibs) < 2:
         return "<p>One seed of this config (run others with <code>--seeds N</code>).</p>"

@@ -401,17 +401,18 @@ def render_clusters(fitted, camera) -> np.ndarray:
 
 
 def score_click_sets(method, fitted, scene, prompts, gts: list[np.ndarray], names: list[str],
-                     rendered: dict[tuple, list[np.ndarray]] | None = None) -> dict | None:
-    """Official mIoU of every click set (trase.prompts: set 0 is the score's own clicks) ->
-    per set (its clicks' clusters, the clusters chosen, mIoU) and median / worst / best.
-    None with a single set. ``rendered``: masks already rendered, by chosen clusters."""
+                     first: dict, first_preds: list[np.ndarray]) -> dict | None:
+    """Official mIoU of every click set (trase.prompts) -> per set (its clicks, the cluster
+    each chose, the clusters chosen, mIoU) and median / worst / best; None with a single set.
+    Set 0 is the run's own clicks: ``first`` (its entry, already scored) and ``first_preds``;
+    a set choosing clusters already rendered reuses their masks."""
     sets = prompts.click_sets()
     if len(sets) < 2:
         return None
-    rendered = dict(rendered or {})  # clusters -> masks: sets that agree render once
-    out = []
-    for j, p in enumerate(sets):
-        entry: dict = {"set": j, "clicks": [[c.view_index, round(c.u, 1), round(c.v, 1)] for c in p.clicks]}
+    rendered = {tuple(first.get("selected", ())): first_preds}
+    out = [first]
+    for j, p in enumerate(sets[1:], start=1):
+        entry: dict = {"set": j, "clicks": _click_list(p)}
         if getattr(method, "selects_clusters", False) and fitted.gaussians is not None:
             per_click = method.click_clusters(fitted, scene, p)
             chosen = tuple(sorted({k for k in per_click if k >= 0}))
@@ -427,6 +428,10 @@ def score_click_sets(method, fitted, scene, prompts, gts: list[np.ndarray], name
     return {"n": len(out), "median": float(np.median(scores)), "worst": float(scores.min()),
             "best": float(scores.max()), "sets": out,
             "note": "official mIoU per click set; set 0 gives the run's score"}
+
+
+def _click_list(prompts) -> list[list[float]]:
+    return [[c.view_index, round(c.u, 1), round(c.v, 1)] for c in prompts.clicks]
 
 
 def evaluate(method, fitted, scene, prompts, directory: Path) -> dict:
@@ -452,17 +457,18 @@ def evaluate(method, fitted, scene, prompts, directory: Path) -> dict:
             from benchmark.stability import save_cluster_maps
 
             save_cluster_maps(d, fitted, {n: scene.test[names.index(n)].camera for n in shown})
+    official = score_masks(dict(zip(names, preds)), dict(zip(names, gts)), "official")
+    per_click = fitted.stats.get("click_clusters")  # methods that choose clusters by clicks
+    first = {"set": 0, "clicks": _click_list(prompts), "miou": official.miou}
+    if per_click is not None:
+        first |= {"click_clusters": list(per_click), "selected": selected}
     out = {
         "v1": score_masks(dict(zip(names, preds)), dict(zip(names, gts)), "v1"),
-        "official": score_masks(dict(zip(names, preds)), dict(zip(names, gts)), "official"),
+        "official": official,
         "selected": selected,
-        "click_sets": score_click_sets(method, fitted, scene, prompts, gts, names,
-                                       {tuple(sorted(selected)): preds}),
+        "click_clusters": per_click,
+        "click_sets": score_click_sets(method, fitted, scene, prompts, gts, names, first, preds),
     }
-    if out["click_sets"] and "click_clusters" in out["click_sets"]["sets"][0]:
-        out["click_clusters"] = out["click_sets"]["sets"][0]["click_clusters"]
-    elif getattr(method, "selects_clusters", False) and fitted.gaussians is not None:
-        out["click_clusters"] = method.click_clusters(fitted, scene, prompts)
     if hasattr(method, "segment_oracle"):
         opreds, oclusters = method.segment_oracle(fitted, scene, gts)
         out["oracle"] = score_masks(dict(zip(names, opreds)), dict(zip(names, gts)), "v1")
@@ -591,7 +597,7 @@ def run_sequence(opts: RunOptions, sequence: str | None, reporter: Reporter, ind
         "n_gaussians": int(fitted.features.shape[0]),
         "n_clusters": int(fitted.stats.get("n_clusters", 0)),
         "selected_clusters": ev["selected"],
-        "click_clusters": ev.get("click_clusters"),  # per click of the prompts, in order
+        "click_clusters": ev["click_clusters"],  # per click of the prompts, in order
         "click_sets": ev["click_sets"],
         "feature_space": fitted.stats.get("feature_space"),
         # the model itself (gaussians + features + deformation, float32), as the paper's storage

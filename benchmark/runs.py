@@ -226,8 +226,20 @@ def one_config_per_row(records: list[dict]) -> list[dict]:
             dirs = ", ".join(f"{r['_dir']} ({kind(r)}, made {str(r.get('created', '?'))[:16]})" for r in recs)
             raise RunError(f"{method} on {dataset}/{sequence}: {len(recs)} runs with {what}: {dirs}; "
                            "choose one with --run DIR (or remove the stale one)")
-        newest: dict[int, dict] = {}
-        for r in sorted(recs, key=lambda r: str(r.get("created", ""))):
-            newest[seed(r)] = r
-        out += [newest[s] for s in sorted(newest)]
+        out += newest_per_seed(recs)
     return out
+
+
+def newest_per_seed(records: list[dict]) -> list[dict]:
+    """Of runs of one config, the newest of each seed (a rerun replaces), in seed order."""
+    newest: dict[int, dict] = {}
+    for r in sorted(records, key=lambda r: str(r.get("created", ""))):
+        newest[seed(r)] = r
+    return [newest[s] for s in sorted(newest)]
+
+
+def seed_siblings(record: dict, candidates: list[dict]) -> list[dict]:
+    """The runs among ``candidates`` of ``record``'s config on its scene, one per seed (the
+    newest), itself included."""
+    key = (row_key(record), group(record), scene_identity(record))
+    return newest_per_seed([r for r in candidates if (row_key(r), group(r), scene_identity(r)) == key])

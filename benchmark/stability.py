@@ -35,6 +35,8 @@ def cluster_id_map(gaussians, deformation, labels: np.ndarray, camera, min_alpha
 
     labels = np.asarray(labels, np.int64)
     n_clusters = int(labels.max()) + 1 if labels.size else 0
+    if n_clusters == 0:
+        return np.full((camera.height, camera.width), -1, np.int64)
     with torch.no_grad():
         means, quats, scales = deformed(gaussians, deformation, camera.time)
         opac = gaussians.opacities.detach()
@@ -42,8 +44,8 @@ def cluster_id_map(gaussians, deformation, labels: np.ndarray, camera, min_alpha
         best = torch.full((camera.height, camera.width), -1.0, dtype=means.dtype)
         ids = torch.full((camera.height, camera.width), -1, dtype=torch.int64)
         alpha = None
-        for start in range(0, max(n_clusters, 1), CHUNK):
-            k = min(CHUNK, n_clusters - start) if n_clusters else 1
+        for start in range(0, n_clusters, CHUNK):
+            k = min(CHUNK, n_clusters - start)
             onehot = (lab[:, None] == torch.arange(start, start + k)[None, :]).to(means.dtype)
             out = rasterize(means, quats, scales, opac, camera, features=onehot)
             alpha = out.alpha if alpha is None else alpha
@@ -51,8 +53,6 @@ def cluster_id_map(gaussians, deformation, labels: np.ndarray, camera, min_alpha
             better = w > best
             best = torch.where(better, w, best)
             ids = torch.where(better, arg + start, ids)
-        if n_clusters == 0:
-            ids[:] = -1
         ids[alpha < min_alpha] = -1
     return ids.numpy()
 
@@ -144,18 +144,6 @@ def geometry_checksum(gaussians) -> str:
     for t in (gaussians.means, gaussians.log_scales, gaussians.quats, gaussians.opacity_logits):
         h.update(t.detach().cpu().float().numpy().tobytes())
     return h.hexdigest()[:16]
-
-
-def seed_siblings(record: dict, candidates: list[dict]) -> list[dict]:
-    """The runs among ``candidates`` of the same config and sequence as ``record`` (every seed,
-    itself included; one per seed, the newest)."""
-    key = (record["method"], record["dataset"], record["sequence"], record["run"]["group"],
-           (record.get("checksums") or {}).get("gt"))
-    newest: dict[int, dict] = {}
-    for r in sorted(candidates, key=lambda r: str(r.get("created", ""))):
-        if (r["method"], r["dataset"], r["sequence"], r["run"]["group"], (r.get("checksums") or {}).get("gt")) == key:
-            newest[r["run"]["seed"]] = r
-    return [newest[s] for s in sorted(newest)]
 
 
 def seed_summary(records: list[dict]) -> dict:

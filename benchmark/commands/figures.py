@@ -25,8 +25,9 @@ def figures(out_dir, seeds, formats, geometries, collect_only, data_path, readme
     --seeds run seeds), summarise mean ± std over seeds into --data with the commit and machine,
     print the table, and with --write-readme put it into the README's figures block.
 
-    The whole measurement is about 2 h 30 min on 2 CPU cores (15 reconstructions); every stage
-    is cached under --out, so an interrupted run resumes.
+    The whole measurement takes hours on 2 CPU cores (15 reconstructions of several minutes
+    each); every stage is cached under --out and measured runs are kept, so an interrupted
+    measurement resumes.
     """
     from benchmark.config import parse_seeds
     from benchmark.figures import (

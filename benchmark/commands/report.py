@@ -20,7 +20,7 @@ from benchmark.report import make_report
 def report(method: str, dataset: str, sequence: str, name: str | None, out_dir: str) -> None:
     """Write report.html (test views with predicted and ground-truth masks, per-frame IoU,
     clusters, stage timings, config) next to the run's results.json."""
-    from benchmark.runs import load_run
+    from benchmark.runs import load_run, newest_per_seed
 
     seq_dir = Path(out_dir) / method / dataset / sequence
     if name is not None:
@@ -36,14 +36,6 @@ def report(method: str, dataset: str, sequence: str, name: str | None, out_dir: 
             raise UserError(f"{seq_dir}: {len(mains)} main runs with different configs "
                             f"({', '.join(Path(r['_dir']).name for r in mains)}); choose one with --name")
         # the lowest seed (its siblings' scores are in the report), newest if rerun
-        run = min(mains, key=lambda r: (r["run"]["seed"], -_time(r)))
+        run = newest_per_seed(mains)[0]
     click.echo(f"wrote {make_report(Path(run['_dir']))}")
 
-
-def _time(record: dict) -> float:
-    import datetime
-
-    try:
-        return datetime.datetime.fromisoformat(str(record.get("created"))).timestamp()
-    except ValueError:
-        return 0.0

@@ -191,7 +191,11 @@ class TraseMethod(Method):
         return sorted({k for k in self.click_clusters(fitted, scene, prompts) if k >= 0})
 
     def segment(self, fitted: FittedModel, scene, prompts) -> list[np.ndarray]:
-        clusters = self.select(fitted, scene, prompts) if fitted.gaussians is not None else []
+        """Masks of the test views for the clusters the clicks choose; records the cluster of
+        each click (``stats["click_clusters"]``) and the chosen set (``selected_clusters``)."""
+        per_click = self.click_clusters(fitted, scene, prompts) if fitted.gaussians is not None else []
+        clusters = sorted({k for k in per_click if k >= 0})
+        fitted.stats["click_clusters"] = per_click
         fitted.stats["selected_clusters"] = clusters
         return self.render_selection(fitted, scene, clusters)
 

@@ -30,9 +30,10 @@ def test_cluster_id_map_is_the_dominant_cluster_and_chunks_agree(monkeypatch):
         assert np.array_equal(got == obj, want[obj])
     # many clusters, rendered CHUNK at a time: the same map up to the renaming
     fine = ids * 40 + np.arange(ids.size) % 40  # 80 clusters, 3 chunks
-    coarse = np.where(cluster_id_map(gm, deform, fine, v.camera) >= 0,
-                      cluster_id_map(gm, deform, fine, v.camera) // 40, -1)
+    fine_map = cluster_id_map(gm, deform, fine, v.camera)
+    coarse = np.where(fine_map >= 0, fine_map // 40, -1)
     assert CHUNK < 80 and ((coarse == got).mean() > 0.97)
+    assert (cluster_id_map(gm, deform, ids[:0], v.camera) == -1).all()  # no clusters: no surface
 
 
 def test_ari_per_gaussian_and_pixel(tmp_path):
@@ -42,30 +43,26 @@ def test_ari_per_gaussian_and_pixel(tmp_path):
     renamed = types.SimpleNamespace(gaussians=gm, deformation=deform, labels=1 - ids)
     split = types.SimpleNamespace(gaussians=gm, deformation=deform,
                                   labels=np.arange(ids.size) % 2)  # unrelated to the objects
+    maps = {name: tmp_path / name / "clusters" for name in "abc"}  # as in a run directory
     for name, f in (("a", fitted), ("b", renamed), ("c", split)):
-        save_cluster_maps(tmp_path / name, f, cams)
-    assert gaussian_ari(tmp_path / "a", tmp_path / "b") == pytest.approx(1.0)  # renaming only
-    assert pixel_ari(tmp_path / "a", tmp_path / "b") == pytest.approx(1.0)
-    assert abs(gaussian_ari(tmp_path / "a", tmp_path / "c")) < 0.05
-    assert pixel_ari(tmp_path / "a", tmp_path / "c") < 0.5
-    ids_png = cv2.imread(str(tmp_path / "a" / "ids_00000.png"), cv2.IMREAD_UNCHANGED)
+        save_cluster_maps(maps[name], f, cams)
+    assert gaussian_ari(maps["a"], maps["b"]) == pytest.approx(1.0)  # renaming only
+    assert pixel_ari(maps["a"], maps["b"]) == pytest.approx(1.0)
+    assert abs(gaussian_ari(maps["a"], maps["c"])) < 0.05
+    assert pixel_ari(maps["a"], maps["c"]) < 0.5
+    ids_png = cv2.imread(str(maps["a"] / "ids_00000.png"), cv2.IMREAD_UNCHANGED)
     assert ids_png.dtype == np.uint16 and ids_png.max() == 2  # 0 = no surface
 
-    def rec(seed, d, geo="g1"):
-        return {"run": {"seed": seed, "group": "x"}, "_dir": str(d.parent), "geometry_checksum": geo,
+    def rec(seed, name, geo="g1"):
+        return {"run": {"seed": seed, "group": "x"}, "_dir": str(tmp_path / name), "geometry_checksum": geo,
                 "metrics": {"official": {"miou": 0.5 + 0.1 * seed}}, "oracle": None, "ceiling": {"miou": 0.9}}
 
-    for name in "abc":
-        (tmp_path / name).rename(tmp_path / name / ".." / f"{name}_clusters")
-        (tmp_path / name).mkdir()
-        (tmp_path / f"{name}_clusters").rename(tmp_path / name / "clusters")
-    ag = seed_agreement([rec(1, tmp_path / "b" / "clusters"), rec(0, tmp_path / "a" / "clusters")])
+    ag = seed_agreement([rec(1, "b"), rec(0, "a")])
     assert ag["pairs"][0]["seeds"] == [0, 1] and ag["gaussian_ari"] == pytest.approx(1.0)
-    other_geometry = seed_agreement([rec(0, tmp_path / "a" / "clusters"), rec(1, tmp_path / "c" / "clusters", "g2")])
+    other_geometry = seed_agreement([rec(0, "a"), rec(1, "c", "g2")])
     assert other_geometry["gaussian_ari"] is None and other_geometry["pixel_ari"] is not None
-    assert seed_agreement([rec(0, tmp_path / "a" / "clusters")]) is None
-    s = seed_summary([rec(0, tmp_path / "a" / "clusters"), rec(1, tmp_path / "b" / "clusters"),
-                      rec(2, tmp_path / "c" / "clusters")])
+    assert seed_agreement([rec(0, "a")]) is None
+    s = seed_summary([rec(0, "a"), rec(1, "b"), rec(2, "c")])
     assert s["miou"]["mean"] == pytest.approx(0.6) and s["miou"]["std"] == pytest.approx(0.1) and s["miou"]["n"] == 3
     assert s["oracle"] is None and s["ceiling"]["std"] == pytest.approx(0.0)
     assert geometry_checksum(gm) == geometry_checksum(tiny_scene()[0]) != geometry_checksum(tiny_scene(seed=1)[0])
