@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from benchmark.datasets.truth import MANIFEST
 from benchmark.errors import UserError
 from masks.generate import read_instance_map  # [H, W] int64 ids; one-line error naming the file
 
@@ -69,21 +70,13 @@ def truth_selection(votes: np.ndarray, object_ids: Sequence[int]) -> np.ndarray:
 
 def synthetic_truth(scene) -> tuple[list[int], dict[str, Path], int]:
     """(ids of the objects of interest, instance map path per view name, number of ids) of a
-    synthetic scene, from its manifest."""
-    from benchmark.runner import synthetic_manifest
-
-    path, man = synthetic_manifest(scene)
-    try:
-        objects = man["objects"]
-        wanted = set(man["objects_of_interest"])
-        ids = [int(o["id"]) for o in objects if o["name"] in wanted]
-        maps = {str(k): path.parent / v for k, v in man["instances"].items()}
-        n_ids = max([int(o["id"]) for o in objects] + [0]) + 1
-    except (KeyError, TypeError, ValueError) as exc:
-        raise CeilingError(f"{path}: synthetic manifest lacks objects/instances ({exc})") from None
-    if not ids:
-        raise CeilingError(f"{path}: no objects of interest in the synthetic manifest")
-    return ids, maps, n_ids
+    synthetic scene (``scene.truth``)."""
+    truth = scene.truth
+    if truth is None:
+        raise CeilingError(f"{scene.root}: not a synthetic scene (no {MANIFEST}); no ceiling")
+    if not truth.interest_ids:
+        raise CeilingError(f"{truth.manifest_path}: no objects of interest in the synthetic manifest")
+    return truth.interest_ids, truth.instance_maps, truth.n_ids
 
 
 # votes come from at most this many training views, evenly spread: a 17-camera x 300-frame

@@ -215,7 +215,7 @@ def stage_masks(cache: StageCache, scene, cfg: dict, scene_key: str, progress: b
     def work(d: Path) -> dict:
         instance_maps = None
         if mcfg["generator"] == "synthetic":
-            instance_maps = synthetic_instance_maps(scene)
+            instance_maps = synthetic_truth(scene).instance_maps
         gen = make_mask_generator(mcfg)
         paths = masklib.generate_scene_masks(scene.train, gen, d, progress=progress,
                                              instance_maps=instance_maps)
@@ -238,28 +238,11 @@ def make_mask_generator(mcfg: dict):
     return make_generator(g)
 
 
-def synthetic_manifest(scene) -> tuple[Path, dict]:
-    from benchmark.io import read_json
-
-    path = scene.extras.get("synthetic_manifest")
-    if not path:
+def synthetic_truth(scene):
+    """The scene's truth (benchmark.datasets.truth); a clear error on real data."""
+    if scene.truth is None:
         raise ConfigError(f"{scene.root}: not a synthetic scene (no synthetic/manifest.json)")
-    return Path(path), read_json(path, "synthetic manifest")
-
-
-def synthetic_scene_info(scene) -> dict | None:
-    """Which synthetic scene a result was measured on (None on real data): generator version,
-    seed, size and difficulty (results of the standard and hard scenes must never be mixed)."""
-    if not scene.extras.get("synthetic_manifest"):
-        return None
-    _, manifest = synthetic_manifest(scene)
-    keys = ("generator_version", "seed", "size", "difficulty", "frames_per_camera", "motion_span")
-    return {k: manifest.get(k) for k in keys}
-
-
-def synthetic_instance_maps(scene) -> dict[str, Path]:
-    path, manifest = synthetic_manifest(scene)
-    return {name: path.parent / rel for name, rel in manifest["instances"].items()}  # relative to manifest
+    return scene.truth
 
 
 def stage_geometry(cache: StageCache, scene, cfg: dict, scene_key: str, progress: bool) -> StageRecord:
@@ -271,8 +254,7 @@ def stage_geometry(cache: StageCache, scene, cfg: dict, scene_key: str, progress
 
         src = gcfg["source"]
         if src == "ground-truth":
-            npz = Path(synthetic_manifest(scene)[0]).parent / "geometry.npz"
-            shutil.copyfile(npz, d / "geometry.npz")
+            shutil.copyfile(synthetic_truth(scene).geometry_path, d / "geometry.npz")
         elif src == "import":
             if not gcfg.get("model_dir"):
                 raise ConfigError("geometry.source=import needs --set geometry.model_dir=PATH")
@@ -296,10 +278,10 @@ def stage_geometry(cache: StageCache, scene, cfg: dict, scene_key: str, progress
 
 def load_geometry(stage_dir: Path):
     """(gaussians, deformation) from a geometry stage directory."""
-    from trase.checkpoint import load_model, load_synthetic_geometry
+    from trase.checkpoint import load_model, load_tabulated_geometry
 
     if (stage_dir / "geometry.npz").exists():
-        g, deform, _ = load_synthetic_geometry(stage_dir / "geometry.npz")
+        g, deform, _ = load_tabulated_geometry(stage_dir / "geometry.npz")
         return g, deform
     return load_model(stage_dir / "model")
 
@@ -480,7 +462,7 @@ def stage_ceiling(cache: StageCache, scene, fitted, geo_key: str, gt_key: str) -
     """The geometry's label ceiling (benchmark.ceiling) on synthetic scenes, cached under the
     geometry, the ground truth and the rendering rule: every method and ablation variant run on
     one geometry reuses it. None on real data."""
-    if not scene.extras.get("synthetic_manifest") or fitted.gaussians is None:
+    if scene.truth is None or fitted.gaussians is None:
         return None
     ccfg = {"rule": str(fitted.config.get("render_rule", "alone")),
             "threshold": float(fitted.config.get("alpha_threshold", 0.5))}
@@ -579,7 +561,8 @@ def run_sequence(opts: RunOptions, sequence: str | None, reporter: Reporter, ind
         "dataset": spec.key,
         "sequence": seq,
         "variant": variant,
-        "synthetic_scene": synthetic_scene_info(scene),
+        # which synthetic scene (standard and hard results must never be mixed); None: real data
+        "synthetic_scene": dict(scene.truth.info) if scene.truth else None,
         "metrics": {**{k: v1[k] for k in ("miou", "macc", "pooled_iou", "metric", "metric_version",
                                           "n_frames", "both_empty", "missing")},
                     "official": {k: official[k] for k in ("miou", "macc", "pooled_iou", "metric_version")}},

@@ -144,8 +144,22 @@ def load_model(model_dir: str | Path, iteration: int | None = None) -> tuple[Gau
     return gaussians, load_deformation(dpath)
 
 
-def load_synthetic_geometry(npz_path: str | Path) -> tuple[GaussianModel, TabulatedDeformation, np.ndarray]:
-    """Ground-truth gaussians, their tabulated motion and object ids [N] from geometry.npz."""
+# arrays of a tabulated geometry file: gaussians at the first time, per-time offsets [T, N, *]
+TABULATED_KEYS = ("means", "log_scales", "quats", "opacity_logits", "colors", "object_ids", "times",
+                  "d_xyz", "d_rot", "d_scale")
+
+
+def save_tabulated_geometry(npz_path: str | Path, arrays: dict[str, np.ndarray]) -> None:
+    """Write gaussians with tabulated motion (``TABULATED_KEYS``; the synthetic scenes'
+    ground truth) as one compressed .npz, the file ``load_tabulated_geometry`` reads."""
+    missing = [k for k in TABULATED_KEYS if k not in arrays]
+    if missing:
+        raise ValueError(f"tabulated geometry lacks arrays {', '.join(missing)}")
+    np.savez_compressed(npz_path, **{k: arrays[k] for k in TABULATED_KEYS})
+
+
+def load_tabulated_geometry(npz_path: str | Path) -> tuple[GaussianModel, TabulatedDeformation, np.ndarray]:
+    """Gaussians, their tabulated motion and object ids [N] from a ``save_tabulated_geometry`` file."""
     path = Path(npz_path)
     if not path.is_file():
         raise CheckpointError(f"{path}: synthetic geometry file not found")
@@ -154,7 +168,7 @@ def load_synthetic_geometry(npz_path: str | Path) -> tuple[GaussianModel, Tabula
             d = {k: z[k] for k in z.files}
     except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
         raise CheckpointError(f"{path}: not a readable .npz file ({type(exc).__name__}: {exc})") from None
-    keys = ["means", "log_scales", "quats", "opacity_logits", "colors", "object_ids", "times", "d_xyz", "d_rot", "d_scale"]
+    keys = TABULATED_KEYS
     missing = [k for k in keys if k not in d]
     if missing:
         raise CheckpointError(f"{path}: missing arrays {', '.join(missing)}")

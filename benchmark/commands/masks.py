@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
@@ -15,24 +14,16 @@ def _instance_maps(scene) -> dict[str, Path]:
     """view name -> instance-id PNG, from the synthetic scene's manifest."""
     from benchmark.errors import UserError
 
-    manifest = scene.extras.get("synthetic_manifest")
-    if not manifest:
+    truth = scene.truth
+    if truth is None:
         raise UserError(f"{scene.root}: --generator synthetic needs a synthetic scene "
                         "(no synthetic/manifest.json); use classical or sam for real data")
-    manifest = Path(manifest)
-    try:
-        table = json.loads(manifest.read_text())["instances"]
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise UserError(f"{manifest}: cannot read the instance table ({type(exc).__name__}: {exc})") from None
-    out = {}
-    for name, rel in table.items():
-        # the generator writes them next to the manifest (synthetic/instances/...)
-        cands = [Path(rel)] if Path(rel).is_absolute() else [manifest.parent / rel, scene.root / rel]
-        found = next((c for c in cands if c.is_file()), None)
-        if found is None:
-            raise UserError(f"{manifest}: instance map of view {name!r} not found at {cands[0]}")
-        out[name] = found
-    return out
+    if not truth.instance_maps:
+        raise UserError(f"{truth.manifest_path}: the synthetic manifest lists no instance maps")
+    for name, path in truth.instance_maps.items():
+        if not path.is_file():
+            raise UserError(f"{truth.manifest_path}: instance map of view {name!r} not found at {path}")
+    return dict(truth.instance_maps)
 
 
 @click.command()

@@ -85,10 +85,11 @@ def load_scene(
         _check_gt_sizes(scene)
     scene.extras["gt_dir"] = str(gdir) if gdir is not None else None
 
-    manifest = scene_dir / "synthetic" / "manifest.json"
-    if manifest.is_file():
+    from benchmark.datasets.truth import find_truth
+
+    scene.truth = find_truth(scene_dir)
+    if scene.truth is not None:
         scene.variant = "synthetic"
-        scene.extras["synthetic_manifest"] = manifest
     return scene
 
 

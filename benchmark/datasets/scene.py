@@ -9,11 +9,14 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
 from trase.camera import Camera
+
+if TYPE_CHECKING:
+    from benchmark.datasets.truth import SceneTruth
 
 Variant = Literal["real", "synthetic"]
 
@@ -42,6 +45,7 @@ class Scene:
     point_colors: np.ndarray | None = None  # [N, 3] float in [0, 1], if the format has them
     gt_masks: list[Path] = dataclasses.field(default_factory=list)  # aligned with test
     variant: Variant = "real"
+    truth: SceneTruth | None = None  # synthetic scenes: objects, instance maps, geometry (datasets.truth)
     extras: dict = dataclasses.field(default_factory=dict)  # format-specific facts (scene.json ...)
 
     def __post_init__(self) -> None:

@@ -47,7 +47,7 @@ def child(out: str, size: str, iterations: int, feature_steps: int) -> None:
     from benchmark.datasets import get_dataset, load_scene
     from benchmark.datasets.synthetic import ensure_synthetic
     from benchmark.perf.reconstruct import runner_train_config
-    from trase.checkpoint import load_synthetic_geometry
+    from trase.checkpoint import load_tabulated_geometry
     from trase.features import FeatureConfig, train_features
     from trase.reconstruct import ReconstructionConfig, evaluate_psnr, reconstruct
 
@@ -66,15 +66,14 @@ def child(out: str, size: str, iterations: int, feature_steps: int) -> None:
     psnr = evaluate_psnr(g, deform, scene.test)
 
     import masks as masklib
-    from benchmark.runner import synthetic_instance_maps
 
-    gt_g, gt_deform, _ = load_synthetic_geometry(Path(scene.extras["synthetic_manifest"]).parent / "geometry.npz")
+    gt_g, gt_deform, _ = load_tabulated_geometry(scene.truth.geometry_path)
     from masks.generators.base import make_generator
 
     gen = make_generator("synthetic", seed=0)
     mask_dir = work / "masks"
     masklib.generate_scene_masks(scene.train, gen, mask_dir, progress=False,
-                                 instance_maps=synthetic_instance_maps(scene))
+                                 instance_maps=scene.truth.instance_maps)
     fcfg = FeatureConfig.preset("cpu", n_pixels=min(int(spec.n_pixels), 2000), n_masks=float(spec.n_masks))
     fcfg = FeatureConfig(**(fcfg.to_dict() | {"iterations": feature_steps}
                             | ({"torch_threads": int(threads)} if threads else {})))

@@ -84,19 +84,16 @@ def synthetic_view(dataset: str, size: str) -> dict:
     import masks as masklib
     from benchmark.datasets import get_dataset, load_scene
     from benchmark.datasets.synthetic.cache import ensure_synthetic
-    from benchmark.io import read_json
     from masks.generators.base import make_generator
-    from trase.checkpoint import load_synthetic_geometry
+    from trase.checkpoint import load_tabulated_geometry
 
     scene_dir = ensure_synthetic(dataset, size=size)
     scene = load_scene(dataset, scene_dir, gt_dir=scene_dir / "gt_masks")
-    g, deform, _ = load_synthetic_geometry(scene_dir / "synthetic" / "geometry.npz")
+    g, deform, _ = load_tabulated_geometry(scene.truth.geometry_path)
     view = scene.train[0]
-    manifest_path = scene_dir / "synthetic" / "manifest.json"
-    manifest = read_json(manifest_path, "synthetic manifest")
     work = Path(tempfile.mkdtemp(prefix="perf-features-"))
     masklib.generate_scene_masks([view], make_generator("synthetic", seed=0), work / "masks", progress=False,
-                                 instance_maps={view.name: manifest_path.parent / manifest["instances"][view.name]})
+                                 instance_maps={view.name: scene.truth.instance_maps[view.name]})
     ms = masklib.load(masklib.mask_path(work / "masks", view.name))
     return {"name": f"synthetic {dataset} ({size}), view {view.name}, ground-truth geometry",
             "gaussians": g, "deformation": deform, "camera": view.camera, "masks": ms,

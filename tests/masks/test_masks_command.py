@@ -19,7 +19,9 @@ class _View:
 class _Scene:
     def __init__(self, root, train, manifest):
         self.root, self.train, self.dataset, self.sequence = root, train, "nerfds", "synthetic"
-        self.extras = {"synthetic_manifest": manifest} if manifest else {}
+        from benchmark.datasets.truth import read_truth
+
+        self.truth = read_truth(manifest) if manifest else None
 
 
 def _fake_scene(tmp_path: Path, with_manifest=True):

@@ -141,9 +141,9 @@ def run_target(target: str, root: Path, work: Path) -> tuple[int, str, Path | No
 
             load_model(root)
         elif target == "geometry":
-            from trase.checkpoint import load_synthetic_geometry
+            from trase.checkpoint import load_tabulated_geometry
 
-            load_synthetic_geometry(root / "geometry.npz")
+            load_tabulated_geometry(root / "geometry.npz")
         else:
             raise KeyError(target)
     except Exception as exc:

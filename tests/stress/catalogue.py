@@ -146,7 +146,7 @@ TARGETS = {
     "gt": "mask images, `trase-bench score`",
     "masks": "mask file, `masks.load`",
     "checkpoint": "model directory, `trase.checkpoint.load_model`",
-    "geometry": "synthetic geometry.npz, `trase.checkpoint.load_synthetic_geometry`",
+    "geometry": "synthetic geometry.npz, `trase.checkpoint.load_tabulated_geometry`",
     "results": "results.json, `trase-bench leaderboard`",
 }
 

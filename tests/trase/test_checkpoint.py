@@ -3,7 +3,7 @@ import pytest
 import torch
 
 from trase.camera import Camera, intrinsics, look_at
-from trase.checkpoint import CheckpointError, load_model, load_synthetic_geometry, save_model
+from trase.checkpoint import CheckpointError, load_model, load_tabulated_geometry, save_model
 from trase.deformation import DeformMLP, deformed
 from trase.gaussians import GaussianModel
 from trase.render import rasterize
@@ -104,10 +104,10 @@ def _geometry(n=5, T=3):
     }
 
 
-def test_load_synthetic_geometry(tmp_path):
+def test_load_tabulated_geometry(tmp_path):
     geo = _geometry()
     np.savez(tmp_path / "geometry.npz", **geo)
-    g, d, ids = load_synthetic_geometry(tmp_path / "geometry.npz")
+    g, d, ids = load_tabulated_geometry(tmp_path / "geometry.npz")
     assert torch.allclose(g.colors_dc, torch.as_tensor(geo["colors"], dtype=torch.float32), atol=1e-6)
     assert ids.dtype == np.int32 and list(ids) == list(range(5))
     m, _, _ = deformed(g, d, 0.5)
@@ -119,14 +119,21 @@ def test_bad_synthetic_geometry(tmp_path):
     del geo["d_rot"]
     np.savez(tmp_path / "a.npz", **geo)
     with pytest.raises(CheckpointError, match="a.npz: missing arrays d_rot"):
-        load_synthetic_geometry(tmp_path / "a.npz")
+        load_tabulated_geometry(tmp_path / "a.npz")
     geo = _geometry()
     geo["d_xyz"] = geo["d_xyz"][:, :2]
     np.savez(tmp_path / "b.npz", **geo)
     with pytest.raises(CheckpointError, match="b.npz: array d_xyz has shape"):
-        load_synthetic_geometry(tmp_path / "b.npz")
+        load_tabulated_geometry(tmp_path / "b.npz")
     (tmp_path / "c.npz").write_bytes(b"not a zip")
     with pytest.raises(CheckpointError, match="c.npz: not a readable"):
-        load_synthetic_geometry(tmp_path / "c.npz")
+        load_tabulated_geometry(tmp_path / "c.npz")
     with pytest.raises(CheckpointError, match="not found"):
-        load_synthetic_geometry(tmp_path / "d.npz")
+        load_tabulated_geometry(tmp_path / "d.npz")
+
+
+def test_tabulated_geometry_writer_checks_its_arrays(tmp_path):
+    from trase.checkpoint import save_tabulated_geometry
+
+    with pytest.raises(ValueError, match="lacks arrays means"):
+        save_tabulated_geometry(tmp_path / "g.npz", {})

@@ -30,8 +30,6 @@ from .world import World
 
 DISK_SIGMA = 0.5  # tangential std of a disk, in sample spacings
 INSET = 2.0  # without a pixel footprint: disks sit this many sigmas below the surface
-GEOMETRY_KEYS = ("means", "log_scales", "quats", "opacity_logits", "colors", "object_ids", "times",
-                 "d_xyz", "d_rot", "d_scale")
 
 
 def rotmat_to_quat(R: np.ndarray) -> np.ndarray:
@@ -124,7 +122,7 @@ def _room_samples(obj, n: int):
 def build_geometry(world: World, times: np.ndarray, budget: int, inset: float | dict[str, float] = INSET,
                    footprint: Callable[[np.ndarray], np.ndarray] | None = None,
                    only: str | None = None) -> dict[str, np.ndarray]:
-    """Gaussians covering every surface + their per-time offsets (keys: ``GEOMETRY_KEYS``).
+    """Gaussians covering every surface + their per-time offsets (the arrays of ``trase.checkpoint.TABULATED_KEYS``).
 
     ``inset``: how deep each object's disks sink below its surface (one value, or one per
     object name; missing names sink 0): in pixels of ``footprint`` (points [N, 3] -> metres per

@@ -14,7 +14,6 @@ times) and ``synthetic/manifest.json``.
 from __future__ import annotations
 
 import dataclasses
-import json
 import re
 import shutil
 from collections.abc import Callable
@@ -22,8 +21,10 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmark.datasets.truth import write_manifest
 from benchmark.errors import UserError
 from trase.camera import Camera
+from trase.checkpoint import save_tabulated_geometry
 
 from . import formats
 from .fit import calibrate_insets, pixel_footprint
@@ -301,7 +302,7 @@ def _write_truth(scene, out: Path, world: World, seed: int, size: str, difficult
     train_cams = [v.camera for v in scene.train]
     insets, fit_report = calibrate_insets(world, scene.times, rs.gaussians, train_cams)
     geom = build_geometry(world, scene.times, rs.gaussians, inset=insets, footprint=pixel_footprint(train_cams))
-    np.savez_compressed(syn / "geometry.npz", **geom)
+    save_tabulated_geometry(syn / "geometry.npz", geom)
     report("geometry", 1, 1)
     manifest = {
         "generator_version": GENERATOR_VERSION,
@@ -323,4 +324,4 @@ def _write_truth(scene, out: Path, world: World, seed: int, size: str, difficult
         "geometry_fit": {"unit": "pixels of the training cameras (median depth / focal)",
                          "objects": fit_report},
     }
-    (syn / "manifest.json").write_text(json.dumps(manifest, indent=1) + "\n")
+    write_manifest(out, manifest)

@@ -170,4 +170,5 @@ def test_synthetic_manifest_sets_variant(tmp_path):
     (root / "synthetic" / "manifest.json").write_text("{}")
     scene = load_scene("hypernerf", root, "americano")
     assert scene.variant == "synthetic"
-    assert scene.extras["synthetic_manifest"] == root / "synthetic" / "manifest.json"
+    assert scene.truth.manifest_path == root / "synthetic" / "manifest.json"
+    assert scene.truth.objects == () and scene.truth.interest_ids == [] and scene.truth.info["seed"] is None
