@@ -172,7 +172,7 @@ def paper_config(method_name: str, dataset: str, variant: str, overrides: list[s
     from benchmark.config import merge, parse_overrides
     from benchmark.datasets import get_dataset
     from benchmark.methods import get_method
-    from benchmark.runner import default_config
+    from benchmark.pipeline.config import default_config
 
     spec, method = get_dataset(dataset), get_method(method_name)
     cfg = default_config(method, spec, variant, {"geometry": {"preset": "paper"}})

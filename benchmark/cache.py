@@ -36,6 +36,8 @@ STAGE_VERSIONS: dict[str, int] = {
     "ceiling": 2,  # 2: object alpha statistics; votes from at most 600 training views
     "fit": 2,  # 2: records the clustering sample's size (cluster_sample)
     "prompts": 2,  # 2: a click per object in its first frame, each naming its frame (prompts file v3)
+    # "evaluate" (1): scores, oracle and click sets; bump when scoring or segmentation code changes
+    # what it writes for the same inputs
 }
 
 

@@ -8,6 +8,7 @@ data were real or synthetic (the two never share a table).
 
 from __future__ import annotations
 
+import dataclasses
 import datetime
 import os
 import platform
@@ -62,9 +63,45 @@ def machine_info() -> dict:
     return out
 
 
-def write_results(path: Path, record: dict) -> None:
+@dataclasses.dataclass
+class RunRecord:
+    """What ``trase-bench run`` writes for one sequence (built by benchmark.pipeline.record);
+    ``write_results`` adds the schema, time, package versions and machine."""
+
+    run: dict  # benchmark.runs.run_info: name, kind, overrides, study, seed, group
+    method: str
+    dataset: str
+    sequence: str
+    variant: str  # real | synthetic
+    synthetic_scene: dict | None  # benchmark.datasets.truth.SCENE_INFO_KEYS; None on real data
+    metrics: dict  # v1 scores (REQUIRED_METRICS) + official
+    per_frame: list
+    oracle: dict | None  # clusters chosen with the ground truth
+    ceiling: dict | None  # truth-labelled gaussians (synthetic scenes)
+    stages: dict  # stage -> StageRecord.to_dict()
+    n_gaussians: int
+    n_clusters: int
+    selected_clusters: list
+    click_clusters: list | None  # per click of the prompts, in order
+    click_sets: dict | None
+    feature_space: dict | None
+    geometry_checksum: str | None
+    storage: dict | None
+    config: dict
+    config_hash: str
+    seeds: dict
+    checksums: dict  # gt, pred
+    prompts: dict
+    scene_dir: str
+    frames: list
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+def write_results(path: Path, record: RunRecord | dict) -> None:
     """Validate and write atomically; adds schema, time, versions and machine if absent."""
-    record = dict(record)
+    record = record.to_dict() if isinstance(record, RunRecord) else dict(record)
     record.setdefault("schema", SCHEMA)
     record.setdefault("created", datetime.datetime.now(datetime.timezone.utc).isoformat())
     record.setdefault("versions", package_versions())

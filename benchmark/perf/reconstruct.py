@@ -28,7 +28,7 @@ def runner_train_config(dataset: str, image_size: tuple[int, int], preset: str =
     """The geometry training settings `trase-bench run` picks for this scene and preset."""
     from benchmark.datasets import get_dataset
     from benchmark.methods import get_method
-    from benchmark.runner import default_config
+    from benchmark.pipeline.config import default_config
 
     cfg = default_config(get_method("trase"), get_dataset(dataset), "synthetic", {"geometry": {"preset": preset}},
                          image_size)

@@ -147,6 +147,7 @@ def chain(scene_root) -> dict:
         ("k1 masks stage started", _written(cache, "masks/*.partial/*", "masks/*/_stage.json")),
         ("k2 fit stage started", _written(cache, "fit/*.partial/**/*", "fit/*/_stage.json")),
         ("k3 prompts stage done", _written(cache, "prompts/*/_stage.json")),
+        ("k4 evaluate stage done", _written(cache, "evaluate/*/_stage.json")),
     ]
     killed, done_before = [], {}
     for name, moment in moments:
@@ -191,7 +192,8 @@ def test_finished_stages_are_never_recomputed(chain):
         assert after.get(key) == record, f"{key}: finished stage was recomputed or rewritten"
     r = _results(chain["out"])
     finished = {k.split("/")[0] for k in chain["done_before"]}
-    assert finished == set(r["stages"]) - {"evaluate"}, finished  # every cached stage is checked
+    # every stage is checked but the last (the ceiling may finish before or after the last kill)
+    assert finished >= set(r["stages"]) - {"ceiling"}, finished
     for stage in finished:
         assert r["stages"][stage]["skipped"], f"{stage} was finished before the last run but not reused"
 

@@ -1,0 +1,16 @@
+"""The stages of one ``trase-bench run`` sequence, each a small cached unit.
+
+Order and data flow (``benchmark.runner`` orchestrates; each stage reads ``SequenceRun``
+and adds its ``StageRecord``)::
+
+    masks     2D "anything" masks of the training views          <- scene
+    geometry  gaussians + deformation (reconstructed, truth, import) <- scene
+    features  per-gaussian features (methods that learn)          <- masks, geometry
+    fit       clusters + filter (or the whole fit)                <- features | masks, geometry
+    prompts   clicks on the objects of interest                   <- ground truth
+    evaluate  predicted masks, scores, oracle, click sets         <- fit, prompts, ground truth
+    ceiling   the geometry's label ceiling (synthetic scenes)     <- geometry, ground truth
+
+``config`` resolves the run's config (presets, seeds, --set) once; ``record`` turns the stage
+records into the typed results record (benchmark.results.RunRecord).
+"""

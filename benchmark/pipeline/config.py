@@ -1,0 +1,104 @@
+"""The run's config, resolved once: dataset and variant defaults, the preset, the run seed
+written into every seeded section, then the ``--set`` overrides (a misspelt key is an error)."""
+
+from __future__ import annotations
+
+from benchmark.config import ConfigError, merge
+
+CPU_TRAIN_MAX_SIDE = 480  # px: the cpu preset's geometry trains at most this large
+
+
+def cpu_train_downscale(image_size: tuple[int, int] | None) -> float:
+    """Power-of-two factor bringing the (W, H) benchmark images to at most CPU_TRAIN_MAX_SIDE.
+
+    Why not always downscale: the geometry is rendered at full resolution for evaluation, and
+    gaussians fitted at half resolution leave holes there (synthetic HyperNeRF 160x120,
+    `trase-bench perf reconstruct`, 2000 iterations: 18.6 dB test PSNR at full resolution when
+    trained at half, 24.7 dB when trained at full (3000-step LR decay), in 125 s vs 135 s: an
+    iteration costs nearly the same at this size, the deformation MLP over the gaussians
+    dominating). Real images (960x536 and up) are still reduced, where per-pixel work
+    dominates.
+    """
+    if not image_size:
+        return 1.0
+    side, ds = max(image_size), 1
+    while side / ds > CPU_TRAIN_MAX_SIDE:
+        ds *= 2
+    return float(ds)
+
+
+# where the run seed goes: every random choice of the method's pipeline (gaussian
+# initialisation and densification, pixel/mask sampling of feature training, the clustering
+# sample). The 2D masks are the benchmark's input and keep their own seed (masks.seed).
+SEED_PATHS = (("geometry", "train", "seed"), ("method", "features", "seed"), ("method", "clustering", "seed"))
+
+
+def run_seed(overrides: dict) -> int:
+    """The run seed of ``--set seed=S`` (default 0), checked."""
+    seed = overrides.get("seed", 0)
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise ConfigError(f"--set seed={seed!r}: the run seed is a whole number >= 0")
+    return seed
+
+
+def apply_seed(cfg: dict, seed: int) -> dict:
+    """Write the run seed into every section that has a seed (SEED_PATHS), in place."""
+    cfg["seed"] = seed
+    for path in SEED_PATHS:
+        node = cfg
+        for p in path[:-1]:
+            node = node.get(p) if isinstance(node, dict) else None
+        if isinstance(node, dict) and path[-1] in node:
+            node[path[-1]] = seed
+    return cfg
+
+
+def without_seed(overrides: dict) -> dict:
+    return {k: v for k, v in overrides.items() if k != "seed"}
+
+
+def default_config(method, spec, variant: str, overrides: dict,
+                   image_size: tuple[int, int] | None = None) -> dict:
+    """Full config of one run: defaults for the dataset and variant, the run seed (``--set
+    seed=S``, written into every seeded section), then ``overrides`` (an explicit
+    ``method.features.seed`` still wins). ``image_size`` (W, H) of the benchmark images picks
+    the cpu preset's training resolution."""
+    import torch
+
+    from trase.reconstruct import ReconstructionConfig
+
+    geo_over = overrides.get("geometry", {})
+    preset = geo_over.get("preset", "auto")
+    if preset == "auto":
+        preset = "paper" if torch.cuda.is_available() else "cpu"
+    if preset not in ("paper", "cpu", "cpu-v1"):
+        raise ConfigError(f"--set geometry.preset={preset}: choose auto, paper, cpu or cpu-v1")
+    sched = {"warm_up": spec.warm_up, "densify_until": spec.densify_until}
+    if preset == "paper":
+        train = ReconstructionConfig.paper(**sched)
+    else:
+        # a few CPU minutes (ReconstructionConfig.cpu; cpu-v1: the first CPU preset, kept for
+        # comparisons). Training resolution: see cpu_train_downscale.
+        make = ReconstructionConfig.cpu if preset == "cpu" else ReconstructionConfig.cpu_v1
+        train = make(image_downscale=cpu_train_downscale(image_size))
+    base = {
+        "masks": {
+            "generator": "synthetic" if variant == "synthetic" else "classical",
+            "checkpoint": None,  # SAM checkpoint path (generator "sam")
+            "seed": 0,
+        },
+        "geometry": {
+            "source": "reconstruct",  # reconstruct | ground-truth (synthetic) | import
+            "preset": preset,
+            "model_dir": None,  # for source=import: a Deformable-3DGS/TRASE model directory
+            "train": train.to_dict(),
+        },
+        "method": method.default_config(spec),
+        # clicks on every object of interest, in the first test frame it appears in
+        # (trase.prompts; "gt-first-frame": the first non-empty frame only)
+        "prompts": {"rule": "gt-first-appearance",
+                    # click sets scored beside the run's own (trase.prompts): 1 = the single-click
+                    # protocol alone
+                    "click_sets": 5},
+    }
+    return merge(apply_seed(base, run_seed(overrides)), overrides)

@@ -1,0 +1,50 @@
+"""What every stage of one sequence reads: the scene, the resolved config, the method, the
+stage cache and the records of the stages before it."""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import hashlib
+import json
+import os
+
+import numpy as np
+
+from benchmark.cache import StageCache, StageRecord
+
+
+@dataclasses.dataclass
+class SequenceRun:
+    cache: StageCache
+    scene: object  # benchmark.datasets.Scene
+    cfg: dict  # the resolved run config (benchmark.pipeline.config)
+    method: object  # benchmark.methods.Method
+    progress: bool
+    scene_key: str  # scene_fingerprint(scene)
+    gt_key: str  # checksum of the ground-truth masks
+    records: dict[str, StageRecord] = dataclasses.field(default_factory=dict)
+
+    @functools.cached_property
+    def geometry(self) -> tuple:
+        """(gaussians, deformation) of the geometry stage, loaded at most once per sequence and
+        only by a stage that has to run."""
+        from benchmark.pipeline.geometry import load_geometry
+
+        return load_geometry(self.records["geometry"].path)
+
+
+def scene_fingerprint(scene) -> str:
+    """Key of the input data: cameras, times and each image's name, size and mtime."""
+    h = hashlib.sha256()
+    for v in scene.train + scene.test:
+        st = os.stat(v.image_path)
+        h.update(json.dumps([v.name, v.camera.to_dict(), str(v.image_path), st.st_size,
+                             st.st_mtime_ns], sort_keys=True).encode())
+    h.update(np.ascontiguousarray(scene.points, dtype=np.float64).tobytes())
+    return h.hexdigest()[:16]
+
+
+def jsonable(obj):
+    """``obj`` with numpy values turned into plain JSON values."""
+    return json.loads(json.dumps(obj, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))

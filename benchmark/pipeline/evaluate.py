@@ -1,0 +1,153 @@
+"""Stage ``evaluate``: predicted masks at every test view (pred/*.png), both metric versions,
+the oracle, every click set's score, cluster pictures; cached like the other stages, so a
+rerun of a finished config renders nothing."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from benchmark.cache import StageRecord
+from benchmark.io import atomic_directory
+from benchmark.pipeline.context import SequenceRun, jsonable
+from benchmark.pipeline.prompts import load_prompts
+from benchmark.scoring import read_mask, score_masks
+
+OUTPUT_DIRS = ("pred", "clusters")  # copied into the run's directory
+N_SHOWN = 8  # test views rendered with cluster colours (and cluster id maps for benchmark.stability)
+
+
+def cluster_colours(labels: np.ndarray, seed: int = 0) -> np.ndarray:
+    """[N] cluster ids -> [N, 3] RGB in [0, 1], a fixed random colour per cluster."""
+    rng = np.random.default_rng(seed)
+    palette = rng.uniform(0.15, 1.0, size=(int(labels.max()) + 2 if labels.size else 1, 3))
+    return palette[np.asarray(labels, np.int64)]
+
+
+def render_clusters(fitted, camera) -> np.ndarray:
+    """Test view rendered with one colour per cluster -> uint8 [H, W, 3]."""
+    import torch
+
+    from trase.deformation import deformed
+    from trase.render import rasterize
+
+    g = fitted.gaussians
+    with torch.no_grad():
+        means, quats, scales = deformed(g, fitted.deformation, camera.time)
+        colours = torch.as_tensor(cluster_colours(fitted.labels), dtype=means.dtype)
+        out = rasterize(means, quats, scales, g.opacities.detach(), camera, colors=colours)
+    return (out.color.clamp(0, 1).numpy() * 255).astype(np.uint8)
+
+
+def _click_list(prompts) -> list[list[float]]:
+    return [[c.view_index, round(c.u, 1), round(c.v, 1)] for c in prompts.clicks]
+
+
+def score_click_sets(method, fitted, scene, prompts, gts: list[np.ndarray], names: list[str],
+                     first: dict, first_preds: list[np.ndarray]) -> dict | None:
+    """Official mIoU of every click set (trase.prompts) -> per set (its clicks, the cluster
+    each chose, the clusters chosen, mIoU) and median / worst / best; None with a single set.
+    Set 0 is the run's own clicks: ``first`` (its entry, already scored) and ``first_preds``;
+    a set choosing clusters already rendered reuses their masks."""
+    sets = prompts.click_sets()
+    if len(sets) < 2:
+        return None
+    rendered = {tuple(first.get("selected", ())): first_preds}
+    out = [first]
+    for j, p in enumerate(sets[1:], start=1):
+        entry: dict = {"set": j, "clicks": _click_list(p)}
+        if getattr(method, "selects_clusters", False) and fitted.gaussians is not None:
+            per_click = method.click_clusters(fitted, scene, p)
+            chosen = tuple(sorted({k for k in per_click if k >= 0}))
+            if chosen not in rendered:
+                rendered[chosen] = method.render_selection(fitted, scene, list(chosen))
+            preds = rendered[chosen]
+            entry |= {"click_clusters": per_click, "selected": list(chosen)}
+        else:
+            preds = method.segment(fitted, scene, p)
+        entry["miou"] = score_masks(dict(zip(names, preds)), dict(zip(names, gts)), "official").miou
+        out.append(entry)
+    scores = np.array([e["miou"] for e in out], dtype=float)
+    return {"n": len(out), "median": float(np.median(scores)), "worst": float(scores.min()),
+            "best": float(scores.max()), "sets": out,
+            "note": "official mIoU per click set; set 0 gives the run's score"}
+
+
+def evaluate(method, fitted, scene, prompts, directory: Path) -> dict:
+    """Predicted masks for every test view -> ``directory``/pred/*.png and clusters/, and the
+    scores (v1 and official, as dicts), oracle, scores of the other click sets, model facts."""
+    import cv2
+
+    from benchmark.stability import geometry_checksum, save_cluster_maps
+    from trase.checkpoint import model_storage
+
+    preds = method.segment(fitted, scene, prompts)
+    if len(preds) != len(scene.test):
+        raise RuntimeError(f"{method.name}.segment returned {len(preds)} masks for {len(scene.test)} test views")
+    selected = list(fitted.stats.get("selected_clusters", []))
+    gts = [read_mask(p) for p in scene.gt_masks]
+    names = [f"{i:05d}" for i in range(len(scene.test))]
+    with atomic_directory(directory / "pred") as d:
+        for n, m in zip(names, preds):
+            cv2.imwrite(str(d / f"{n}.png"), m.astype(np.uint8) * 255)
+    shown = names[:: max(1, len(names) // N_SHOWN)][:N_SHOWN]
+    with atomic_directory(directory / "clusters") as d:
+        for n in shown:
+            rgb = render_clusters(fitted, scene.test[names.index(n)].camera)
+            cv2.imwrite(str(d / f"{n}.png"), rgb[..., ::-1])
+        if fitted.gaussians is not None:  # for agreement between seeds (benchmark.stability)
+            save_cluster_maps(d, fitted, {n: scene.test[names.index(n)].camera for n in shown})
+    official = score_masks(dict(zip(names, preds)), dict(zip(names, gts)), "official")
+    per_click = fitted.stats.get("click_clusters")  # methods that choose clusters by clicks
+    first = {"set": 0, "clicks": _click_list(prompts), "miou": official.miou}
+    if per_click is not None:
+        first |= {"click_clusters": list(per_click), "selected": selected}
+    out = {
+        "v1": score_masks(dict(zip(names, preds)), dict(zip(names, gts)), "v1").to_dict(),
+        "official": official.to_dict(),
+        "selected": selected,
+        "click_clusters": per_click,
+        "click_sets": score_click_sets(method, fitted, scene, prompts, gts, names, first, preds),
+        "oracle": None,
+        "n_gaussians": int(fitted.features.shape[0]),
+        "n_clusters": int(fitted.stats.get("n_clusters", 0)),
+        "feature_space": fitted.stats.get("feature_space"),
+        # the model itself (gaussians + features + deformation, float32), as the paper's storage
+        "geometry_checksum": geometry_checksum(fitted.gaussians) if fitted.gaussians is not None else None,
+        "storage": model_storage(fitted.gaussians, fitted.deformation, int(fitted.features.shape[1]))
+        if fitted.gaussians is not None else None,
+    }
+    if hasattr(method, "segment_oracle"):
+        opreds, oclusters = method.segment_oracle(fitted, scene, gts)
+        oracle = score_masks(dict(zip(names, opreds)), dict(zip(names, gts)), "v1").to_dict()
+        out["oracle"] = {k: oracle[k] for k in ("miou", "macc", "pooled_iou")} | {
+            "clusters": [int(c) for c in oclusters],
+            "note": "upper bound: clusters chosen with the ground truth; not the method's score"}
+    return jsonable(out)
+
+
+def run(ctx: SequenceRun) -> list[StageRecord]:
+    from benchmark.methods import FittedModel
+
+    fit_rec, prompts_rec = ctx.records["fit"], ctx.records["prompts"]
+    key = ctx.cache.key("evaluate", {"method": ctx.method.name},
+                        {"fit": fit_rec.key, "prompts": prompts_rec.key, "gt": ctx.gt_key})
+
+    def work(d: Path) -> dict:
+        gaussians, deformation = ctx.geometry
+        fitted = FittedModel.load(fit_rec.path, gaussians, deformation)
+        prompts, _ = load_prompts(prompts_rec)
+        return evaluate(ctx.method, fitted, ctx.scene, prompts, d)
+
+    return [ctx.cache.run("evaluate", key, work, {"method": ctx.method.name})]
+
+
+def copy_outputs(rec: StageRecord, run_dir: Path) -> None:
+    """The evaluation's pictures and predicted masks into the run's directory (each directory
+    replaced whole, never half-written)."""
+    import shutil
+
+    for name in OUTPUT_DIRS:
+        with atomic_directory(run_dir / name) as d:
+            shutil.copytree(rec.path / name, d, dirs_exist_ok=True)

@@ -1,0 +1,48 @@
+"""Stage ``masks``: per-image "anything" masks of the training views (the method's input)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from benchmark.cache import StageRecord
+from benchmark.config import ConfigError
+from benchmark.pipeline.context import SequenceRun
+
+
+def make_mask_generator(mcfg: dict):
+    """The generator of the ``masks`` config section."""
+    from masks.generators.base import make_generator
+
+    g = mcfg["generator"]
+    if g == "sam":
+        if not mcfg.get("checkpoint"):
+            raise ConfigError("masks.generator=sam needs --set masks.checkpoint=PATH (a SAM .pth file)")
+        return make_generator("sam", checkpoint=mcfg["checkpoint"])
+    if g == "synthetic":
+        return make_generator("synthetic", seed=mcfg["seed"])
+    return make_generator(g)
+
+
+def synthetic_truth(scene):
+    """The scene's truth (benchmark.datasets.truth); a clear error on real data."""
+    if scene.truth is None:
+        raise ConfigError(f"{scene.root}: not a synthetic scene (no synthetic/manifest.json)")
+    return scene.truth
+
+
+def run(ctx: SequenceRun) -> list[StageRecord]:
+    import masks as masklib
+
+    mcfg = ctx.cfg["masks"]
+    key = ctx.cache.key("masks", mcfg, {"scene": ctx.scene_key})
+
+    def work(d: Path) -> dict:
+        instance_maps = synthetic_truth(ctx.scene).instance_maps if mcfg["generator"] == "synthetic" else None
+        paths = masklib.generate_scene_masks(ctx.scene.train, make_mask_generator(mcfg), d,
+                                             progress=ctx.progress, instance_maps=instance_maps)
+        sizes = [p.stat().st_size for p in paths]
+        return {"n_views": len(paths), "bytes_per_view": int(np.mean(sizes)) if sizes else 0}
+
+    return [ctx.cache.run("masks", key, work, mcfg)]
