@@ -175,8 +175,7 @@ def paper_config(method_name: str, dataset: str, variant: str, overrides: list[s
     from benchmark.pipeline.config import default_config
 
     spec, method = get_dataset(dataset), get_method(method_name)
-    cfg = default_config(method, spec, variant, {"geometry": {"preset": "paper"}})
-    cfg["method"] = method.default_config(spec, preset="paper")
+    cfg = default_config(method, spec, variant, {"geometry": {"preset": "paper"}})  # the method's paper preset too
     cfg["masks"]["generator"] = "sam"  # the paper's masks: SAM ViT-H automatic
     return merge(cfg, parse_overrides(overrides))
 

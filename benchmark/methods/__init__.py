@@ -4,7 +4,7 @@ A method turns frozen geometry + 2D masks into per-gaussian labels (``fit``), an
 predicted masks at the scene's test views (``segment``)::
 
     method = get_method("trase")              # or get_method("trase", objective="trase-hard")
-    cfg = method.default_config(dataset_spec)  # plain JSON-able dict; the runner merges --set
+    cfg = method.default_config(dataset_spec, "cpu")  # plain JSON-able dict; the runner merges --set
     fitted = method.fit(scene, gaussians, deformation, masks_dir, cfg, work_dir)
     preds = method.segment(fitted, scene, prompts)   # list of bool [H, W], one per scene.test
 
@@ -108,7 +108,9 @@ class Method:
 
     name: str = ""
 
-    def default_config(self, dataset_spec) -> dict:
+    def default_config(self, dataset_spec, preset: str) -> dict:
+        """Plain JSON-able settings for one dataset under ``preset`` (paper or cpu; the run's
+        preset, resolved once by the benchmark)."""
         raise NotImplementedError
 
     def fit(self, scene, gaussians, deformation, masks_dir: Path, config: dict, work_dir: Path,

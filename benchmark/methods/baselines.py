@@ -54,7 +54,7 @@ class CGCMethod(TraseMethod):
 
     objective = "cgc"
 
-    def default_config(self, dataset_spec, preset: str = "auto") -> dict:
+    def default_config(self, dataset_spec, preset: str) -> dict:
         from baselines.cgc_inference import PATCH, THRESHOLD
 
         cfg = super().default_config(dataset_spec, preset)
@@ -130,7 +130,7 @@ class OpenGaussianMethod(TraseMethod):
 
     objective = "opengaussian"
 
-    def default_config(self, dataset_spec, preset: str = "auto") -> dict:
+    def default_config(self, dataset_spec, preset: str) -> dict:
         cfg = super().default_config(dataset_spec, preset)
         cfg["filter_threshold"] = None  # every gaussian keeps its class (codebook semantics)
         return cfg

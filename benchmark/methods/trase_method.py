@@ -15,12 +15,6 @@ import numpy as np
 from benchmark.methods import FittedModel, Method, MethodError, register_method
 
 
-def _auto_preset() -> str:
-    import torch
-
-    return "paper" if torch.cuda.is_available() else "cpu"
-
-
 # The cpu preset's constants: similarity filter, HDBSCAN min_cluster_size, and (in
 # trase.features) the feature learning rate. Chosen on scenes the benchmark never reports: the
 # synthetic scenes of seed 1 of all five formats (`trase-bench synth --seed 1`), ground-truth
@@ -60,10 +54,12 @@ class TraseMethod(Method):
         self.objective_params = dict(objective_params or {})
 
     # -- config ------------------------------------------------------------------------
-    def default_config(self, dataset_spec, preset: str = "auto") -> dict:
+    def default_config(self, dataset_spec, preset: str) -> dict:
+        """``preset``: paper or cpu, resolved once by the benchmark's run config."""
         from trase.features import CPU_MAX_PIXELS, FeatureConfig
 
-        preset = _auto_preset() if preset == "auto" else preset
+        if preset not in ("paper", "cpu"):
+            raise MethodError(f"method preset {preset!r}: choose paper or cpu")
         n_pixels = int(dataset_spec.n_pixels)
         if preset == "cpu":
             n_pixels = min(n_pixels, CPU_MAX_PIXELS)

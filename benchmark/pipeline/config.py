@@ -57,22 +57,39 @@ def without_seed(overrides: dict) -> dict:
     return {k: v for k, v in overrides.items() if k != "seed"}
 
 
+PRESETS = ("paper", "cpu", "cpu-v1")  # geometry presets; "auto": paper with a GPU, cpu without
+# the method's preset under each geometry preset (cpu-v1: an older CPU geometry, today's CPU features)
+METHOD_PRESET = {"paper": "paper", "cpu": "cpu", "cpu-v1": "cpu"}
+
+
+def resolve_preset(overrides: dict) -> str:
+    """The run's one preset, from ``--set geometry.preset`` (default auto): it decides the
+    geometry's schedule and the method's settings alike."""
+    preset = overrides.get("geometry", {}).get("preset", "auto")
+    if preset == "auto":
+        import torch
+
+        preset = "paper" if torch.cuda.is_available() else "cpu"
+    if preset not in PRESETS:
+        raise ConfigError(f"--set geometry.preset={preset}: choose auto, {', '.join(PRESETS)}")
+    return preset
+
+
 def default_config(method, spec, variant: str, overrides: dict,
                    image_size: tuple[int, int] | None = None) -> dict:
-    """Full config of one run: defaults for the dataset and variant, the run seed (``--set
-    seed=S``, written into every seeded section), then ``overrides`` (an explicit
-    ``method.features.seed`` still wins). ``image_size`` (W, H) of the benchmark images picks
-    the cpu preset's training resolution."""
-    import torch
-
+    """Full config of one run: defaults for the dataset and variant under the one preset
+    (``resolve_preset``), the run seed (``--set seed=S``, written into every seeded section),
+    then ``overrides`` (an explicit ``method.features.seed`` still wins; ``method.preset``
+    follows the geometry's). ``image_size`` (W, H) of the benchmark images picks the cpu
+    preset's training resolution."""
     from trase.reconstruct import ReconstructionConfig
 
-    geo_over = overrides.get("geometry", {})
-    preset = geo_over.get("preset", "auto")
-    if preset == "auto":
-        preset = "paper" if torch.cuda.is_available() else "cpu"
-    if preset not in ("paper", "cpu", "cpu-v1"):
-        raise ConfigError(f"--set geometry.preset={preset}: choose auto, paper, cpu or cpu-v1")
+    preset = resolve_preset(overrides)
+    method_preset = METHOD_PRESET[preset]
+    asked = overrides.get("method", {}).get("preset") if isinstance(overrides.get("method"), dict) else None
+    if asked is not None and asked != method_preset:
+        raise ConfigError(f"--set method.preset={asked}: the method's preset follows the run's "
+                          f"(geometry.preset={preset} gives {method_preset}); set --set geometry.preset instead")
     sched = {"warm_up": spec.warm_up, "densify_until": spec.densify_until}
     if preset == "paper":
         train = ReconstructionConfig.paper(**sched)
@@ -93,7 +110,7 @@ def default_config(method, spec, variant: str, overrides: dict,
             "model_dir": None,  # for source=import: a Deformable-3DGS/TRASE model directory
             "train": train.to_dict(),
         },
-        "method": method.default_config(spec),
+        "method": method.default_config(spec, preset=method_preset),
         # clicks on every object of interest, in the first test frame it appears in
         # (trase.prompts; "gt-first-frame": the first non-empty frame only)
         "prompts": {"rule": "gt-first-appearance",

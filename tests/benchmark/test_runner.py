@@ -138,6 +138,13 @@ def test_paper_preset_takes_the_registry_schedule():
     train = cfg["geometry"]["train"]
     assert (train["warm_up"], train["densify_until"]) == (spec.warm_up, spec.densify_until) == (1500, 9000)
     assert train["iterations"] == 20_000 and train["image_downscale"] == 1.0
+    # one preset for the whole run: the paper's geometry comes with the paper's method settings
+    assert cfg["method"]["preset"] == "paper" and cfg["method"]["features"]["iterations"] == 10_000
+    assert default_config(get_method("trase"), spec, "real", {"geometry": {"preset": "cpu-v1"}})["method"]["preset"] == "cpu"
+    with pytest.raises(ConfigError, match="method.preset=paper: the method's preset follows the run's"):
+        default_config(get_method("trase"), spec, "real", {"geometry": {"preset": "cpu"}, "method": {"preset": "paper"}})
+    with pytest.raises(ConfigError, match="geometry.preset=gpu: choose auto, paper, cpu, cpu-v1"):
+        default_config(get_method("trase"), spec, "real", {"geometry": {"preset": "gpu"}})
 
 
 def test_cpu_preset_training_resolution_follows_the_images():
