@@ -210,7 +210,7 @@ class TraseMethod(Method):
     def segment_oracle(self, fitted: FittedModel, scene, gts: list[np.ndarray]) -> tuple[list[np.ndarray], list[int]]:
         """Upper bound: clusters mostly inside the ground truth (all test frames), rendered
         with the same filter. Report separately; never the method's score."""
-        from trase.prompts import oracle_clusters
+        from benchmark.protocol.oracle import oracle_clusters
         from trase.segment import render_masks, select_gaussians
 
         cams = [v.camera for v in scene.test]

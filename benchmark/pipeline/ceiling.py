@@ -1,4 +1,4 @@
-"""Stage ``ceiling``: the geometry's label ceiling (benchmark.ceiling) on synthetic scenes,
+"""Stage ``ceiling``: the geometry's label ceiling (benchmark.protocol.ceiling) on synthetic scenes,
 cached under the geometry, the ground truth and the rendering rule: every method and
 ablation variant run on one geometry reuses it."""
 
@@ -25,7 +25,7 @@ def run(ctx: SequenceRun) -> list[StageRecord]:
     key = ctx.cache.key("ceiling", ccfg, {"geometry": ctx.records["geometry"].key, "gt": ctx.gt_key})
 
     def work(d: Path) -> dict:
-        from benchmark.ceiling import label_ceiling
+        from benchmark.protocol.ceiling import label_ceiling
 
         gaussians, deformation = ctx.geometry
         gts = [read_mask(p) for p in ctx.scene.gt_masks]

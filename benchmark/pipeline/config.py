@@ -112,9 +112,9 @@ def default_config(method, spec, variant: str, overrides: dict,
         },
         "method": method.default_config(spec, preset=method_preset),
         # clicks on every object of interest, in the first test frame it appears in
-        # (trase.prompts; "gt-first-frame": the first non-empty frame only)
+        # (benchmark.protocol.prompts; "gt-first-frame": the first non-empty frame only)
         "prompts": {"rule": "gt-first-appearance",
-                    # click sets scored beside the run's own (trase.prompts): 1 = the single-click
+                    # click sets scored beside the run's own (benchmark.protocol.prompts): 1 = the single-click
                     # protocol alone
                     "click_sets": 5},
     }

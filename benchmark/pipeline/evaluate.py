@@ -46,7 +46,7 @@ def _click_list(prompts) -> list[list[float]]:
 
 def score_click_sets(method, fitted, scene, prompts, gts: list[np.ndarray], names: list[str],
                      first: dict, first_preds: list[np.ndarray]) -> dict | None:
-    """Official mIoU of every click set (trase.prompts) -> per set (its clicks, the cluster
+    """Official mIoU of every click set (benchmark.protocol.prompts) -> per set (its clicks, the cluster
     each chose, the clusters chosen, mIoU) and median / worst / best; None with a single set.
     Set 0 is the run's own clicks: ``first`` (its entry, already scored) and ``first_preds``;
     a set choosing clusters already rendered reuses their masks."""

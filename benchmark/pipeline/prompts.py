@@ -13,7 +13,7 @@ PROMPTS_FILE = "prompts.json"
 
 
 def run(ctx: SequenceRun) -> list[StageRecord]:
-    from trase.prompts import BENCHMARK_RULES, load_or_make_prompts
+    from benchmark.protocol.prompts import BENCHMARK_RULES, load_or_make_prompts
 
     pcfg, scene = ctx.cfg["prompts"], ctx.scene
     if pcfg["rule"] not in BENCHMARK_RULES:
@@ -35,7 +35,7 @@ def run(ctx: SequenceRun) -> list[StageRecord]:
 def load_prompts(rec: StageRecord) -> tuple:
     """(BenchmarkPrompts, the prompts file as a dict) of a prompts stage."""
     from benchmark.io import read_json
-    from trase.prompts import BenchmarkPrompts
+    from benchmark.protocol.prompts import BenchmarkPrompts
 
     path = rec.path / PROMPTS_FILE
     as_dict = read_json(path, "prompts file")

@@ -11,7 +11,8 @@ import masks as masklib
 from benchmark.methods import get_method
 from benchmark.methods.trase_method import CPU_FILTER_THRESHOLD
 from tests.trase.helpers import exact_masks, tiny_scene
-from trase.prompts import BenchmarkPrompts, Click, interior_points
+from benchmark.protocol.prompts import BenchmarkPrompts, interior_points
+from trase.prompts import Click
 
 SPEC = types.SimpleNamespace(n_pixels=300, n_masks=3, filter_threshold=0.5)
 

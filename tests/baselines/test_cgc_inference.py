@@ -13,7 +13,8 @@ from baselines.cgc_inference import (
     similarity_select,
 )
 from tests.trase.helpers import exact_masks, tiny_scene
-from trase.prompts import Click, interior_points
+from benchmark.protocol.prompts import interior_points
+from trase.prompts import Click
 from trase.segment import render_masks
 
 

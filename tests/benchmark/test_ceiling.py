@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from benchmark.ceiling import CeilingError, instance_votes, truth_selection
+from benchmark.protocol.ceiling import CeilingError, instance_votes, truth_selection
 from tests.trase.helpers import exact_masks, tiny_scene
 from trase.deformation import deformed
 from trase.render import rasterize
@@ -61,7 +61,7 @@ def test_instance_map_of_wrong_size_names_the_view():
 
 
 def test_object_alpha_stats_measure_holes_inside_the_ground_truth():
-    from benchmark.ceiling import object_alpha_stats
+    from benchmark.protocol.ceiling import object_alpha_stats
 
     gt = np.zeros((4, 4), bool)
     gt[1:3, 1:3] = True  # 4 object pixels

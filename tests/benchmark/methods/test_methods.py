@@ -9,7 +9,7 @@ from benchmark.methods import FittedModel, MethodError, get_method
 from benchmark.methods.trase_method import CPU_FILTER_THRESHOLD, CPU_MIN_CLUSTER_SIZE, TraseMethod
 from benchmark.scoring import score_masks
 from tests.trase.helpers import exact_masks, tiny_scene
-from trase.prompts import make_benchmark_prompts
+from benchmark.protocol.prompts import make_benchmark_prompts
 
 
 @dataclasses.dataclass
@@ -98,7 +98,8 @@ def test_each_click_is_lifted_in_its_own_frame(monkeypatch):
     import types
 
     import trase.prompts as tp
-    from trase.prompts import BenchmarkPrompts, Click
+    from benchmark.protocol.prompts import BenchmarkPrompts
+    from trase.prompts import Click
 
     _, _, _, views = tiny_scene(n_per=2)
     seen = []
