@@ -8,10 +8,12 @@ import functools
 import hashlib
 import json
 import os
+from pathlib import Path
 
 import numpy as np
 
 from benchmark.cache import StageCache, StageRecord
+from benchmark.config import ConfigError
 
 
 @dataclasses.dataclass
@@ -29,9 +31,24 @@ class SequenceRun:
     def geometry(self) -> tuple:
         """(gaussians, deformation) of the geometry stage, loaded at most once per sequence and
         only by a stage that has to run."""
-        from benchmark.pipeline.geometry import load_geometry
-
         return load_geometry(self.records["geometry"].path)
+
+
+def load_geometry(stage_dir: Path) -> tuple:
+    """(gaussians, deformation) from a geometry stage directory."""
+    from trase.checkpoint import load_model, load_tabulated_geometry
+
+    if (stage_dir / "geometry.npz").exists():
+        g, deform, _ = load_tabulated_geometry(stage_dir / "geometry.npz")
+        return g, deform
+    return load_model(stage_dir / "model")
+
+
+def synthetic_truth(scene):
+    """The scene's truth (benchmark.datasets.truth); a clear error on real data."""
+    if scene.truth is None:
+        raise ConfigError(f"{scene.root}: not a synthetic scene (no synthetic/manifest.json)")
+    return scene.truth
 
 
 def scene_fingerprint(scene) -> str:

@@ -8,20 +8,9 @@ from pathlib import Path
 
 from benchmark.cache import StageRecord
 from benchmark.config import ConfigError
-from benchmark.pipeline.context import SequenceRun
-from benchmark.pipeline.masks import synthetic_truth
+from benchmark.pipeline.context import SequenceRun, load_geometry, synthetic_truth
 
 SOURCES = ("reconstruct", "ground-truth", "import")
-
-
-def load_geometry(stage_dir: Path) -> tuple:
-    """(gaussians, deformation) from a geometry stage directory."""
-    from trase.checkpoint import load_model, load_tabulated_geometry
-
-    if (stage_dir / "geometry.npz").exists():
-        g, deform, _ = load_tabulated_geometry(stage_dir / "geometry.npz")
-        return g, deform
-    return load_model(stage_dir / "model")
 
 
 def run(ctx: SequenceRun) -> list[StageRecord]:

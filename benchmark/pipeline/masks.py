@@ -8,7 +8,7 @@ import numpy as np
 
 from benchmark.cache import StageRecord
 from benchmark.config import ConfigError
-from benchmark.pipeline.context import SequenceRun
+from benchmark.pipeline.context import SequenceRun, synthetic_truth
 
 
 def make_mask_generator(mcfg: dict):
@@ -23,13 +23,6 @@ def make_mask_generator(mcfg: dict):
     if g == "synthetic":
         return make_generator("synthetic", seed=mcfg["seed"])
     return make_generator(g)
-
-
-def synthetic_truth(scene):
-    """The scene's truth (benchmark.datasets.truth); a clear error on real data."""
-    if scene.truth is None:
-        raise ConfigError(f"{scene.root}: not a synthetic scene (no synthetic/manifest.json)")
-    return scene.truth
 
 
 def run(ctx: SequenceRun) -> list[StageRecord]:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import torch
 
+from trase.render.channels import ALPHA_EPS, channel_parts
 from trase.render.types import RenderError, RenderOutput
 
 
@@ -22,14 +23,8 @@ def rasterize_gsplat(means, quats, scales, opacities, camera, colors, sh_degree,
         raise RenderError(
             "rasterize: backend 'gsplat' needs the gsplat package (pip install gsplat) on a CUDA machine"
         ) from exc
-    from trase.render.rasterize import ALPHA_EPS, gaussian_colors  # local: avoids an import cycle
-
     dev, dt = means.device, means.dtype
-    parts = []
-    if colors is not None:
-        parts.append(gaussian_colors(colors, sh_degree, means, camera).to(dt))
-    if features is not None:
-        parts.append(features.to(dt))
+    parts = channel_parts(colors, sh_degree, features, means, camera, dt)
     if not parts:
         parts.append(means.new_zeros(means.shape[0], 1))  # gsplat needs at least one channel
     chans = torch.cat(parts, dim=1)

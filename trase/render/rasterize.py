@@ -15,12 +15,11 @@ import math
 import torch
 
 from trase.camera import Camera
+from trase.render.channels import ALPHA_EPS, channel_parts
 from trase.render.projection import project_gaussians
-from trase.render.sh import sh_to_rgb
 from trase.render.types import PixelWeights, RenderError, RenderOutput
 
 BACKENDS = ("torch", "numba", "gsplat", "auto")
-ALPHA_EPS = 1e-6  # depth is 0 where accumulated alpha is below this
 
 
 def _check_inputs(means, quats, scales, opacities, camera, colors, sh_degree, features, background):
@@ -77,15 +76,6 @@ def _resolve_backend(backend: str, device: torch.device) -> str:
     return backend
 
 
-def gaussian_colors(colors, sh_degree, means, camera) -> torch.Tensor:
-    """[N, 3] RGB as given, or SH [N, K, 3] evaluated toward the camera centre (3DGS)."""
-    if colors.ndim == 2:
-        return colors
-    deg = sh_degree if sh_degree is not None else round(math.sqrt(colors.shape[1])) - 1
-    center = torch.as_tensor(camera.center, dtype=means.dtype, device=means.device)
-    return sh_to_rgb(deg, colors, means, center)
-
-
 def rasterize(
     means: torch.Tensor,  # [N, 3]
     quats: torch.Tensor,  # [N, 4] wxyz, any norm
@@ -118,15 +108,8 @@ def rasterize(
         from trase.render.numba_projection import project_gaussians_numba
 
         proj = project_gaussians_numba(means, quats, scales, camera, near=near, tile_size=tile_size, dtype=dtype)
-    parts = []
-    rgb = None
-    if colors is not None:
-        rgb = gaussian_colors(colors, sh_degree, means, camera).to(dtype)
-        parts.append(rgb)
-    if features is not None:
-        parts.append(features.to(dtype))
-    parts.append(proj.depths[:, None])
-    channels = torch.cat(parts, dim=1)  # [N, C] = colour | features | z
+    parts = channel_parts(colors, sh_degree, features, means, camera, dtype)
+    channels = torch.cat([*parts, proj.depths[:, None]], dim=1)  # [N, C] = colour | features | z
     opac = opacities.to(dtype)
     if backend == "torch":
         from trase.render.torch_backend import composite_torch
