@@ -2,49 +2,55 @@
 
 Subcommands live in their own modules and are imported only when invoked, so ``--help`` and
 light commands (``score``, ``datasets``) never pay for torch or numba imports. To add a
-command, add one line to ``COMMANDS``: name -> "module:click_command".
+command, add one line to ``COMMANDS``: name, "module:click_command", one-line help.
 """
 
 from __future__ import annotations
 
-import importlib
 import sys
 
 import click
 
-COMMANDS: dict[str, tuple[str, str]] = {
-    # name: (import path of the click command, one-line help shown by --help)
-    "ablate": ("benchmark.commands.ablate:ablate", "The paper's ablation studies, run and tabulated."),
-    "datasets": ("benchmark.commands.datasets:datasets", "List the five *-Mask benchmarks (--json for data)."),
-    "figures": ("benchmark.commands.figures:figures",
-                "The README's figures: five formats x seeds, measured and written from their data."),
-    "leaderboard": ("benchmark.commands.leaderboard:leaderboard",
-                    "Leaderboards (markdown/latex/csv/html) from results files."),
-    "masks": ("benchmark.commands.masks:masks", "Per-image anything-masks for a sequence's training views."),
-    "perf": ("benchmark.commands.perf:perf", "Measured performance suites (rasterizer numba vs torch ...)."),
-    "prepare": ("benchmark.commands.prepare:prepare", "Raw multi-view downloads -> training frames."),
-    "report": ("benchmark.commands.report:report", "Per-sequence HTML report of a run."),
-    "run": ("benchmark.commands.run:run", "Run a method on a benchmark (synthetic default without data)."),
-    "runs": ("benchmark.commands.runs:runs", "List runs with their kind, config and protocol."),
-    "score": ("benchmark.commands.score:score", "Score predicted masks against ground truth."),
-    "synth": ("benchmark.commands.synth:synth", "Generate a synthetic scene in a benchmark's raw format."),
-}
+from lazyspecs import Registry
+
+COMMANDS = Registry("command")
+COMMANDS.add("ablate", "benchmark.commands.ablate:ablate",
+             "The paper's ablation studies, run and tabulated.")
+COMMANDS.add("datasets", "benchmark.commands.datasets:datasets",
+             "List the five *-Mask benchmarks (--json for data).")
+COMMANDS.add("figures", "benchmark.commands.figures:figures",
+             "The README's figures: five formats x seeds, measured and written from their data.")
+COMMANDS.add("leaderboard", "benchmark.commands.leaderboard:leaderboard",
+             "Leaderboards (markdown/latex/csv/html) from results files.")
+COMMANDS.add("masks", "benchmark.commands.masks:masks",
+             "Per-image anything-masks for a sequence's training views.")
+COMMANDS.add("perf", "benchmark.commands.perf:perf",
+             "Measured performance suites (rasterizer numba vs torch ...).")
+COMMANDS.add("prepare", "benchmark.commands.prepare:prepare",
+             "Raw multi-view downloads -> training frames.")
+COMMANDS.add("report", "benchmark.commands.report:report",
+             "Per-sequence HTML report of a run.")
+COMMANDS.add("run", "benchmark.commands.run:run",
+             "Run a method on a benchmark (synthetic default without data).")
+COMMANDS.add("runs", "benchmark.commands.runs:runs",
+             "List runs with their kind, config and protocol.")
+COMMANDS.add("score", "benchmark.commands.score:score",
+             "Score predicted masks against ground truth.")
+COMMANDS.add("synth", "benchmark.commands.synth:synth",
+             "Generate a synthetic scene in a benchmark's raw format.")
 
 
 class LazyGroup(click.Group):
     """A click group whose subcommands are imported on first use."""
 
     def list_commands(self, ctx: click.Context) -> list[str]:
-        return sorted(COMMANDS)
+        return COMMANDS.names()
 
     def get_command(self, ctx: click.Context, name: str) -> click.Command | None:
-        if name not in COMMANDS:
-            return None
-        module_name, attr = COMMANDS[name][0].split(":")
-        return getattr(importlib.import_module(module_name), attr)
+        return COMMANDS.load(name) if name in COMMANDS else None
 
     def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
-        rows = [(name, COMMANDS[name][1]) for name in self.list_commands(ctx)]
+        rows = [(e.name, e.help) for e in COMMANDS]
         with formatter.section("Commands"):
             formatter.write_dl(rows)
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-GENERATORS = ("sam", "classical", "synthetic")
+from masks.generators import GENERATORS
 
 
 def _instance_maps(scene) -> dict[str, Path]:
@@ -29,7 +29,7 @@ def _instance_maps(scene) -> dict[str, Path]:
 @click.command()
 @click.option("--dataset", required=True, help="Registry key: nerfds, hypernerf, neu3d, immersive, technicolor.")
 @click.option("--sequence", default=None, help="Sequence name (default: the synthetic scene).")
-@click.option("--generator", "generator_name", type=click.Choice(GENERATORS), default=None,
+@click.option("--generator", "generator_name", type=click.Choice(GENERATORS.names()), default=None,
               help="Default: synthetic for synthetic scenes, classical for real ones.")
 @click.option("--data-root", type=click.Path(file_okay=False), default=None,
               help="Root of the real datasets (default: $TRASE_DATA).")

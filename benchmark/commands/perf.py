@@ -13,7 +13,7 @@ from benchmark.perf import SUITES, get_suite, machine_info
 
 
 @click.command(context_settings={"help_option_names": ["-h", "--help"]})
-@click.argument("suites", nargs=-1, type=click.Choice(sorted(SUITES)))
+@click.argument("suites", nargs=-1, type=click.Choice(SUITES.names()))
 @click.option("--quick", is_flag=True, help="Small settings only (seconds, for smoke tests).")
 @click.option("--json", "json_out", type=click.Path(dir_okay=False), help="Also write all figures to this JSON file.")
 @click.option("--out-dir", type=click.Path(file_okay=False), default=None,
@@ -24,7 +24,7 @@ from benchmark.perf import SUITES, get_suite, machine_info
 def perf(suites: tuple[str, ...], quick: bool, json_out: str | None, out_dir: str | None,
          threads: int | None) -> None:
     """Run performance SUITES (default: all) and print their figures."""
-    names = suites or tuple(sorted(SUITES))
+    names = suites or tuple(SUITES.names())
     if threads:
         import numba
         import torch
@@ -46,4 +46,4 @@ def perf(suites: tuple[str, ...], quick: bool, json_out: str | None, out_dir: st
         click.echo(f"wrote {json_out}")
 
 
-perf.help = (perf.help or "") + "\n\n\b\nSuites:\n" + "\n".join(f"  {k}: {v[1]}" for k, v in SUITES.items())
+perf.help = (perf.help or "") + "\n\n\b\nSuites:\n" + "\n".join(f"  {e.name}: {e.help}" for e in SUITES)

@@ -8,14 +8,13 @@ predicted masks at the scene's test views (``segment``)::
     fitted = method.fit(scene, gaussians, deformation, masks_dir, cfg, work_dir)
     preds = method.segment(fitted, scene, prompts)   # list of bool [H, W], one per scene.test
 
-Method modules are imported lazily: ``get_method`` imports ``benchmark.methods.<module>``
-for the built-in names and ``baselines`` for the rest, so listing methods stays cheap.
+Method modules are imported lazily: ``METHODS`` names each method's class by its import path
+(lazyspecs), so listing methods stays cheap.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import importlib
 import json
 from collections.abc import Callable
 from pathlib import Path
@@ -23,45 +22,34 @@ from pathlib import Path
 import numpy as np
 
 from benchmark.errors import UserError
+from lazyspecs import Registry
 
 
 class MethodError(UserError):
     """Unknown method or bad method input; one line naming the problem."""
 
 
-METHODS: dict[str, Callable[..., Method]] = {}
-_BUILTIN_MODULES = {"trase": "benchmark.methods.trase_method"}
+METHODS = Registry("method", MethodError)
+METHODS.add("trase", "benchmark.methods.trase_method:TraseMethod", "soft-mined contrastive objective (TRASE)")
+METHODS.add("trase-hard", "benchmark.methods.baselines:TraseHardMethod", "hard mining (the paper's ablation)")
+METHODS.add("trase-all", "benchmark.methods.baselines:TraseAllMethod", "all mining (the paper's ablation)")
+METHODS.add("cgc", "benchmark.methods.baselines:CGCMethod", "Contrastive Gaussian Clustering objective and inference")
+METHODS.add("opengaussian", "benchmark.methods.baselines:OpenGaussianMethod", "OpenGaussian-style intra/inter-mask objective")
 
 
 def register_method(name: str) -> Callable:
-    """Class decorator: make a Method constructible by name (``get_method``)."""
+    """Class decorator: name a Method class (``cls.name``) and register it (``get_method``)."""
 
     def wrap(cls):
-        if name in METHODS and METHODS[name] is not cls:
-            raise ValueError(f"method {name!r} registered twice")
         cls.name = name
-        METHODS[name] = cls
-        return cls
+        return METHODS.register(name)(cls)
 
     return wrap
 
 
 def get_method(name: str, **kwargs) -> Method:
-    """Build a registered method; imports the module that registers it on first use."""
-    if name not in METHODS:
-        modules = [_BUILTIN_MODULES[name]] if name in _BUILTIN_MODULES else []
-        modules += list(_BUILTIN_MODULES.values()) + ["baselines.methods", "baselines"]
-        for mod in modules:
-            try:
-                importlib.import_module(mod)
-            except ModuleNotFoundError as exc:
-                if exc.name is None or not mod.startswith(exc.name):
-                    raise
-            if name in METHODS:
-                break
-    if name not in METHODS:
-        raise MethodError(f"unknown method {name!r}; known: {', '.join(sorted(METHODS)) or 'none'}")
-    return METHODS[name](**kwargs)
+    """Build a registered method; its module is imported on first use."""
+    return METHODS.load(name)(**kwargs)
 
 
 @dataclasses.dataclass
@@ -122,6 +110,3 @@ class Method:
 
 
 __all__ = ["METHODS", "FittedModel", "Method", "MethodError", "get_method", "register_method"]
-
-# Baseline methods (benchmark/methods/baselines.py), imported lazily like the built-ins.
-_BUILTIN_MODULES.update(dict.fromkeys(("trase-hard", "trase-all", "cgc", "opengaussian"), "benchmark.methods.baselines"))

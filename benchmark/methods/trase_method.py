@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
+import baselines  # noqa: F401 (registers the baseline objectives: TraseMethod(objective=...) takes any)
 from benchmark.methods import FittedModel, Method, MethodError, register_method
-
 
 # The cpu preset's constants: similarity filter, HDBSCAN min_cluster_size, and (in
 # trase.features) the feature learning rate. Chosen on scenes the benchmark never reports: the

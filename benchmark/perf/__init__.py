@@ -1,30 +1,37 @@
 """Performance suites for ``trase-bench perf SUITE``. A suite is a module with
 ``run(quick: bool, echo) -> dict`` (JSON-ready, figures measured in this run); register it with
-one line in ``SUITES``: name -> ("module:function", one-line description)."""
+one line in ``SUITES``: name, "module:function", one-line description."""
 
 from __future__ import annotations
 
-import importlib
 import os
 import platform
 import sys
 from collections.abc import Callable
 
-SUITES: dict[str, tuple[str, str]] = {
-    "raster": ("benchmark.perf.raster:run", "Gaussian rasterizer: numba vs torch reference, forward/backward."),
-    "knn": ("benchmark.perf.knn:run", "K=16 smoothing neighbours: cKDTree (as trase) vs all-core, chunked, sklearn; + smoothing step."),
-    "cluster": ("benchmark.perf.cluster:run", "Feature clustering: HDBSCAN 2/10/25% vs DBSCAN, KMeans, PCA and fixed-sample variants (ARI)."),
-    "features": ("benchmark.perf.features:run", "Feature step: whole step on the synthetic scene (rasterizer vs fast path, R/F/X/O), fused vs dense objective, render grid."),
-    "reconstruct": ("benchmark.perf.reconstruct:run", "Test PSNR vs wall-clock time of the CPU reconstruction (synthetic HyperNeRF), old and new CPU preset."),
-    "pipeline": ("benchmark.perf.pipeline:run", "Per-stage time and peak memory of the runner per synthetic dataset, 2 sizes; exponents."),
-    "determinism": ("benchmark.perf.determinism:run", "A fixed seed under other thread counts and instruction sets (fresh processes): bit-identical or by how much not."),
-    "pareto": ("benchmark.perf.pareto:run", "mIoU vs features+fit+evaluate time over a settings grid for one scene; PNG with the Pareto front."),
-}
+from lazyspecs import Registry
+
+SUITES = Registry("perf suite")
+SUITES.add("raster", "benchmark.perf.raster:run",
+           "Gaussian rasterizer: numba vs torch reference, forward/backward.")
+SUITES.add("knn", "benchmark.perf.knn:run",
+           "K=16 smoothing neighbours: cKDTree (as trase) vs all-core, chunked, sklearn; + smoothing step.")
+SUITES.add("cluster", "benchmark.perf.cluster:run",
+           "Feature clustering: HDBSCAN 2/10/25% vs DBSCAN, KMeans, PCA and fixed-sample variants (ARI).")
+SUITES.add("features", "benchmark.perf.features:run",
+           "Feature step: whole step on the synthetic scene (rasterizer vs fast path, R/F/X/O), fused vs dense objective, render grid.")
+SUITES.add("reconstruct", "benchmark.perf.reconstruct:run",
+           "Test PSNR vs wall-clock time of the CPU reconstruction (synthetic HyperNeRF), old and new CPU preset.")
+SUITES.add("pipeline", "benchmark.perf.pipeline:run",
+           "Per-stage time and peak memory of the runner per synthetic dataset, 2 sizes; exponents.")
+SUITES.add("determinism", "benchmark.perf.determinism:run",
+           "A fixed seed under other thread counts and instruction sets (fresh processes): bit-identical or by how much not.")
+SUITES.add("pareto", "benchmark.perf.pareto:run",
+           "mIoU vs features+fit+evaluate time over a settings grid for one scene; PNG with the Pareto front.")
 
 
 def get_suite(name: str) -> Callable:
-    module, attr = SUITES[name][0].split(":")
-    return getattr(importlib.import_module(module), attr)
+    return SUITES.load(name)
 
 
 def machine_info() -> dict:

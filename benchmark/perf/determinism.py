@@ -68,7 +68,7 @@ def child(out: str, size: str, iterations: int, feature_steps: int) -> None:
     import masks as masklib
 
     gt_g, gt_deform, _ = load_tabulated_geometry(scene.truth.geometry_path)
-    from masks.generators.base import make_generator
+    from masks.generators import make_generator
 
     gen = make_generator("synthetic", seed=0)
     mask_dir = work / "masks"

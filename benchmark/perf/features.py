@@ -84,7 +84,7 @@ def synthetic_view(dataset: str, size: str) -> dict:
     import masks as masklib
     from benchmark.datasets import get_dataset, load_scene
     from benchmark.datasets.synthetic.cache import ensure_synthetic
-    from masks.generators.base import make_generator
+    from masks.generators import make_generator
     from trase.checkpoint import load_tabulated_geometry
 
     scene_dir = ensure_synthetic(dataset, size=size)

@@ -13,7 +13,7 @@ from benchmark.pipeline.context import SequenceRun, synthetic_truth
 
 def make_mask_generator(mcfg: dict):
     """The generator of the ``masks`` config section."""
-    from masks.generators.base import make_generator
+    from masks.generators import make_generator
 
     g = mcfg["generator"]
     if g == "sam":

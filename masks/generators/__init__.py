@@ -9,6 +9,19 @@ Modules are imported on first use so OpenCV / segment-anything load only when ne
 
 from __future__ import annotations
 
-from masks.generators.base import MaskGenerator, make_generator, min_area_for
+from lazyspecs import Registry
+from masks.generators.base import MaskGenerator, min_area_for
+from masks.maskset import MaskError
 
-__all__ = ["MaskGenerator", "make_generator", "min_area_for"]
+GENERATORS = Registry("mask generator", MaskError)
+GENERATORS.add("sam", "masks.generators.sam:SamGenerator", "segment-anything's automatic masks (local checkpoint)")
+GENERATORS.add("classical", "masks.generators.classical:ClassicalGenerator", "OpenCV graph segmentation + SLIC")
+GENERATORS.add("synthetic", "masks.generators.synthetic:SyntheticGenerator", "SAM-like masks from instance maps")
+
+
+def make_generator(name: str, **kwargs) -> MaskGenerator:
+    """Build a generator by name (``GENERATORS``), its module imported on first use."""
+    return GENERATORS.load(name)(**kwargs)
+
+
+__all__ = ["GENERATORS", "MaskGenerator", "make_generator", "min_area_for"]

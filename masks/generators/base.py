@@ -40,23 +40,6 @@ class MaskGenerator(Protocol):
         ...
 
 
-def make_generator(name: str, **kwargs) -> MaskGenerator:
-    """Build a generator by name: "sam", "classical" or "synthetic"."""
-    if name == "sam":
-        from masks.generators.sam import SamGenerator
-
-        return SamGenerator(**kwargs)
-    if name == "classical":
-        from masks.generators.classical import ClassicalGenerator
-
-        return ClassicalGenerator(**kwargs)
-    if name == "synthetic":
-        from masks.generators.synthetic import SyntheticGenerator
-
-        return SyntheticGenerator(**kwargs)
-    raise MaskError(f"unknown mask generator {name!r}; choose sam, classical or synthetic")
-
-
 def check_image(image: np.ndarray | None, who: str) -> np.ndarray:
     """[H, W, 3] uint8 RGB or a clear error."""
     if image is None:

@@ -42,7 +42,7 @@ def test_threads_option_sets_and_records_thread_count(tmp_path, monkeypatch):
 
 
 def test_registry_entries_resolve():
-    for name in SUITES:
+    for name in SUITES.names():
         assert callable(get_suite(name))
 
 

@@ -18,6 +18,8 @@ from collections.abc import Callable
 import torch
 import torch.nn.functional as F
 
+from lazyspecs import Registry
+
 TAU_POS = 0.75  # positive pairs with cosine below this are imperfect (public code)
 TAU_NEG = 0.5  # negative pairs with cosine above this are imperfect (public code)
 W_MAX = 10.0  # pixel-pair weights are rescaled to [1, W_MAX]
@@ -207,34 +209,22 @@ class Objective(torch.nn.Module):
         return None
 
 
-OBJECTIVES: dict[str, Callable[..., Objective]] = {}
+# TRASE's own objective is declared here; other packages add theirs (``baselines`` registers
+# its objectives when imported: the library knows none of them).
+OBJECTIVES = Registry("objective", ObjectiveInputError)
+OBJECTIVES.add("trase", "trase.objectives.soft:SoftMining")
 
 
 def register_objective(name: str) -> Callable:
     """Class decorator: make an objective constructible by name (``get_objective``)."""
 
     def wrap(cls):
-        if name in OBJECTIVES:
-            raise ValueError(f"objective {name!r} registered twice")
         cls.name = name
-        OBJECTIVES[name] = cls
-        return cls
+        return OBJECTIVES.register(name)(cls)
 
     return wrap
 
 
 def get_objective(name: str, **kwargs) -> Objective:
-    """Build a registered objective; importing ``baselines`` registers the baseline ones."""
-    if name not in OBJECTIVES:
-        import importlib
-
-        for module in ("trase.objectives.soft", "baselines"):
-            try:
-                importlib.import_module(module)
-            except ModuleNotFoundError:
-                pass
-    if name not in OBJECTIVES:
-        raise ObjectiveInputError(
-            f"unknown objective {name!r}; known: {', '.join(sorted(OBJECTIVES)) or 'none'}"
-        )
-    return OBJECTIVES[name](**kwargs)
+    """Build a registered objective (its module imported on first use)."""
+    return OBJECTIVES.load(name)(**kwargs)

@@ -15,11 +15,11 @@ def test_all_suites_quick(tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("TRASE_CACHE", str(tmp_path / "cache"))  # synthetic scenes generated here
     monkeypatch.setattr(raster, "QUICK", [(150, 32, 24, 4, True)])  # raster's own test covers its sizes
     out = tmp_path / "perf.json"
-    assert main(["perf", *sorted(SUITES), "--quick", "--json", str(out)]) == 0
+    assert main(["perf", *SUITES.names(), "--quick", "--json", str(out)]) == 0
     text = capsys.readouterr().out
     d = json.loads(out.read_text())
     s = d["suites"]
-    assert set(s) == set(SUITES) and d["machine"]["cpu_count"] >= 1
+    assert set(s) == set(SUITES.names()) and d["machine"]["cpu_count"] >= 1
 
     knn = s["knn"]["sizes"][0]["methods"]
     for m in knn.values():
@@ -58,4 +58,4 @@ def test_all_suites_quick(tmp_path, monkeypatch, capsys):
     assert det["numba 1 thread"]["geometry"]["identical"] and det["numba 1 thread"]["features"]["identical"]
     assert set(det) == {"baseline", "numba 1 thread", "torch 1 thread", "torch 2 threads", "torch default ISA",
                         "numba generic CPU"}
-    assert "instruction sets" in SUITES["determinism"][1]
+    assert "instruction sets" in SUITES.entry("determinism").help
