@@ -1,11 +1,12 @@
-# Two commands: `make test` and `make demo`. Both set up .venv on first use.
+# `make test` (the fast suite), `make test-all` (with the slow end-to-end tests; what CI runs)
+# and `make demo`. Each sets up .venv on first use.
 PYTHON ?= python3
 VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.trase-bench-installed
 TORCH_PIN := torch==2.13.0
 
-.PHONY: test demo venv clean
+.PHONY: test test-all demo venv clean
 
 venv: $(STAMP)
 
@@ -22,6 +23,9 @@ $(STAMP): pyproject.toml | $(PY)
 	@touch $(STAMP)
 
 test: $(STAMP)
+	$(PY) -m pytest -m "not slow"
+
+test-all: $(STAMP)
 	$(PY) -m pytest
 
 # The main job on the built-in default data: TRASE on the synthetic HyperNeRF-format scene

@@ -19,7 +19,7 @@ COMMANDS.add("ablate", "benchmark.commands.ablate:ablate",
 COMMANDS.add("datasets", "benchmark.commands.datasets:datasets",
              "List the five *-Mask benchmarks (--json for data).")
 COMMANDS.add("figures", "benchmark.commands.figures:figures",
-             "The README's figures: five formats x seeds, measured and written from their data.")
+             "The figures page (docs/figures.md): five formats x seeds, measured and written from their data.")
 COMMANDS.add("leaderboard", "benchmark.commands.leaderboard:leaderboard",
              "Leaderboards (markdown/latex/csv/html) from results files.")
 COMMANDS.add("masks", "benchmark.commands.masks:masks",

@@ -1,11 +1,11 @@
-"""The README's figures, measured by one command and rendered from its data, never typed.
+"""The figures page (docs/figures.md), measured by one command and rendered from its data, never typed.
 
 ``trase-bench figures`` runs ``trase`` on the five built-in formats with reconstructed and
 with ground-truth geometry, for several run seeds, summarises the runs (mean ± std over seeds
 of test PSNR, geometry ceiling, oracle, mIoU, click-set median and worst, clustering
 agreement) into ``docs/figures.json`` with the commit and machine they were measured on, and
-rewrites the README's block between the FIGURES markers from that file. A test renders the
-block from the file again and compares: the README's table cannot drift from its data.
+rewrites the page's block between the FIGURES markers from that file. A test renders the
+block from the file again and compares: the page's table cannot drift from its data.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from benchmark.errors import UserError
 
 FORMATS = ("nerfds", "hypernerf", "neu3d", "immersive", "technicolor")
 GEOMETRIES = ("reconstruct", "ground-truth")
-BEGIN = "<!-- FIGURES:BEGIN (trase-bench figures --write-readme; do not edit by hand) -->"
+BEGIN = "<!-- FIGURES:BEGIN (trase-bench figures --write-page; do not edit by hand) -->"
 END = "<!-- FIGURES:END -->"
 SCHEMA = "trase-bench/figures/1"
 
@@ -101,7 +101,7 @@ def _mean_std(values: list[float], digits: int = 2) -> str:
 
 
 def render_block(data: dict) -> str:
-    """The README's figures block (markdown) from ``docs/figures.json``'s content. Stage seconds
+    """The figures block (markdown) from ``docs/figures.json``'s content. Stage seconds
     stay in the data file only: measured beside other work, they are not timings (see the perf
     suites for those)."""
     if data.get("schema") != SCHEMA:
@@ -136,7 +136,10 @@ def read_figures(path: Path) -> dict:
     return read_json(path, "figures file")
 
 
-def replace_block(text: str, block: str, where: str = "README.md") -> str:
+PAGE = "docs/figures.md"  # the page holding the block
+
+
+def replace_block(text: str, block: str, where: str = PAGE) -> str:
     if text.count(BEGIN) != 1 or text.count(END) != 1 or text.index(BEGIN) > text.index(END):
         raise UserError(f"{where}: needs exactly one figures block ({BEGIN} ... {END})")
     head, rest = text.split(BEGIN, 1)
@@ -144,7 +147,7 @@ def replace_block(text: str, block: str, where: str = "README.md") -> str:
     return f"{head}{BEGIN}\n{block}{END}{tail}"
 
 
-def readme_block(text: str, where: str = "README.md") -> str:
+def page_block(text: str, where: str = PAGE) -> str:
     """The current block's content (between the markers)."""
     if text.count(BEGIN) != 1 or text.count(END) != 1:
         raise UserError(f"{where}: needs exactly one figures block ({BEGIN} ... {END})")

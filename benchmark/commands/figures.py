@@ -1,4 +1,4 @@
-"""``trase-bench figures``: the README's figures, measured and written from their data."""
+"""``trase-bench figures``: the figures page (docs/figures.md), measured and written from its data."""
 
 from __future__ import annotations
 
@@ -16,14 +16,14 @@ import click
               help="Only this geometry source (repeatable; default both).")
 @click.option("--collect-only", is_flag=True, help="Summarise the runs already under --out; run nothing.")
 @click.option("--data", "data_path", type=click.Path(dir_okay=False), default="docs/figures.json", show_default=True,
-              help="The summary written (and read by --write-readme).")
-@click.option("--write-readme", "readme", type=click.Path(dir_okay=False), default=None, is_flag=False,
-              flag_value="README.md", help="Rewrite this README's figures block from --data (default README.md).")
+              help="The summary written (and read by --write-page).")
+@click.option("--write-page", "page", type=click.Path(dir_okay=False), default=None, is_flag=False,
+              flag_value="docs/figures.md", help="Rewrite this page's figures block from --data (default docs/figures.md).")
 @click.option("--quiet", is_flag=True)
-def figures(out_dir, seeds, formats, geometries, collect_only, data_path, readme, quiet) -> None:
+def figures(out_dir, seeds, formats, geometries, collect_only, data_path, page, quiet) -> None:
     """Run trase on the five built-in formats (reconstructed and ground-truth geometry, each for
     --seeds run seeds), summarise mean ± std over seeds into --data with the commit and machine,
-    print the table, and with --write-readme put it into the README's figures block.
+    print the table, and with --write-page put it into the figures page's block.
 
     The whole measurement takes hours on 2 CPU cores (15 reconstructions of several minutes
     each); every stage is cached under --out and measured runs are kept, so an interrupted
@@ -50,9 +50,9 @@ def figures(out_dir, seeds, formats, geometries, collect_only, data_path, readme
     block = render_block(data)
     click.echo(block)
     click.echo(f"wrote {data_path}")
-    if readme:
+    if page:
         from benchmark.io import atomic_write_text
 
-        path = Path(readme)
+        path = Path(page)
         atomic_write_text(path, replace_block(path.read_text(), block, str(path)))
         click.echo(f"wrote the figures block of {path}")

@@ -1,4 +1,4 @@
-"""The README's figures come from docs/figures.json through one renderer."""
+"""The figures page (docs/figures.md) comes from docs/figures.json through one renderer."""
 
 from pathlib import Path
 
@@ -10,7 +10,7 @@ from benchmark.figures import (
     END,
     SCHEMA,
     read_figures,
-    readme_block,
+    page_block,
     render_block,
     replace_block,
 )
@@ -34,15 +34,15 @@ def test_block_renders_mean_and_spread_and_replaces_only_itself():
     assert "0.880 ± 0.020 / 0.500 ± 0.100 | 0.950 | 3 |" in block and "commit `abc1234`" in block
     text = f"intro\n{BEGIN}\nold\n{END}\nrest\n"
     new = replace_block(text, block)
-    assert new.startswith("intro\n") and new.endswith(f"{END}\nrest\n") and readme_block(new) == block
+    assert new.startswith("intro\n") and new.endswith(f"{END}\nrest\n") and page_block(new) == block
     with pytest.raises(UserError, match="exactly one figures block"):
         replace_block("no markers", block)
     with pytest.raises(UserError, match="schema"):
         render_block({"schema": "x"})
 
 
-def test_readme_figures_are_the_rendering_of_their_data_file():
-    readme = (ROOT / "README.md").read_text()
+def test_figures_page_is_the_rendering_of_its_data_file():
+    readme = (ROOT / "docs" / "figures.md").read_text()
     data = read_figures(ROOT / "docs" / "figures.json")
-    assert readme_block(readme) == render_block(data), \
-        "README figures block differs from docs/figures.json: run `trase-bench figures --collect-only --write-readme`"
+    assert page_block(readme) == render_block(data), \
+        "docs/figures.md figures block differs from docs/figures.json: run `trase-bench figures --collect-only --write-page`"

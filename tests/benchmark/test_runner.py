@@ -188,6 +188,7 @@ def test_run_seed_reaches_every_seeded_section_and_explicit_settings_win():
             parse_seeds(bad)
 
 
+@pytest.mark.slow
 def test_seeds_are_runs_side_by_side_and_one_leaderboard_row(data_root, tmp_path, capsys):
     out = tmp_path / "runs"
     args = ["run", "--method", "trase", "--dataset", "hypernerf", "--sequence", "synthetic", "--data-root",

@@ -27,6 +27,10 @@ RUN_TARGETS = ("hypernerf", "nerfds", "hypernerf-named")
 STATS = {"corruptions_caught": 0}
 
 
+# whole runs on corrupted copies of every format: part of `make test-all`
+pytestmark = pytest.mark.slow
+
+
 @pytest.fixture(scope="module")
 def pristine(tmp_path_factory) -> dict[str, Path]:
     return build_pristine(tmp_path_factory.mktemp("bad_input"))
