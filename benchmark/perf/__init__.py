@@ -35,10 +35,13 @@ def get_suite(name: str) -> Callable:
 
 
 def machine_info() -> dict:
-    """Where the figures were measured (CPU, cores, load, library versions)."""
+    """Where the figures were measured: what a results file records (benchmark.results:
+    platform, cores, instruction sets), plus the CPU model, load and library versions."""
     import numba
     import numpy
     import torch
+
+    from benchmark.results import machine_info as results_machine
 
     cpu = platform.processor() or platform.machine()
     try:
@@ -49,10 +52,8 @@ def machine_info() -> dict:
                     break
     except OSError:
         pass
-    return {
+    return results_machine() | {
         "cpu": cpu,
-        "cpu_count": os.cpu_count(),
-        "platform": platform.platform(),
         "python": sys.version.split()[0],
         "torch": torch.__version__,
         "torch_threads": torch.get_num_threads(),
