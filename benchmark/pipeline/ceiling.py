@@ -7,7 +7,6 @@ from __future__ import annotations
 from pathlib import Path
 
 from benchmark.cache import StageRecord
-from benchmark.io import read_json
 from benchmark.pipeline.context import SequenceRun
 from benchmark.scoring import read_mask
 
@@ -19,9 +18,8 @@ def run(ctx: SequenceRun) -> list[StageRecord]:
     """[] on real data."""
     if ctx.scene.truth is None:
         return []
-    fitted_config = read_json(ctx.records["fit"].path / "fitted.json", "fitted model").get("config", {})
-    ccfg = {"rule": str(fitted_config.get("render_rule", "alone")),
-            "threshold": float(fitted_config.get("alpha_threshold", 0.5))}
+    mcfg = ctx.cfg["method"]  # the config the fit was made with
+    ccfg = {"rule": str(mcfg.get("render_rule", "alone")), "threshold": float(mcfg.get("alpha_threshold", 0.5))}
     key = ctx.cache.key("ceiling", ccfg, {"geometry": ctx.records["geometry"].key, "gt": ctx.gt_key})
 
     def work(d: Path) -> dict:
