@@ -26,22 +26,28 @@ def sha256_files(paths: list[Path]) -> str:
     return h.hexdigest()
 
 
-def read_json(path: str | Path, what: str = "JSON file"):
-    """Read JSON with a one-line error naming the file (missing, not UTF-8, malformed)."""
+def read_json(path: str | Path, what: str = "JSON file", error: type[Exception] | None = None):
+    """Read JSON with a one-line error naming the file: "<path>: <what> not found", "cannot
+    read <what> (reason)", "<what> is not UTF-8 (byte N)", "malformed JSON in <what> (line L,
+    column C: reason)"; <what> is "file" when it would only repeat the file's name. ``error``:
+    the exception class to raise (UserError by default; dataset loaders pass DatasetError)."""
     from benchmark.errors import UserError
 
+    error = error or UserError
     path = Path(path)
+    what = "file" if what in ("", path.name) else what
     try:
         raw = path.read_bytes()
     except FileNotFoundError:
-        raise UserError(f"{path}: {what} not found") from None
+        raise error(f"{path}: {what} not found") from None
     except OSError as exc:
-        raise UserError(f"{path}: cannot read {what} ({exc.strerror})") from None
+        raise error(f"{path}: cannot read {what} ({exc.strerror or exc.__class__.__name__})") from None
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
-        raise UserError(f"{path}: {what} is not UTF-8 (byte {exc.start})") from None
+        raise error(f"{path}: {what} is not UTF-8 (byte {exc.start})") from None
     try:
         return json.loads(text)
     except json.JSONDecodeError as exc:
-        raise UserError(f"{path}: malformed {what} (line {exc.lineno}: {exc.msg})") from None
+        where = "" if what == "file" else f" in {what}"
+        raise error(f"{path}: malformed JSON{where} (line {exc.lineno}, column {exc.colno}: {exc.msg})") from None

@@ -38,12 +38,15 @@ def overlay(image: np.ndarray, pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
 
 
 def _read_rgb(path: Path, shape: tuple[int, int]) -> np.ndarray:
+    """[H, W, 3] uint8 picture of a test view (imagefiles' rule) at the mask's size."""
     import cv2
 
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if img is None:
+    from imagefiles import ImageFileError, read_rgb8
+
+    try:
+        img = read_rgb8(path)
+    except ImageFileError:
         return np.full((*shape, 3), 128, np.uint8)  # image moved away: grey backdrop, stated below
-    img = img[..., ::-1]
     if img.shape[:2] != shape:
         img = cv2.resize(img, (shape[1], shape[0]), interpolation=cv2.INTER_AREA)
     return img

@@ -15,30 +15,13 @@ from pathlib import Path
 
 import numpy as np
 
+from imagefiles import read_rgb8
 from masks.maskset import MaskError
 from masks.store import MaskFileError, mask_path, read_header, save
 
 
 class ImageReadError(MaskError):
     user_facing = True
-
-
-def read_rgb(path: os.PathLike | str) -> np.ndarray:
-    """[H, W, 3] uint8 RGB from any image OpenCV reads (gray, BGRA and 16-bit included)."""
-    import cv2
-
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise ImageReadError(f"{path}: cannot read image (missing or not an image)")
-    if img.dtype == np.uint16:
-        img = (img / 257.0 + 0.5).astype(np.uint8)
-    elif img.dtype != np.uint8:
-        raise ImageReadError(f"{path}: unsupported image dtype {img.dtype}")
-    if img.ndim == 2:
-        return np.ascontiguousarray(np.repeat(img[..., None], 3, axis=2))
-    if img.shape[2] == 4:
-        img = img[..., :3]
-    return np.ascontiguousarray(img[..., ::-1])  # BGR -> RGB
 
 
 def read_instance_map(path: os.PathLike | str) -> np.ndarray:
@@ -73,11 +56,14 @@ def generate_scene_masks(
     out_dir: os.PathLike | str,
     progress: bool = True,
     instance_maps: dict | None = None,
+    background=None,
 ) -> list[Path]:
     """Masks for every view, one file each; returns the paths in view order.
 
     ``instance_maps``: view name -> [H, W] int array or path of an instance-id PNG; required
-    (for every view) by generators with ``needs_instance_map``.
+    (for every view) by generators with ``needs_instance_map``. ``background``: what an RGBA
+    image is composited over (imagefiles' rule; the reconstruction's background, default black),
+    so masks are cut from the picture the reconstruction trains on.
     """
     views = list(views)
     out_dir = Path(out_dir)
@@ -109,7 +95,7 @@ def generate_scene_masks(
     try:
         for view, path in todo:
             t0 = time.perf_counter()
-            image = read_rgb(view.image_path) if not needs_ids else None
+            image = read_rgb8(view.image_path, background) if not needs_ids else None
             ids = None
             if needs_ids:
                 ids = instance_maps[view.name]

@@ -77,9 +77,9 @@ def main(argv: list[str] | None = None) -> None:
         t, ms = _time(lambda ids=ids: SyntheticGenerator().generate(None, "k", ids), args.repeats)
         rows.append(measure(ms, t, f"synthetic {h}x{w}"))
     for path in args.image:
-        from masks.generate import read_rgb
+        from imagefiles import read_rgb8
 
-        img = read_rgb(path)
+        img = read_rgb8(path)
         t, ms = _time(lambda img=img: ClassicalGenerator().generate(img), args.repeats)
         rows.append(measure(ms, t, f"classical {path} {img.shape[0]}x{img.shape[1]}"))
 

@@ -8,10 +8,10 @@ time-noise on the deformation input annealed to zero. Checkpoints use the public
 run resumes where it stopped.
 
 Deviations from the public trainer (documented because they change numbers slightly):
-* the rasterizer does not return screen-space mean gradients, so the densification
-  statistic is recovered from the gradient of the deformed 3D means by least squares through
-  the projection Jacobian (exact when the loss depends on a mean only through its pixel
-  position), in NDC units like 3DGS's;
+* the cpu presets' densification statistic (``densify_statistic="lstsq"``) is recovered from
+  the gradient of the deformed 3D means by least squares through the projection Jacobian (it
+  also counts what reaches a mean through its 2D covariance), in NDC units like 3DGS's; the
+  ``paper`` preset uses the render's screen positions' gradient, as 3DGS does;
 * the time-noise scale uses 1 / (number of training views) rather than 1 / (views left in the
   current random pass);
 * ``max_gaussians`` caps densification (keeping the largest-gradient candidates).
@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from imagefiles import ImageFileError
 from trase.camera import Camera
 from trase.checkpoint import (
     CheckpointError,
@@ -43,10 +44,12 @@ from trase.gaussians import GaussianModel
 from trase.losses import l1_loss, psnr, ssim
 
 
-class ImageLoadError(ValueError):
-    """A training image that cannot be used; the message names the file and the problem."""
+class ImageLoadError(ImageFileError):
+    """A training image that cannot be used (missing, or not its camera's size); the message
+    names the file and the problem. Undecodable files raise imagefiles' ImageFileError."""
 
-    user_facing = True
+
+DENSIFY_STATISTICS = ("means2d", "lstsq")
 
 
 @dataclasses.dataclass
@@ -69,6 +72,11 @@ class ReconstructionConfig:
     densify_until: int = 15_000
     densify_interval: int = 100
     densify_grad_threshold: float = 0.0002  # the public TRASE code (Deformable-3DGS: 0.0007)
+    # the densification statistic: "means2d" is 3DGS's, the gradient of the rendered screen
+    # positions (RenderOutput.means2d); "lstsq" recovers it from the gradient of the 3D means by
+    # least squares through the projection Jacobian (it also carries what reaches a mean
+    # through its 2D covariance), what this trainer used before renders returned projection data
+    densify_statistic: str = "means2d"
     min_opacity: float = 0.005
     opacity_reset_interval: int = 3_000
     max_gaussians: int = 0  # 0 = no cap
@@ -129,12 +137,18 @@ class ReconstructionConfig:
         kw.update(overrides)
         return cls(**kw)
 
+    def __post_init__(self) -> None:
+        if self.densify_statistic not in DENSIFY_STATISTICS:
+            raise ValueError(f"densify_statistic must be one of {', '.join(DENSIFY_STATISTICS)}, "
+                             f"got {self.densify_statistic!r}")
+
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
 
 
 CPU_V1: dict[str, Any] = {
     "iterations": 2000,
+    "densify_statistic": "lstsq",  # the statistic the cpu presets were tuned with
     "feature_lr": 0.01,
     "scaling_lr": 0.005,
     "warm_up": 300,
@@ -201,27 +215,16 @@ def time_noise_scale(step: int, cfg: ReconstructionConfig) -> float:
 # -- data ------------------------------------------------------------------------------------
 def load_image(path: Path, camera: Camera, background: np.ndarray) -> np.ndarray:
     """[H, W, 3] float32 RGB in [0, 1] at the camera's size (resized with INTER_AREA when the
-    file is larger by the downscale factor). RGBA is composited over the background."""
+    file is larger by the downscale factor); 16-bit, gray and RGBA files by imagefiles' rule
+    (alpha composited over ``background``)."""
     import cv2
+
+    from imagefiles import read_rgb
 
     path = Path(path)
     if not path.is_file():
         raise ImageLoadError(f"{path}: training image not found")
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise ImageLoadError(f"{path}: cannot decode image")
-    if img.dtype == np.uint16:
-        img = img.astype(np.float32) / 65535.0
-    elif img.dtype == np.uint8:
-        img = img.astype(np.float32) / 255.0
-    else:
-        img = img.astype(np.float32)
-    if img.ndim == 2:
-        img = np.repeat(img[:, :, None], 3, axis=2)
-    if img.shape[2] == 4:
-        a = img[:, :, 3:4]
-        img = img[:, :, :3] * a + background[::-1][None, None, :] * (1 - a)  # BGR order still
-    img = np.ascontiguousarray(img[:, :, 2::-1])  # BGR -> RGB
+    img = read_rgb(path, background)
     h, w = img.shape[:2]
     if (w, h) != (camera.width, camera.height):
         sx, sy = w / camera.width, h / camera.height
@@ -309,6 +312,14 @@ def evaluate_psnr(gaussians: GaussianModel, deformation, views: Sequence, backgr
         out, _ = render_view(gaussians, deformation, cam, bg, backend)
         vals.append(psnr(out.color.clamp(0, 1), gt))
     return float(np.mean(vals))
+
+
+def screen_grad_norm(grad_means2d: torch.Tensor, camera: Camera) -> torch.Tensor:
+    """|dL/d(mean2D)| in NDC units [N] (3DGS's densification statistic) from the gradient of
+    the rendered pixel positions [N, 2]: NDC spans W / 2 pixels per unit in x, H / 2 in y."""
+    g = grad_means2d.detach().double()
+    n = torch.hypot(g[:, 0] * (0.5 * camera.width), g[:, 1] * (0.5 * camera.height))
+    return torch.where(torch.isfinite(n), n, torch.zeros_like(n)).float()
 
 
 def _screen_grad_norm(grad_means: torch.Tensor, means: torch.Tensor, camera: Camera) -> torch.Tensor:
@@ -500,9 +511,6 @@ def _reconstruct(views, points, point_colors, config, out_dir, resume, progress,
         view_stack = []
         ema_loss, ema_psnr = 0.0, 0.0
 
-    from trase.render.numba_projection import project_gaussians_numba
-    from trase.render.projection import project_gaussians
-
     def save(it: int) -> None:
         state = {
             "iteration": it,
@@ -545,7 +553,9 @@ def _reconstruct(views, points, point_colors, config, out_dir, resume, progress,
                 offset = noise * time_noise_scale(it, cfg) / n_views
             out, means_t = render_view(gaussians, deform, cam, bg, backend, offset, use_deform,
                                        visible_only=cfg.deform_visible_only)
-            means_t.retain_grad()
+            screen = out.means2d if cfg.densify_statistic == "means2d" else means_t
+            if screen.requires_grad:
+                screen.retain_grad()
             image = out.color
             l1 = l1_loss(image, gt)
             loss = (1.0 - cfg.lambda_dssim) * l1 + cfg.lambda_dssim * (1.0 - ssim(image, gt))
@@ -565,13 +575,10 @@ def _reconstruct(views, points, point_colors, config, out_dir, resume, progress,
 
                 # densification statistics and steps
                 if it < cfg.densify_until:
-                    mt = means_t.detach()
-                    # visibility (radius > 0) only: the numba twin gives the same radii, ~10x faster
-                    project = project_gaussians_numba if mt.device.type == "cpu" else project_gaussians
-                    proj = project(mt, gaussians.rotations.detach(), gaussians.scales.detach(), cam)
-                    vis = proj.radii > 0
-                    if means_t.grad is not None:
-                        gn = _screen_grad_norm(means_t.grad, mt, cam)
+                    vis = out.radii.to(grad_accum.device) > 0  # the render's own projection
+                    if screen.grad is not None:
+                        gn = screen_grad_norm(screen.grad, cam) if screen is out.means2d else \
+                            _screen_grad_norm(screen.grad, means_t.detach(), cam)
                         grad_accum[vis] += gn[vis]
                         denom[vis] += 1
                     if it > cfg.densify_from and it % cfg.densify_interval == 0:

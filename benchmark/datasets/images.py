@@ -31,13 +31,14 @@ def check_size(path: Path | str, width: int, height: int, what: str) -> None:
 
 
 def read_image(path: Path | str) -> np.ndarray:
-    """[H, W, 3] uint8 BGR (OpenCV order), with a clear error if unreadable."""
-    import cv2
+    """[H, W, 3] uint8 BGR (OpenCV order, for ``write_image``) of imagefiles' picture, with the
+    dataset error naming the file if unreadable."""
+    from imagefiles import ImageFileError, read_rgb8
 
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if img is None:
-        raise fail(path, "cannot read image")
-    return img
+    try:
+        return np.ascontiguousarray(read_rgb8(path)[:, :, ::-1])
+    except ImageFileError as exc:
+        raise fail(path, str(exc).removeprefix(f"{path}: ")) from None
 
 
 def write_image(path: Path | str, img: np.ndarray) -> None:

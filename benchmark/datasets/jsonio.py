@@ -1,28 +1,21 @@
-"""Reading JSON and numeric fields with errors that name the file and the field."""
+"""Dataset files: JSON (benchmark.io's reader, raising DatasetError) and numeric fields, with
+errors that name the file and the field."""
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from benchmark.datasets.errors import fail
+from benchmark.datasets.errors import DatasetError, fail
+from benchmark.io import read_json as _read_json
 
 
 def read_json(path: Path | str, what: str = "file") -> Any:
-    path = Path(path)
-    if not path.is_file():
-        raise fail(path, f"missing {what}")
-    try:
-        with path.open("r", encoding="utf-8") as f:
-            return json.load(f)
-    except json.JSONDecodeError as exc:
-        raise fail(path, f"malformed JSON (line {exc.lineno}, column {exc.colno}: {exc.msg})") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise fail(path, f"cannot read {what} ({exc.__class__.__name__})") from None
+    """benchmark.io's reader, raising DatasetError."""
+    return _read_json(path, what, DatasetError)
 
 
 def field(d: Any, key: str, path: Path | str, where: str = "") -> Any:

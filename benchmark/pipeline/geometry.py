@@ -30,7 +30,7 @@ def run(ctx: SequenceRun) -> list[StageRecord]:
         elif src == "reconstruct":
             try:
                 rcfg = ReconstructionConfig(**gcfg["train"])
-            except TypeError as exc:
+            except (TypeError, ValueError) as exc:
                 raise ConfigError(f"geometry.train: {exc}") from None
             reconstruct(scene.train, scene.points, scene.point_colors, rcfg, d / "model",
                         resume=True, progress=ctx.progress)

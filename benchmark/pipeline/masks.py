@@ -29,12 +29,16 @@ def run(ctx: SequenceRun) -> list[StageRecord]:
     import masks as masklib
 
     mcfg = ctx.cfg["masks"]
-    key = ctx.cache.key("masks", mcfg, {"scene": ctx.scene_key})
+    # an RGBA image is composited over the reconstruction's background (imagefiles' rule), so
+    # masks are cut from the picture the geometry trains on
+    white = bool(ctx.cfg["geometry"].get("train", {}).get("white_background", False))
+    key = ctx.cache.key("masks", mcfg, {"scene": ctx.scene_key, "background": "white" if white else "black"})
 
     def work(d: Path) -> dict:
         instance_maps = synthetic_truth(ctx.scene).instance_maps if mcfg["generator"] == "synthetic" else None
         paths = masklib.generate_scene_masks(ctx.scene.train, make_mask_generator(mcfg), d,
-                                             progress=ctx.progress, instance_maps=instance_maps)
+                                             progress=ctx.progress, instance_maps=instance_maps,
+                                             background=(1.0, 1.0, 1.0) if white else None)
         sizes = [p.stat().st_size for p in paths]
         return {"n_views": len(paths), "bytes_per_view": int(np.mean(sizes)) if sizes else 0}
 

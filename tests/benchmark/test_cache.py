@@ -74,7 +74,7 @@ def test_read_json_errors_name_the_file(tmp_path):
     with pytest.raises(UserError, match="r.json: results is not UTF-8"):
         read_json(p, "results")
     p.write_text('{"a": ')
-    with pytest.raises(UserError, match="r.json: malformed results"):
+    with pytest.raises(UserError, match="r.json: malformed JSON in results"):
         read_json(p, "results")
     atomic_write_json(p, {"a": 1})
     assert json.loads(p.read_text()) == {"a": 1}

@@ -6,6 +6,7 @@ import pytest
 from mask_testutils import best_iou, shapes_image
 
 import masks
+from imagefiles import ImageFileError
 from masks import MaskError
 from masks.generators import make_generator, min_area_for
 from masks.generators.classical import ClassicalGenerator
@@ -214,6 +215,6 @@ def test_generate_scene_masks_writes_and_skips(tmp_path):
 def test_unreadable_image_is_one_line_error(tmp_path):
     bad = tmp_path / "bad.png"
     bad.write_bytes(b"nope")
-    with pytest.raises(MaskError, match="cannot read image"):
+    with pytest.raises(ImageFileError, match="bad.png: cannot decode image"):
         masks.generate_scene_masks([_View("a", bad)], ClassicalGenerator(), tmp_path / "o",
                                    progress=False)

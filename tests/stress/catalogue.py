@@ -155,7 +155,7 @@ NAN = float("nan")
 CASES: list[Case] = [
     # ---- nerfies (HyperNeRF) through `trase-bench run` ----
     Case("hn-dataset-truncated", "hypernerf", "dataset.json", "truncated to half", "malformed JSON", truncate),
-    Case("hn-dataset-not-utf8", "hypernerf", "dataset.json", "invalid UTF-8 bytes", "UnicodeDecodeError", non_utf8),
+    Case("hn-dataset-not-utf8", "hypernerf", "dataset.json", "invalid UTF-8 bytes", "not UTF-8", non_utf8),
     Case("hn-dataset-no-ids", "hypernerf", "dataset.json", "key `ids` removed", "missing key 'ids'",
          edit_json(lambda d: _del(d, "ids"))),
     Case("hn-dataset-ids-not-list", "hypernerf", "dataset.json", "`ids` is a number", "ids must be a list",
@@ -169,7 +169,7 @@ CASES: list[Case] = [
          edit_json(lambda d: _del(d, "focal_length"))),
     Case("hn-camera-bad-shape", "hypernerf", "camera/000004.json", "orientation is 2x3", "orientation has shape (2, 3)",
          edit_json(lambda d: _set(d, "orientation", d["orientation"][:2]))),
-    Case("hn-camera-missing", "hypernerf", "camera/000004.json", "file deleted", "missing camera file", delete),
+    Case("hn-camera-missing", "hypernerf", "camera/000004.json", "file deleted", "camera file not found", delete),
     Case("hn-camera-string-focal", "hypernerf", "camera/000008.json", "focal_length is a string", "focal_length is not a number",
          edit_json(lambda d: _set(d, "focal_length", "big"))),
     Case("hn-image-unreadable", "hypernerf", "rgb/2x/000004.png", "garbage bytes", "cannot read image", garbage),
@@ -183,7 +183,7 @@ CASES: list[Case] = [
          edit_npy(lambda a: np.where(np.arange(a.shape[0])[:, None] == 0, np.nan, a))),
     Case("hn-scene-no-scale", "hypernerf", "scene.json", "key `scale` removed", "missing key 'scale'",
          edit_json(lambda d: _del(d, "scale"))),
-    Case("hn-empty-dir", "hypernerf-named", ".", "scene directory emptied", "missing dataset.json", empty_dir),
+    Case("hn-empty-dir", "hypernerf-named", ".", "scene directory emptied", "dataset.json: file not found", empty_dir),
     # ---- nerfies (NeRF-DS) ----
     Case("nd-dataset-no-val", "nerfds", "dataset.json", "key `val_ids` removed", "missing key 'val_ids'",
          edit_json(lambda d: _del(d, "val_ids"))),
@@ -204,12 +204,12 @@ CASES: list[Case] = [
     Case("n3-video-garbage", "neu3d", "cam01.mp4", "garbage bytes", "cannot open video", garbage),
     Case("n3-video-truncated", "neu3d", "cam02.mp4", "truncated video", "cannot open video", lambda p: truncate(p, 0.05)),
     Case("n3-old-manifest-garbage", "neu3d", "@out/prepared.json", "OUT_DIR holds a damaged prepared.json",
-         "malformed prepared manifest", garbage),
+         "malformed JSON in prepared manifest", garbage),
     Case("n3-old-manifest-list", "neu3d", "@out/prepared.json", "OUT_DIR's prepared.json is a list",
          "not a JSON object", lambda p: p.write_text("[1, 2]")),
     Case("n3-empty-dir", "neu3d", ".", "raw directory emptied", "no camNN.mp4 videos", empty_dir),
     # ---- Immersive raw ----
-    Case("im-models-not-utf8", "immersive", "models.json", "invalid UTF-8 bytes", "UnicodeDecodeError", non_utf8),
+    Case("im-models-not-utf8", "immersive", "models.json", "invalid UTF-8 bytes", "not UTF-8", non_utf8),
     Case("im-models-no-focal", "immersive", "models.json", "focal_length removed from a camera", "missing key 'focal_length'",
          edit_json(lambda d: _del(d[1], "focal_length"))),
     Case("im-models-nan", "immersive", "models.json", "NaN orientation", "contains NaN",
@@ -257,7 +257,7 @@ CASES: list[Case] = [
          npz_edit(lambda d: d["d_xyz"].__setitem__((0, 0, 0), np.nan))),
     # ---- results files through `trase-bench leaderboard` ----
     Case("res-not-utf8", "results", "m/hypernerf/s/main/results.json", "invalid UTF-8 bytes", "not UTF-8", non_utf8),
-    Case("res-truncated", "results", "m/hypernerf/s/main/results.json", "truncated JSON", "malformed results file", truncate),
+    Case("res-truncated", "results", "m/hypernerf/s/main/results.json", "truncated JSON", "malformed JSON in results file", truncate),
     Case("res-no-metrics", "results", "m/hypernerf/s/main/results.json", "key `metrics` removed", "lacks key 'metrics'",
          edit_json(lambda d: _del(d, "metrics"))),
     Case("res-miou-range", "results", "m/hypernerf/s/main/results.json", "miou = 2.5", "must be a number in [0, 1]",

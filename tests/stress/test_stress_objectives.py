@@ -31,6 +31,7 @@ import torch
 from hypothesis import given
 from hypothesis import strategies as st
 
+import baselines  # noqa: F401  (registers the baseline objectives with trase.objectives)
 from trase.objectives import PixelSample, get_objective
 from trase.objectives.base import W_MAX
 

@@ -1,6 +1,7 @@
 import numpy as np
 import torch
 
+import baselines  # noqa: F401  (registers the baseline objectives with trase.objectives)
 from tests.trase.helpers import exact_masks, tiny_scene
 from trase.clustering import cluster
 from trase.features import FeatureConfig, build_sample, train_features

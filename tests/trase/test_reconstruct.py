@@ -9,11 +9,11 @@ import pytest
 import torch
 from recon_scene import write_scene
 
+from imagefiles import ImageFileError
 from trase.checkpoint import CheckpointError, available_iterations, load_model
 from trase.deformation import DeformMLP
 from trase.gaussians import GaussianModel
 from trase.reconstruct import (
-    ImageLoadError,
     ReconstructionConfig,
     evaluate_psnr,
     expon_lr,
@@ -82,7 +82,7 @@ def test_bad_image_is_a_one_line_error(scene, tmp_path):
     bad = tmp_path / "bad.png"
     bad.write_bytes(b"not a png")
     views = [dataclasses.replace(views[0], image_path=bad)] + list(views[1:])
-    with pytest.raises(ImageLoadError, match="bad.png"):
+    with pytest.raises(ImageFileError, match="bad.png: cannot decode"):
         reconstruct(views, pts, None, CFG, tmp_path / "m", progress=False)
 
 
@@ -230,3 +230,31 @@ def test_densification_never_exceeds_the_gaussian_cap_and_keeps_the_largest_grad
     assert torch.equal(g.means[:170], torch.as_tensor(pts[:170], dtype=g.means.dtype))
     full, _ = _densify_points_under_cap(200)
     assert full.num_gaussians == 200  # at the cap: nothing added
+
+
+def test_screen_grad_norm_is_ndc_units_of_the_pixel_gradient():
+    from trase.camera import Camera, intrinsics
+    from trase.reconstruct import screen_grad_norm
+
+    cam = Camera(K=intrinsics(50, 50, 50, 40), w2c=np.eye(4), width=100, height=80)
+    g = torch.tensor([[1.0, 0.0], [0.0, 2.0], [3.0, 4.0], [float("nan"), 0.0]])
+    assert screen_grad_norm(g, cam).tolist() == pytest.approx([50.0, 80.0, float(np.hypot(150, 160)), 0.0])
+
+
+@pytest.mark.parametrize("statistic", ["means2d", "lstsq"])
+def test_both_densification_statistics_densify(scene, tmp_path, statistic):
+    """The render's own projection drives densification (no second projection): with either
+    statistic the run densifies and trains."""
+    views, pts = scene
+    cfg = dataclasses.replace(CFG, densify_statistic=statistic, densify_grad_threshold=1e-6)
+    g, d = reconstruct(views, pts, None, cfg, tmp_path / statistic, progress=False)
+    assert g.num_gaussians > len(pts)
+    assert np.isfinite(evaluate_psnr(g, d, views))
+    with pytest.raises(ValueError, match="densify_statistic must be one of means2d, lstsq"):
+        dataclasses.replace(CFG, densify_statistic="screen")
+
+
+def test_presets_name_their_densification_statistic():
+    assert ReconstructionConfig.paper().densify_statistic == "means2d"  # 3DGS's statistic
+    assert ReconstructionConfig.cpu().densify_statistic == "lstsq"  # what the cpu presets were tuned with
+    assert ReconstructionConfig.cpu_v1().densify_statistic == "lstsq"

@@ -30,7 +30,7 @@ def rasterize_gsplat(means, quats, scales, opacities, camera, colors, sh_degree,
     chans = torch.cat(parts, dim=1)
     viewmat = torch.as_tensor(camera.w2c, dtype=dt, device=dev)[None]
     K = torch.as_tensor(camera.K, dtype=dt, device=dev)[None]
-    img, alpha, _ = rasterization(
+    img, alpha, meta = rasterization(
         means, quats, scales, opacities, chans, viewmat, K, camera.width, camera.height,
         near_plane=near, sh_degree=None, render_mode="RGB+ED", packed=False,
     )
@@ -45,4 +45,9 @@ def rasterize_gsplat(means, quats, scales, opacities, camera, colors, sh_degree,
     if features is not None:
         feats = img[..., c : c + features.shape[1]]
     depth = torch.where(alpha > ALPHA_EPS, img[..., -1], torch.zeros_like(alpha))
-    return RenderOutput(color=color, features=feats, depth=depth, alpha=alpha)
+    means2d = meta["means2d"][0]  # [N, 2] pixels; retain_grad() gives the screen-space gradient
+    radii = meta["radii"][0]  # [N] or [N, 2] (per axis in newer gsplat)
+    if radii.ndim == 2:
+        radii = radii.max(dim=-1).values
+    return RenderOutput(color=color, features=feats, depth=depth, alpha=alpha, means2d=means2d,
+                        radii=radii.long())

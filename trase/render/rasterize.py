@@ -10,6 +10,7 @@ Backends: ``torch`` (reference, autograd), ``numba`` (fast CPU, hand-written bac
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import torch
@@ -90,7 +91,8 @@ def rasterize(
     near: float = 0.01,
     tile_size: int = 16,
 ) -> RenderOutput:
-    """Render one view; differentiable w.r.t. every tensor argument (torch and numba)."""
+    """Render one view; differentiable w.r.t. every tensor argument (torch and numba). The
+    output carries the projection (``means2d``, ``radii``), so a trainer needs no second one."""
     _check_inputs(means, quats, scales, opacities, camera, colors, sh_degree, features, background)
     backend = _resolve_backend(backend, means.device)
     if backend == "gsplat":
@@ -125,7 +127,8 @@ def rasterize(
             proj.means2d, proj.conics, opac, channels, proj.depths, proj.rects,
             camera.width, camera.height, tile_size,
         )
-    return _split(out, alpha, colors is not None, features.shape[1] if features is not None else 0, background)
+    render = _split(out, alpha, colors is not None, features.shape[1] if features is not None else 0, background)
+    return dataclasses.replace(render, means2d=proj.means2d, radii=proj.radii)
 
 
 def _split(out, alpha, has_color, n_feat, background) -> RenderOutput:

@@ -21,6 +21,10 @@ class RenderOutput:
     features: torch.Tensor | None  # [H, W, D]  sum_i w_i f_i (not normalised, no background)
     depth: torch.Tensor  # [H, W]  sum_i w_i z_i / alpha (camera z), 0 where alpha ~ 0
     alpha: torch.Tensor  # [H, W]  sum_i w_i
+    # projection data of the render (None where a backend has none):
+    means2d: torch.Tensor | None = None  # [N, 2] pixel centres in the autograd graph: after
+    #   retain_grad() and backward, .grad is 3DGS's screen-space gradient (densification)
+    radii: torch.Tensor | None = None  # [N] int64 screen radius in pixels, 0 = culled
 
 
 @dataclasses.dataclass

@@ -219,7 +219,7 @@ def test_immersive_camera_without_video(tmp_path):
 def test_immersive_malformed_models(tmp_path):
     raw = write_immersive(tmp_path / "01_Welder", n_cams=2, n_frames=1)
     (raw / "models.json").write_text("[{")
-    with pytest.raises(DatasetError, match=r"models.json: malformed JSON"):
+    with pytest.raises(DatasetError, match=r"models.json: malformed JSON \(line"):
         prepare_sequence("immersive", raw, tmp_path / "out")
     models = [immersive_model(0), immersive_model(1)]
     del models[1]["focal_length"]
