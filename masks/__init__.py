@@ -16,23 +16,10 @@ Generators are imported lazily (OpenCV, segment-anything), so ``import masks`` i
 """
 
 from masks import sampling
+from masks.coco import from_rle, load_coco_json, save_coco_json, to_rle
+from masks.compression import CompressionReport, compression_report, format_compression_table
 from masks.maskset import MaskError, MaskSet
-from masks.store import (
-    CompressionReport,
-    MaskFileError,
-    compression_report,
-    format_compression_table,
-    from_rle,
-    load,
-    load_coco_json,
-    loads,
-    mask_path,
-    read_header,
-    save,
-    save_coco_json,
-    save_official,
-    to_rle,
-)
+from masks.store import MaskFileError, load, loads, mask_path, read_header, save, save_official
 
 __all__ = [
     "CompressionReport", "MaskError", "MaskFileError", "MaskSet", "compression_report",

@@ -13,8 +13,9 @@ import time
 
 import numpy as np
 
+from masks.compression import compression_report
 from masks.maskset import MaskSet
-from masks.store import compression_report, from_bytes, to_bytes
+from masks.store import from_bytes, to_bytes
 
 
 def procedural_scene(h: int, w: int, seed: int = 0, n_objects: int = 10):

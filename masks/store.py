@@ -1,4 +1,5 @@
-"""Mask files: our bit-packed format, the paper's torch/bitarray format, and COCO RLE.
+"""Mask files: our bit-packed format and the paper's torch/bitarray format (COCO RLE:
+``masks.coco``; bytes per representation: ``masks.compression``).
 
 Our format (``*.masks``), little-endian, no pickle::
 
@@ -25,7 +26,6 @@ names the file and what is wrong.
 
 from __future__ import annotations
 
-import dataclasses
 import io
 import json
 import os
@@ -64,7 +64,7 @@ def mask_path(out_dir: os.PathLike | str, view_name: str) -> Path:
     return Path(out_dir) / f"{safe}{SUFFIX}"
 
 
-def _atomic_write(path: os.PathLike | str, data: bytes) -> None:
+def atomic_write(path: os.PathLike | str, data: bytes) -> None:
     """Write to a temp file in the same folder, fsync, then rename over ``path``."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -216,7 +216,7 @@ def read_header(path: os.PathLike | str) -> dict:
 
 def save(path: os.PathLike | str, ms: MaskSet, codec: str = "zlib") -> Path:
     """Write ``ms`` in our format, atomically. Returns the path."""
-    _atomic_write(path, to_bytes(ms, codec=codec))
+    atomic_write(path, to_bytes(ms, codec=codec))
     return Path(path)
 
 
@@ -244,11 +244,11 @@ def official_to_bytes(ms: MaskSet) -> bytes:
 
 def save_official(path: os.PathLike | str, ms: MaskSet) -> Path:
     """Write the paper's format, atomically (scores and generator info are not kept)."""
-    _atomic_write(path, official_to_bytes(ms))
+    atomic_write(path, official_to_bytes(ms))
     return Path(path)
 
 
-def _first_line(exc: BaseException) -> str:
+def first_line(exc: BaseException) -> str:
     text = [t.strip() for t in str(exc).strip().splitlines() if t.strip()]
     reason = [t for t in text if t.startswith("WeightsUnpickler error:")]  # torch's real cause
     text = reason or text
@@ -265,9 +265,9 @@ def _from_official(data: bytes, path) -> MaskSet:
         with torch.serialization.safe_globals(_torch_safe_globals()):
             obj = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as exc:
-        raise MaskFileError(path, f"unreadable or unsafe torch file ({_first_line(exc)})") from None
+        raise MaskFileError(path, f"unreadable or unsafe torch file ({first_line(exc)})") from None
     except Exception as exc:  # noqa: BLE001 - torch raises RuntimeError/EOFError/... for damaged archives
-        raise MaskFileError(path, f"unreadable torch file, truncated or damaged ({_first_line(exc)})") from None
+        raise MaskFileError(path, f"unreadable torch file, truncated or damaged ({first_line(exc)})") from None
     info = {"source_format": "official"}
     if isinstance(obj, torch.Tensor):  # the paper's --save_to_tensor variant
         if obj.ndim != 3:
@@ -324,128 +324,3 @@ def load(path: os.PathLike | str) -> MaskSet:
     except OSError as exc:
         raise MaskFileError(path, f"unreadable ({exc.strerror or exc})") from None
     return loads(data, path)
-
-
-# --------------------------------------------------------------------------- COCO RLE
-def to_rle(ms: MaskSet) -> list[dict]:
-    """COCO RLE of every mask: ``{"size": [H, W], "counts": str}`` (pycocotools)."""
-    from pycocotools import mask as cocomask
-
-    if ms.n == 0:
-        return []
-    fortran = np.asfortranarray(ms.masks.transpose(1, 2, 0).astype(np.uint8))  # [H, W, N]
-    rles = cocomask.encode(fortran)
-    return [{"size": [int(s) for s in r["size"]], "counts": r["counts"].decode("ascii")} for r in rles]
-
-
-def from_rle(
-    rles: list[dict],
-    height: int,
-    width: int,
-    score: np.ndarray | None = None,
-    generator: str = "unknown",
-    info: dict | None = None,
-) -> MaskSet:
-    """Inverse of ``to_rle`` (``height``/``width`` are needed when the list is empty)."""
-    from pycocotools import mask as cocomask
-
-    if not rles:
-        return MaskSet.empty(height, width, generator, info)
-    enc = []
-    for i, r in enumerate(rles):
-        if list(r.get("size", [])) != [height, width]:
-            raise MaskError(f"RLE {i} has size {r.get('size')}, expected {[height, width]}")
-        c = r["counts"]
-        enc.append({"size": [height, width], "counts": c.encode("ascii") if isinstance(c, str) else c})
-    dec = cocomask.decode(enc)  # [H, W, N] uint8
-    masks = np.ascontiguousarray(dec.transpose(2, 0, 1)).astype(bool)
-    return MaskSet.from_masks(masks, score=score, generator=generator, info=info)
-
-
-def to_coco_dict(ms: MaskSet) -> dict:
-    """A JSON-ready dict: image size, generator, info and one COCO-style record per mask."""
-    anns = []
-    for i, rle in enumerate(to_rle(ms)):
-        rec = {"segmentation": rle, "area": int(ms.area[i])}
-        if ms.score is not None:
-            rec["score"] = float(ms.score[i])
-        anns.append(rec)
-    return {"height": ms.height, "width": ms.width, "generator": ms.generator, "info": ms.info,
-            "annotations": anns}
-
-
-def from_coco_dict(d: dict, source: str = "<dict>") -> MaskSet:
-    try:
-        anns = d["annotations"]
-        h, w = int(d["height"]), int(d["width"])
-        scores = [a["score"] for a in anns] if anns and all("score" in a for a in anns) else None
-        ms = from_rle([a["segmentation"] for a in anns], h, w,
-                      None if scores is None else np.asarray(scores, np.float32),
-                      d.get("generator", "unknown"), d.get("info") or {})
-    except (KeyError, TypeError, ValueError) as exc:
-        raise MaskFileError(source, f"not a COCO mask record ({_first_line(exc)})") from None
-    areas = [a.get("area") for a in anns]
-    if all(a is not None for a in areas) and not np.array_equal(np.asarray(areas, np.int64), ms.area):
-        raise MaskFileError(source, "stored areas do not match the decoded masks")
-    return ms
-
-
-def save_coco_json(path: os.PathLike | str, ms: MaskSet) -> Path:
-    _atomic_write(path, json.dumps(to_coco_dict(ms)).encode())
-    return Path(path)
-
-
-def load_coco_json(path: os.PathLike | str) -> MaskSet:
-    try:
-        d = json.loads(Path(path).read_text())
-    except OSError as exc:
-        raise MaskFileError(path, f"unreadable ({exc.strerror or exc})") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise MaskFileError(path, f"not JSON ({_first_line(exc)})") from None
-    return from_coco_dict(d, str(path))
-
-
-# ------------------------------------------------------------------------ compression
-@dataclasses.dataclass
-class CompressionReport:
-    """Bytes needed to store one image's masks in each representation."""
-
-    n: int
-    height: int
-    width: int
-    dense_bool: int  # numpy bool [N, H, W]
-    packed_bits: int  # np.packbits, no container
-    official: int  # the paper's torch.save(bitarray) file
-    ours: int  # our file (zlib)
-    ours_uncompressed: int  # our file, codec "none"
-    coco_rle_json: int  # JSON with COCO RLE strings
-
-    def as_dict(self) -> dict:
-        return dataclasses.asdict(self)
-
-
-def compression_report(ms: MaskSet) -> CompressionReport:
-    return CompressionReport(
-        n=ms.n, height=ms.height, width=ms.width,
-        dense_bool=ms.n * ms.height * ms.width,
-        packed_bits=(ms.n * ms.height * ms.width + 7) // 8,
-        official=len(official_to_bytes(ms)),
-        ours=len(to_bytes(ms, "zlib")),
-        ours_uncompressed=len(to_bytes(ms, "none")),
-        coco_rle_json=len(json.dumps(to_coco_dict(ms)).encode()),
-    )
-
-
-def format_compression_table(reports: list[CompressionReport]) -> str:
-    """Mean bytes per image and the ratio to dense bool, one row per representation."""
-    if not reports:
-        return "no images"
-    fields = ["dense_bool", "packed_bits", "official", "ours_uncompressed", "ours", "coco_rle_json"]
-    dense = float(np.mean([r.dense_bool for r in reports]))
-    lines = [(f"{len(reports)} image(s), mean {np.mean([r.n for r in reports]):.1f} masks of "
-              f"{reports[0].height}x{reports[0].width}"),
-             f"{'representation':<18} {'bytes/image':>12} {'x smaller than dense':>21}"]
-    for f in fields:
-        b = float(np.mean([getattr(r, f) for r in reports]))
-        lines.append(f"{f:<18} {b:>12.0f} {dense / b if b else float('inf'):>21.1f}")
-    return "\n".join(lines)

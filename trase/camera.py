@@ -181,7 +181,7 @@ class Camera:
             raise CameraError(f"{self.name or 'camera'}: {what} needs an undistorted pinhole camera")
 
     # -- derived cameras ----------------------------------------------------------------
-    def scaled(self, factor: float) -> "Camera":
+    def scaled(self, factor: float) -> Camera:
         """The same camera for an image downscaled by ``factor`` (2 -> half the size)."""
         K = self.K.copy()
         K[:2] /= factor
@@ -192,10 +192,10 @@ class Camera:
             height=int(round(self.height / factor)),
         )
 
-    def with_time(self, time: float) -> "Camera":
+    def with_time(self, time: float) -> Camera:
         return dataclasses.replace(self, time=float(time))
 
-    def undistorted(self) -> "Camera":
+    def undistorted(self) -> Camera:
         """The pinhole camera (same K, pose, size) that undistorted images are resampled to."""
         return dataclasses.replace(self, radial=(0.0, 0.0, 0.0), tangential=(0.0, 0.0), fisheye=False)
 
@@ -214,7 +214,7 @@ class Camera:
         }
 
     @classmethod
-    def from_dict(cls, d: dict) -> "Camera":
+    def from_dict(cls, d: dict) -> Camera:
         return cls(
             K=np.asarray(d["K"], dtype=np.float64),
             w2c=np.asarray(d["w2c"], dtype=np.float64),

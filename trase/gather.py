@@ -15,7 +15,6 @@ same order whatever the thread count (results are bit-identical at 1 and 2 threa
 
 from __future__ import annotations
 
-
 import numpy as np
 import torch
 from numba import njit, prange
@@ -79,7 +78,7 @@ def _normalise_rows(f, eps, one, fhat, denom):
         for c in range(D):
             s += f[i, c] * f[i, c]
         n = np.sqrt(s)
-        denom[i] = n if n >= eps else eps
+        denom[i] = max(n, eps)
         inv = one / denom[i]  # ``one`` is a scalar of f's dtype: float32 stays float32
         # (one division per row; f * inv is within 1 ulp of F.normalize's f / d)
         for c in range(D):

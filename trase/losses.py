@@ -96,3 +96,9 @@ def psnr(pred: torch.Tensor, target: torch.Tensor, max_value: float = 1.0) -> fl
     if mse == 0.0:
         return math.inf
     return 10.0 * math.log10(max_value * max_value / mse)
+
+
+def opacity_entropy(opacities: torch.Tensor) -> torch.Tensor:
+    """Mean binary entropy (nats) of opacities [N] in [0, 1]: 0 when every one is 0 or 1."""
+    o = opacities.clamp(1e-6, 1.0 - 1e-6)
+    return -(o * torch.log(o) + (1.0 - o) * torch.log1p(-o)).mean()

@@ -15,22 +15,21 @@ Deviations from the public trainer (documented because they change numbers sligh
 * the time-noise scale uses 1 / (number of training views) rather than 1 / (views left in the
   current random pass);
 * ``max_gaussians`` caps densification (keeping the largest-gradient candidates).
+
+Beside it: the settings and schedules (``trase.reconstruction_config``), the training images
+(``trase.training_images``), densification (``trase.densify``).
 """
 
 from __future__ import annotations
 
-import dataclasses
 import functools
-import math
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import torch
 
-from imagefiles import ImageFileError
 from trase.camera import Camera
 from trase.checkpoint import (
     CheckpointError,
@@ -40,224 +39,11 @@ from trase.checkpoint import (
     save_model,
 )
 from trase.deformation import DeformMLP, deformed, deformed_visible
+from trase.densify import densify_and_prune, lstsq_screen_grad_norm, scene_extent, screen_grad_norm
 from trase.gaussians import GaussianModel
-from trase.losses import l1_loss, psnr, ssim
-
-
-class ImageLoadError(ImageFileError):
-    """A training image that cannot be used (missing, or not its camera's size); the message
-    names the file and the problem. Undecodable files raise imagefiles' ImageFileError."""
-
-
-DENSIFY_STATISTICS = ("means2d", "lstsq")
-
-
-@dataclasses.dataclass
-class ReconstructionConfig:
-    iterations: int = 20_000
-    warm_up: int = 3_000  # iterations without deformation
-    # learning rates (Deformable-3DGS): positions and the deform net decay exponentially
-    position_lr_init: float = 0.00016
-    position_lr_final: float = 0.0000016
-    position_lr_max_steps: int = 30_000
-    deform_lr_max_steps: int = 40_000
-    spatial_lr_scale: float = 5.0
-    feature_lr: float = 0.0025  # SH DC; higher bands use feature_lr / 20
-    opacity_lr: float = 0.05
-    scaling_lr: float = 0.005  # the public TRASE code (Deformable-3DGS: 0.001)
-    rotation_lr: float = 0.001
-    # densification
-    percent_dense: float = 0.01
-    densify_from: int = 500
-    densify_until: int = 15_000
-    densify_interval: int = 100
-    densify_grad_threshold: float = 0.0002  # the public TRASE code (Deformable-3DGS: 0.0007)
-    # the densification statistic: "means2d" is 3DGS's, the gradient of the rendered screen
-    # positions (RenderOutput.means2d); "lstsq" recovers it from the gradient of the 3D means by
-    # least squares through the projection Jacobian (it also carries what reaches a mean
-    # through its 2D covariance), what this trainer used before renders returned projection data
-    densify_statistic: str = "means2d"
-    min_opacity: float = 0.005
-    opacity_reset_interval: int = 3_000
-    max_gaussians: int = 0  # 0 = no cap
-    # appearance
-    sh_degree: int = 3
-    sh_interval: int = 1_000  # one more SH band every this many iterations
-    lambda_dssim: float = 0.2
-    white_background: bool = False
-    # solid surfaces: weight of the mean binary entropy of the opacities (0 = off, the public
-    # code), added to the loss from iteration opacity_entropy_from; it drives every opacity to
-    # 0 or 1, so an object rendered alone has no see-through patches
-    opacity_entropy_weight: float = 0.0
-    opacity_entropy_from: int = 0
-    # deformation
-    deform_preset: str = "paper"  # "paper" (D=8, W=256) or "small" (D=4, W=64)
-    deform_zero_init: bool = False  # start as the identity (see DeformMLP.zero_heads)
-    # the network's gradients only for gaussians in view (deformation.deformed_visible): the
-    # same images and gradients up to rounding; no effect on a GPU. Off by default: it pays
-    # only when a camera sees a small part of the scene. Measured on the synthetic HyperNeRF
-    # scene (30k gaussians, 80-85% of them in view): 353 ms per step against 302 ms without.
-    deform_visible_only: bool = False
-    # torch intra-op threads while training (the deformation network; the rasterizer runs on
-    # numba's own threads)
-    torch_threads: int = 1
-    time_noise: float = 0.1
-    time_noise_steps: int = 20_000
-    # data and bookkeeping
-    image_downscale: float = 1.0
-    seed: int = 0
-    checkpoint_interval: int = 5_000  # also saved at the end
-    log_interval: int = 10
-
-    @classmethod
-    def paper(cls, **overrides) -> ReconstructionConfig:
-        """The public TRASE code's settings (its defaults differ from Deformable-3DGS's in
-        densify_grad_threshold and scaling_lr). The per-dataset ``warm_up`` / ``densify_until``
-        are passed in by the caller from the benchmark registry (trase knows no dataset)."""
-        return cls(**overrides)
-
-    @classmethod
-    def cpu_v1(cls, **overrides) -> ReconstructionConfig:
-        """The first CPU preset, as ``trase-bench run`` trained it up to generator version 2:
-        2000 iterations with the densification, warm-up and time-noise steps compressed to a
-        3000-step schedule, the small deformation net, SH up to degree 1, 4-5x the colour and
-        scale learning rates (at the public rates a colour needs ~500 steps to move from grey
-        to a dark texel), position and deformation learning rates decaying over 20000 steps
-        (annealing within a short run cost 1.2-1.7 dB), torch on one thread. Kept so
-        ``trase-bench perf reconstruct`` can show it beside the current ``cpu`` preset."""
-        kw: dict[str, Any] = dict(CPU_V1)
-        kw.update(overrides)
-        return cls(**kw)
-
-    @classmethod
-    def cpu(cls, **overrides) -> ReconstructionConfig:
-        """The CPU preset: ``cpu_v1`` with the changes in CPU_CHANGES (each measured; see
-        there)."""
-        kw: dict[str, Any] = {**CPU_V1, **CPU_CHANGES}
-        kw.update(overrides)
-        return cls(**kw)
-
-    def __post_init__(self) -> None:
-        if self.densify_statistic not in DENSIFY_STATISTICS:
-            raise ValueError(f"densify_statistic must be one of {', '.join(DENSIFY_STATISTICS)}, "
-                             f"got {self.densify_statistic!r}")
-
-    def to_dict(self) -> dict:
-        return dataclasses.asdict(self)
-
-
-CPU_V1: dict[str, Any] = {
-    "iterations": 2000,
-    "densify_statistic": "lstsq",  # the statistic the cpu presets were tuned with
-    "feature_lr": 0.01,
-    "scaling_lr": 0.005,
-    "warm_up": 300,
-    "position_lr_max_steps": 20_000,
-    "deform_lr_max_steps": 20_000,
-    "densify_from": 100,
-    "densify_until": 1500,
-    "densify_interval": 100,
-    "densify_grad_threshold": 0.0004,
-    "opacity_reset_interval": 100_000,  # no reset in a short run: it costs more than it gains
-    "max_gaussians": 30_000,
-    "sh_degree": 1,
-    "sh_interval": 1000,
-    "deform_preset": "small",
-    "deform_zero_init": True,
-    "time_noise_steps": 2000,
-    "checkpoint_interval": 1000,
-    "torch_threads": 1,
-}
-
-# What the cpu preset changes against cpu_v1, and why.
-CPU_CHANGES: dict[str, Any] = {
-    # the deformation network's products are most of a step (215 of 302 ms at 30k gaussians);
-    # on 2 quiet cores a step takes 209 ms with 2 torch threads against 302 ms with 1
-    # (synthetic HyperNeRF scene). Beside another job the same two threads wait on each
-    # other (static phase 1.01 s per step against 0.13 s with 1 thread): set
-    # geometry.train.torch_threads=1 on a shared machine.
-    "torch_threads": 2,
-    # solid surfaces: opacities pushed to 0 or 1 over the second half of the run. Chosen on
-    # the synthetic HyperNeRF scene of seed 1 (not the benchmark's seed-0 scene): weight 0.01
-    # from iteration 1000 took the mean opacity entropy 0.24 -> 0.10, test PSNR 27.71 ->
-    # 27.86 dB and the geometry ceiling 0.782 -> 0.793
-    "opacity_entropy_weight": 0.01,
-    "opacity_entropy_from": 1000,
-    # half the gaussians: a step's cost grows with their number (the deformation network runs
-    # over all of them), and the cap is reached by iteration ~1300 of 2000. Chosen on the
-    # synthetic HyperNeRF scene of seed 1 (160x120, 50 training views; runs side by side on
-    # one thread each): 30k -> 15k took test PSNR 27.75 -> 27.25 dB, the geometry ceiling
-    # 0.780 -> 0.777, the share of the objects' pixels below alpha 0.5 5.7% -> 8.0%, and the
-    # method's mIoU on it stays at the ceiling (0.775, 3000 feature steps). Tried there and not
-    # taken (each against 15k, ceiling): position lr x2 0.736, lr decay inside the run (3000
-    # steps) 0.692, densify threshold 0.0002 0.773, SH degree 0 0.781 (no gain beyond run-to-run
-    # spread); opacity entropy 0.05 from 500 (at 30k) 0.734.
-    "max_gaussians": 15_000,
-}
-
-
-# -- schedules -------------------------------------------------------------------------------
-def expon_lr(step: int, lr_init: float, lr_final: float, max_steps: int) -> float:
-    """Log-linear decay from lr_init to lr_final over max_steps (3DGS's get_expon_lr_func
-    with no delay), constant afterwards."""
-    if lr_init <= 0 or lr_final <= 0:
-        return 0.0
-    t = min(max(step / max(max_steps, 1), 0.0), 1.0)
-    return math.exp(math.log(lr_init) * (1 - t) + math.log(lr_final) * t)
-
-
-def time_noise_scale(step: int, cfg: ReconstructionConfig) -> float:
-    """Linear anneal of the time-noise amplitude to zero over time_noise_steps."""
-    t = min(max(step / max(cfg.time_noise_steps, 1), 0.0), 1.0)
-    return cfg.time_noise * (1.0 - t)
-
-
-# -- data ------------------------------------------------------------------------------------
-def load_image(path: Path, camera: Camera, background: np.ndarray) -> np.ndarray:
-    """[H, W, 3] float32 RGB in [0, 1] at the camera's size (resized with INTER_AREA when the
-    file is larger by the downscale factor); 16-bit, gray and RGBA files by imagefiles' rule
-    (alpha composited over ``background``)."""
-    import cv2
-
-    from imagefiles import read_rgb
-
-    path = Path(path)
-    if not path.is_file():
-        raise ImageLoadError(f"{path}: training image not found")
-    img = read_rgb(path, background)
-    h, w = img.shape[:2]
-    if (w, h) != (camera.width, camera.height):
-        sx, sy = w / camera.width, h / camera.height
-        if abs(sx - sy) > 0.02 * max(sx, sy) or sx < 1:
-            raise ImageLoadError(
-                f"{path}: image is {w}x{h} but its camera is {camera.width}x{camera.height}"
-            )
-        img = cv2.resize(img, (camera.width, camera.height), interpolation=cv2.INTER_AREA)
-    return np.clip(img, 0.0, 1.0)
-
-
-class ImageCache:
-    """Images loaded once, as torch tensors [H, W, 3]."""
-
-    def __init__(self, views: Sequence, downscale: float, background: np.ndarray) -> None:
-        self.cameras: list[Camera] = []
-        self.images: list[torch.Tensor] = []
-        for v in views:
-            cam = v.camera if downscale == 1 else v.camera.scaled(downscale)
-            if not cam.is_pinhole:
-                raise ImageLoadError(f"{v.image_path}: reconstruction needs undistorted pinhole cameras")
-            self.cameras.append(cam)
-            self.images.append(torch.from_numpy(load_image(Path(v.image_path), cam, background)))
-
-    def __len__(self) -> int:
-        return len(self.cameras)
-
-
-def scene_extent(cameras: Iterable[Camera]) -> float:
-    """3DGS's scene radius: 1.1 x the largest camera-centre distance from their mean."""
-    centers = np.stack([c.center for c in cameras])
-    diag = float(np.linalg.norm(centers - centers.mean(0), axis=1).max())
-    return max(diag * 1.1, 1e-6) if diag > 0 else 1.0
+from trase.losses import l1_loss, opacity_entropy, psnr, ssim
+from trase.reconstruction_config import ReconstructionConfig, expon_lr, time_noise_scale
+from trase.training_images import ImageCache, load_image
 
 
 # -- rendering ------------------------------------------------------------------------------
@@ -292,12 +78,6 @@ def in_view(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, came
     return project_gaussians_numba(means, quats, scales, camera).radii > 0
 
 
-def opacity_entropy(opacities: torch.Tensor) -> torch.Tensor:
-    """Mean binary entropy (nats) of opacities [N] in [0, 1]: 0 when every one is 0 or 1."""
-    o = opacities.clamp(1e-6, 1.0 - 1e-6)
-    return -(o * torch.log(o) + (1.0 - o) * torch.log1p(-o)).mean()
-
-
 @torch.no_grad()
 def evaluate_psnr(gaussians: GaussianModel, deformation, views: Sequence, background=None,
                   backend: str = "auto", downscale: float = 1.0) -> float:
@@ -312,37 +92,6 @@ def evaluate_psnr(gaussians: GaussianModel, deformation, views: Sequence, backgr
         out, _ = render_view(gaussians, deformation, cam, bg, backend)
         vals.append(psnr(out.color.clamp(0, 1), gt))
     return float(np.mean(vals))
-
-
-def screen_grad_norm(grad_means2d: torch.Tensor, camera: Camera) -> torch.Tensor:
-    """|dL/d(mean2D)| in NDC units [N] (3DGS's densification statistic) from the gradient of
-    the rendered pixel positions [N, 2]: NDC spans W / 2 pixels per unit in x, H / 2 in y."""
-    g = grad_means2d.detach().double()
-    n = torch.hypot(g[:, 0] * (0.5 * camera.width), g[:, 1] * (0.5 * camera.height))
-    return torch.where(torch.isfinite(n), n, torch.zeros_like(n)).float()
-
-
-def _screen_grad_norm(grad_means: torch.Tensor, means: torch.Tensor, camera: Camera) -> torch.Tensor:
-    """|dL/d(mean2D)| in NDC units [N] from dL/d(mean3D) [N, 3], by least squares through the
-    projection Jacobian J = [[a, 0, -a u], [0, b, -b v]] (a = fx/z, b = fy/z, u = x/z, v = y/z):
-    g2 = (J J^T)^-1 J g3, in closed form (det = a^2 b^2 (1 + u^2 + v^2) never vanishes).
-    Gaussians at or behind the camera plane get 0."""
-    R = torch.as_tensor(camera.w2c[:3, :3], dtype=torch.float64)
-    t = torch.as_tensor(camera.w2c[:3, 3], dtype=torch.float64)
-    p = means.detach().double() @ R.T + t
-    g = grad_means.double() @ R.T  # camera-space gradient
-    z = p[:, 2]
-    front = z > 1e-6
-    zs = torch.where(front, z, torch.ones_like(z))
-    u, v = p[:, 0] / zs, p[:, 1] / zs
-    a, b = camera.fx / zs, camera.fy / zs
-    gp = g[:, 0] - u * g[:, 2]  # (J g)_0 / a
-    gq = g[:, 1] - v * g[:, 2]  # (J g)_1 / b
-    den = 1.0 + u * u + v * v
-    gu = ((1 + v * v) * gp - u * v * gq) / (a * den)  # pixels
-    gv = ((1 + u * u) * gq - u * v * gp) / (b * den)
-    n = torch.hypot(gu * (0.5 * camera.width), gv * (0.5 * camera.height))
-    return torch.where(front & torch.isfinite(n), n, torch.zeros_like(n)).float()
 
 
 # -- training --------------------------------------------------------------------------------
@@ -578,12 +327,12 @@ def _reconstruct(views, points, point_colors, config, out_dir, resume, progress,
                     vis = out.radii.to(grad_accum.device) > 0  # the render's own projection
                     if screen.grad is not None:
                         gn = screen_grad_norm(screen.grad, cam) if screen is out.means2d else \
-                            _screen_grad_norm(screen.grad, means_t.detach(), cam)
+                            lstsq_screen_grad_norm(screen.grad, means_t.detach(), cam)
                         grad_accum[vis] += gn[vis]
                         denom[vis] += 1
                     if it > cfg.densify_from and it % cfg.densify_interval == 0:
                         prune_large = it > cfg.opacity_reset_interval
-                        _densify_and_prune(gaussians, opt_g, cfg, grad_accum, denom, extent, prune_large, gen)
+                        densify_and_prune(gaussians, opt_g, cfg, grad_accum, denom, extent, prune_large, gen)
                         n = gaussians.num_gaussians
                         grad_accum, denom = torch.zeros(n), torch.zeros(n)
                     if it % cfg.opacity_reset_interval == 0 or (cfg.white_background and it == cfg.densify_from):
@@ -608,33 +357,3 @@ def _reconstruct(views, points, point_colors, config, out_dir, resume, progress,
     return gaussians, deform
 
 
-@torch.no_grad()
-def _densify_and_prune(g: GaussianModel, opt, cfg: ReconstructionConfig, grad_accum, denom,
-                       extent: float, prune_large: bool, gen: torch.Generator) -> None:
-    """3DGS densify_and_prune: clone small / split large high-gradient gaussians, then drop
-    transparent ones and, after the first opacity reset, ones larger than 0.1 x the scene
-    extent. (3DGS also tests a screen-size limit, but its radii statistic has just been reset
-    to zero by the densification, so that test never fires; it is left out here.)"""
-    grads = torch.where(denom > 0, grad_accum / denom.clamp_min(1), torch.zeros_like(grad_accum))
-    big = g.scales.max(dim=1).values > cfg.percent_dense * extent
-    cand = grads >= cfg.densify_grad_threshold
-    if cfg.max_gaussians > 0:
-        # each clone adds one, each split adds one net (2 new, 1 removed)
-        room = max(cfg.max_gaussians - g.num_gaussians, 0)
-        if int(cand.sum()) > room:
-            order = torch.argsort(torch.where(cand, grads, torch.full_like(grads, -1.0)), descending=True)
-            keep = torch.zeros_like(cand)
-            keep[order[:room]] = True
-            cand = cand & keep
-    clone = cand & ~big
-    split = cand & big
-    n0 = g.num_gaussians
-    g.clone_gaussians(clone, opt)
-    split = torch.cat([split, torch.zeros(g.num_gaussians - n0, dtype=torch.bool)])
-    g.split_gaussians(split, opt, n=2, generator=gen)
-    prune = g.opacities < cfg.min_opacity
-    if prune_large:
-        prune |= g.scales.max(dim=1).values > 0.1 * extent
-    if bool(prune.all()):
-        prune[torch.argmax(g.opacities)] = False  # never delete every gaussian
-    g.prune(~prune, opt)

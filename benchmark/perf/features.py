@@ -30,14 +30,13 @@ from __future__ import annotations
 
 import math
 import statistics
-import tempfile
 from collections.abc import Callable
-from pathlib import Path
 
 import numpy as np
 import torch
 
 from benchmark.perf.common import fmt, load_average, table, time_repeats, versions
+from benchmark.perf.feature_scenes import N_MASKS, make_gaussians, make_masks, synthetic_view
 
 QUICK = {"gaussians": 1_000, "width": 64, "height": 48, "n_pixels": [500], "dims": [16], "repeats": 2,
          "budget_s": 5.0, "objective_pixels": [500], "step_pixels": 500, "step_threads": [1],
@@ -47,57 +46,8 @@ DEFAULT = {"gaussians": 50_000, "width": 480, "height": 272, "n_pixels": [1000, 
            "step_pixels": 5000, "step_threads": [1, 2], "synthetic": {"dataset": "nerfds", "size": "small"},
            "real_scale": {"gaussians": 100_000, "width": 960, "height": 536,
                           "label": "HyperNeRF benchmark resolution"}}
-N_MASKS = 40
 M_PRIME = 25
 STEP_DIM = 32  # the paper's feature dimension
-
-
-def make_masks(width: int, height: int, n: int = N_MASKS, seed: int = 0):
-    """A MaskSet of ``n`` random axis-aligned ellipses (areas from tiny to a third of the image)."""
-    from masks.maskset import MaskSet
-
-    rng = np.random.default_rng(seed)
-    yy, xx = np.mgrid[0:height, 0:width] + 0.5
-    out = np.zeros((n, height, width), bool)
-    for i in range(n):
-        cx, cy = rng.uniform(0, width), rng.uniform(0, height)
-        rx, ry = (rng.uniform(0.03, 0.45, 2) * [width, height])
-        out[i] = ((xx - cx) / rx) ** 2 + ((yy - cy) / ry) ** 2 <= 1.0
-    return MaskSet.from_masks(out, generator="perf-ellipses")
-
-
-def make_gaussians(n: int, width: int, height: int):
-    """(GaussianModel, Camera) from the rasterizer suite's random scene."""
-    from benchmark.perf.raster import make_scene
-    from trase.gaussians import GaussianModel, rgb_to_sh_dc
-
-    s, cam = make_scene(n, width, height, 3)
-    op = s["opacities"].clamp(1e-4, 1 - 1e-4)
-    gm = GaussianModel(s["means"], torch.log(s["scales"]), s["quats"], torch.log(op / (1 - op)),
-                       rgb_to_sh_dc(s["colors"]))
-    return gm, cam
-
-
-def synthetic_view(dataset: str, size: str) -> dict:
-    """The first training view of the cached synthetic scene with its ground-truth geometry and
-    synthetic masks (generated into a temporary folder): the default scene of the speed goal."""
-    import masks as masklib
-    from benchmark.datasets import get_dataset, load_scene
-    from benchmark.datasets.synthetic.cache import ensure_synthetic
-    from masks.generators import make_generator
-    from trase.checkpoint import load_tabulated_geometry
-
-    scene_dir = ensure_synthetic(dataset, size=size)
-    scene = load_scene(dataset, scene_dir, gt_dir=scene_dir / "gt_masks")
-    g, deform, _ = load_tabulated_geometry(scene.truth.geometry_path)
-    view = scene.train[0]
-    work = Path(tempfile.mkdtemp(prefix="perf-features-"))
-    masklib.generate_scene_masks([view], make_generator("synthetic", seed=0), work / "masks", progress=False,
-                                 instance_maps={view.name: scene.truth.instance_maps[view.name]})
-    ms = masklib.load(masklib.mask_path(work / "masks", view.name))
-    return {"name": f"synthetic {dataset} ({size}), view {view.name}, ground-truth geometry",
-            "gaussians": g, "deformation": deform, "camera": view.camera, "masks": ms,
-            "m_prime": get_dataset(dataset).n_masks}
 
 
 def render_step(path, feats0: torch.Tensor, knn: torch.Tensor, pixels: torch.Tensor) -> Callable[[], float]:

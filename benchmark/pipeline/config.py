@@ -82,7 +82,7 @@ def default_config(method, spec, variant: str, overrides: dict,
     then ``overrides`` (an explicit ``method.features.seed`` still wins; ``method.preset``
     follows the geometry's). ``image_size`` (W, H) of the benchmark images picks the cpu
     preset's training resolution."""
-    from trase.reconstruct import ReconstructionConfig
+    from trase.reconstruction_config import ReconstructionConfig
 
     preset = resolve_preset(overrides)
     method_preset = METHOD_PRESET[preset]

@@ -86,7 +86,7 @@ def test_memory_bound_evicts(tmp_path):
 
 
 def test_reloads_within_a_run_do_not_deform_again(tmp_path, monkeypatch):
-    import trase.fastpath as fastpath
+    from trase import fastpath
 
     gm, deform, cam = _scene()
     valid = np.ones((cam.height, cam.width), bool)

@@ -18,8 +18,7 @@ def test_stale_temporaries_of_a_killed_writer_are_swept(tmp_path):
 def test_failed_write_leaves_old_file(tmp_path):
     p = tmp_path / "f.txt"
     atomic_write_text(p, "old")
-    with pytest.raises(RuntimeError):
-        with atomic_path(p) as tmp:
-            open(tmp, "w").write("half")
-            raise RuntimeError
+    with pytest.raises(RuntimeError), atomic_path(p) as tmp:
+        open(tmp, "w").write("half")
+        raise RuntimeError
     assert p.read_text() == "old" and [x.name for x in tmp_path.iterdir()] == ["f.txt"]

@@ -35,3 +35,15 @@ def test_l1_psnr_and_shape_errors():
     assert float(dssim_l1_loss(a, a)) == pytest.approx(0.0, abs=1e-6)
     with pytest.raises(ValueError, match="shape"):
         l1_loss(a, torch.zeros(4, 5, 3))
+
+
+def test_opacity_entropy_is_zero_at_binary_opacities_and_pushes_towards_them():
+    from trase.losses import opacity_entropy
+
+    assert float(opacity_entropy(torch.tensor([0.0, 1.0, 1.0]))) == pytest.approx(0.0, abs=1e-4)
+    assert float(opacity_entropy(torch.tensor([0.5]))) == pytest.approx(math.log(2), rel=1e-6)
+    x = torch.tensor([-1.0, 0.5, 2.0], requires_grad=True)  # logits
+    opacity_entropy(torch.sigmoid(x)).backward()
+    # descent moves each logit away from 0: opacities towards the nearer of 0 and 1
+    assert x.grad[0] > 0 and x.grad[1] < 0 and x.grad[2] < 0
+    assert torch.isfinite(x.grad).all()

@@ -3,9 +3,14 @@ import json
 import numpy as np
 import pytest
 
-from tests.trase.helpers import exact_masks, object_alpha, tiny_scene
 from benchmark.protocol.oracle import oracle_clusters
-from benchmark.protocol.prompts import BenchmarkPrompts, interior_points, load_or_make_prompts, make_benchmark_prompts
+from benchmark.protocol.prompts import (
+    BenchmarkPrompts,
+    interior_points,
+    load_or_make_prompts,
+    make_benchmark_prompts,
+)
+from tests.trase.helpers import exact_masks, object_alpha, tiny_scene
 from trase.prompts import Click, PromptError, click_to_cluster, lift_pixels, mask_to_clusters
 from trase.segment import render_masks, select_gaussians
 

@@ -1,0 +1,42 @@
+"""The reconstruction's presets and schedules."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from trase.reconstruction_config import CPU_CHANGES, ReconstructionConfig, expon_lr
+
+
+def test_presets_and_schedule():
+    cfg = ReconstructionConfig.paper(warm_up=1500, densify_until=9000)
+    assert (cfg.warm_up, cfg.densify_until) == (1500, 9000)
+    assert cfg.deform_preset == "paper" and cfg.lambda_dssim == 0.2
+    # the public TRASE code's defaults, not Deformable-3DGS's (0.0007, 0.001)
+    assert (cfg.densify_grad_threshold, cfg.scaling_lr) == (0.0002, 0.005)
+    with pytest.raises(TypeError):
+        ReconstructionConfig.paper(no_such_setting=1)
+    assert expon_lr(0, 1e-3, 1e-5, 100) == pytest.approx(1e-3)
+    assert expon_lr(100, 1e-3, 1e-5, 100) == pytest.approx(1e-5)
+    assert expon_lr(50, 1e-3, 1e-5, 100) == pytest.approx(1e-4)
+    assert np.isfinite(expon_lr(10**9, 1e-3, 1e-5, 100))
+
+
+def test_cpu_preset_keeps_the_long_lr_decay_for_any_run_length():
+    v1 = ReconstructionConfig.cpu_v1()
+    assert v1.iterations == 2000 and v1.densify_until == 1500 and v1.warm_up == 300 and v1.torch_threads == 1
+    new = ReconstructionConfig.cpu()
+    changed = {k for k, v in dataclasses.asdict(new).items() if v != getattr(v1, k)}
+    assert changed == set(CPU_CHANGES)
+    short = ReconstructionConfig.cpu(iterations=2000)
+    # the runner's 2000 steps: learning rates still decay over 20000 steps (annealing inside a
+    # short run cost 1.2-1.7 dB), the densification/warm-up points are not rescaled
+    assert (short.position_lr_max_steps, short.deform_lr_max_steps) == (20_000, 20_000)
+    assert (short.warm_up, short.densify_until, short.time_noise_steps) == (300, 1500, 2000)
+    assert ReconstructionConfig.cpu(iterations=2000, position_lr_max_steps=2000).position_lr_max_steps == 2000
+
+
+def test_presets_name_their_densification_statistic():
+    assert ReconstructionConfig.paper().densify_statistic == "means2d"  # 3DGS's statistic
+    assert ReconstructionConfig.cpu().densify_statistic == "lstsq"  # what the cpu presets were tuned with
+    assert ReconstructionConfig.cpu_v1().densify_statistic == "lstsq"
