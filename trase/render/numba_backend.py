@@ -5,6 +5,7 @@ stays in torch (sh.py), shared with the reference."""
 
 from __future__ import annotations
 
+import os
 import threading
 
 import numba
@@ -17,6 +18,13 @@ from trase.render import numba_kernels as nk
 # gaussians than border ones, and on a shared machine a descheduled thread would otherwise
 # hold back the whole parallel loop with its fixed half of the tiles.
 TILE_CHUNK = 2
+
+# Which block walks the kernels run: "ir" (LLVM IR on 16-lane vectors, the default) or "plain"
+# (their plain-numba twins in numba_plain: the same bits, slower; for a numba or LLVM on which
+# the IR path does not build). Read once, from the environment.
+WALKS = os.environ.get("TRASE_NUMBA_WALKS", "ir")
+if WALKS not in ("ir", "plain"):
+    raise ImportError(f"TRASE_NUMBA_WALKS={WALKS!r}: choose 'ir' or 'plain'")
 
 
 SCRATCH_KEEP_MAX = 128 * 2**20  # bytes per buffer kept between calls (larger ones are not kept)
@@ -102,7 +110,7 @@ class _Composite(torch.autograd.Function):
         nk.cull_radii(co, op, radii)  # outside the tile chunking: 2-gaussian chunks cost ~1 ms
         with numba.parallel_chunksize(TILE_CHUNK):
             nk.forward(m2, co, op, radii, ch, tile_off, entries, width, height, ts, gx, gy, out, alpha, t_final,
-                       bl_ids, bl_mask, bl_n)
+                       bl_ids, bl_mask, bl_n, WALKS == "plain")
         LAST_SAVED.clear()
         LAST_SAVED.update(saved_state_bytes(E, gx * gy, height * width, ts))
         ctx.state = (m2, co, op, ch, tile_off, entries, g_ptr, g_pos, t_final, bl_ids, bl_mask, bl_n,
@@ -128,7 +136,7 @@ class _Composite(torch.autograd.Function):
         buf_chan = _SCRATCH.get("buf_chan", (E, cp), np.float32)
         with numba.parallel_chunksize(TILE_CHUNK):
             nk.backward(m2, co, op, ch, tile_off, entries, width, height, ts, gx, gy,
-                        t_final, bl_ids, bl_mask, bl_n, go, ga, buf_geo, buf_chan)
+                        t_final, bl_ids, bl_mask, bl_n, go, ga, buf_geo, buf_chan, WALKS == "plain")
         grad_geo = np.empty((n, 6), np.float64)
         grad_chan = np.empty((n, cp), np.float32)  # padded like buf_chan; sliced to C below
         nk.reduce_grads(g_ptr, g_pos, buf_geo, buf_chan, grad_geo, grad_chan)

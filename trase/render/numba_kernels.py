@@ -17,7 +17,8 @@ step: ~3e-5 after 300 gaussians, well inside the 1e-3 gradient tolerance) and su
 gradients per entry in float64. exp is ``exp_nonpositive32`` (plain arithmetic, so it
 vectorises).
 
-The per-block work is written as LLVM IR on <16 x float> vectors (numba ``@intrinsic``):
+The per-block work is written as LLVM IR on <16 x float> vectors (numba ``@intrinsic``; plain
+numba twins of the two walks in numba_plain, ``TRASE_NUMBA_WALKS=plain``):
 ``composite_block`` (the forward's front-to-back walk), ``backward_block`` (the backward's
 walk), and the channel products ``lanes_times_rows`` (out += w * chans), ``rows_dot_lanes``
 (chans . g_out) and ``lanes_dot_rows`` (d chans += w * g_out). Why: written as numba loops,
@@ -39,10 +40,21 @@ from numba import njit, prange, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-ALPHA_MIN = 1.0 / 255.0
-ALPHA_MAX = 0.99
-T_MIN = 1e-4
-
+from trase.render.numba_alpha import (  # noqa: F401 (re-exported: the kernels' constants)
+    A_MAX32,
+    A_MIN32,
+    ALPHA_MAX,
+    ALPHA_MIN,
+    F32,
+    LANES,
+    POWER_FLOOR,
+    SUB,
+    T_MIN,
+    T_MIN32,
+    alpha32,
+    exp_nonpositive32,
+)
+from trase.render.numba_plain import backward_block_plain, composite_block_plain
 
 RADIX_BITS = 11
 
@@ -129,14 +141,8 @@ def bin_gaussians(rects, depths, gx, gy):
     return tile_off, entries, g_ptr, g_pos
 
 
-F32 = np.float32
-A_MIN32 = np.float32(ALPHA_MIN)
-A_MAX32 = np.float32(ALPHA_MAX)
-T_MIN32 = np.float32(T_MIN)
-SUB = 4  # sub-block side in pixels: a tile's gaussians are culled per SUB x SUB block
-LANES = SUB * SUB  # one lane per pixel of a block (16 float32 = one AVX-512 register)
 POWER_MARGIN = 1e-3  # culling is widened by this much exponent (and 1e-3 px) against rounding
-POWER_FLOOR = np.float32(-8.0)  # exp(-8) * opacity < 1/255: below it a gaussian never contributes
+
 
 
 def blocks_per_tile(ts: int) -> int:
@@ -361,35 +367,6 @@ def sum_rows(typingctx, out, r, pos, lo, hi, buf):
         return context.get_dummy_value()
 
     return sig, codegen
-
-
-@njit(inline="always")
-def exp_nonpositive32(x):
-    """exp(x) in float32 for -8 <= x <= 0 as plain arithmetic (relative error ~1e-6, from
-    float32 rounding amplified by the squarings; truncation < 1e-8).
-
-    Why not math.exp: LLVM lowers it to a libm call, which stops the lane loops from being
-    vectorised. exp(x) = exp(x / 16) ** 16, a degree-8 Taylor polynomial on [-0.5, 0] and four
-    squarings."""
-    y = x * F32(0.0625)
-    p = F32(1.0) + y * (F32(1.0) + y * (F32(0.5) + y * (F32(1.0 / 6.0) + y * (F32(1.0 / 24.0) + y * (
-        F32(1.0 / 120.0) + y * (F32(1.0 / 720.0) + y * (F32(1.0 / 5040.0) + y * F32(1.0 / 40320.0))))))))
-    p = p * p
-    p = p * p
-    p = p * p
-    return p * p
-
-
-@njit(inline="always")
-def alpha32(fx, fy, u, v, ca, cb, cc, o):
-    """Raw alpha o * exp(power) of one gaussian at pixel centre (fx, fy), all float32, with the
-    reference's operation order; 0 where power > 0 (skipped). Used by pixel_weights; the
-    forward's ``composite_block`` emits the same operations as vector IR (_alpha_lanes)."""
-    dx = fx - u
-    dy = fy - v
-    power = F32(-0.5) * (ca * (dx * dx) + cc * (dy * dy)) - (cb * dx) * dy
-    G = exp_nonpositive32(min(max(power, POWER_FLOOR), F32(0.0)))
-    return o * G if power <= F32(0.0) else F32(0.0)
 
 
 def _vconst(xs):
@@ -696,7 +673,7 @@ def _sub_lists(start, end, entries, means2d, radii, tx, ty, ts, bl_ids, base, n)
 
 @njit(parallel=True, cache=True)
 def forward(means2d, conics, opac, radii, chans, tile_off, entries, width, height, ts, gx, gy,
-            out, alpha, t_final, bl_ids, bl_mask, bl_n):
+            out, alpha, t_final, bl_ids, bl_mask, bl_n, plain=False):
     """out [H*W, C] = sum_i w_i chans_i; alpha [H*W] = sum_i w_i (summed, as the reference does:
     1 - T_final in float32 would lose most digits of a small alpha); t_final [H*W] float32.
     Saved for the backward, per
@@ -744,7 +721,10 @@ def forward(means2d, conics, opac, radii, chans, tile_off, entries, width, heigh
                 for q in range(LANES):
                     acc[c, q] = 0.0
             off = base + blk * K
-            composite_block(pk, bl_ids, off, nsub[blk], x0, y0, live, T, asum, wl, gl, bl_mask, res)
+            if plain:  # the plain-numba twin (numba_plain), same bits
+                composite_block_plain(pk, bl_ids, off, nsub[blk], x0, y0, live, T, asum, wl, gl, bl_mask, res)
+            else:
+                composite_block(pk, bl_ids, off, nsub[blk], x0, y0, live, T, asum, wl, gl, bl_mask, res)
             last = res[0]
             nu = res[1]
             bl_n[t * nb + blk] = last
@@ -762,10 +742,18 @@ def forward(means2d, conics, opac, radii, chans, tile_off, entries, width, heigh
                     alpha[pix] = asum[q]
 
 
+@njit(cache=True)
+def backward_walk(pk, ids, masks, sl, el, nu, x0, y0, T, tf, ga, fgl, wl, buf_geo):
+    """``backward_block`` compiled on its own, without the backward's fast-math flags (numba
+    puts a function's flags on every float instruction in it, the IR's included): the walk's
+    arithmetic is then exactly what its IR says, and its plain twin can reproduce it."""
+    backward_block(pk, ids, masks, sl, el, nu, x0, y0, T, tf, ga, fgl, wl, buf_geo)
+
+
 @njit(parallel=True, cache=True, fastmath={"reassoc", "contract", "arcp", "nsz"})
 def backward(
     means2d, conics, opac, chans, tile_off, entries, width, height, ts, gx, gy,
-    t_final, bl_ids, bl_mask, bl_n, g_out, g_alpha, buf_geo, buf_chan,
+    t_final, bl_ids, bl_mask, bl_n, g_out, g_alpha, buf_geo, buf_chan, plain=False,
 ):
     """Back to front over each block's saved list, the block's pixels in lock-step as in
     ``forward``; the saved lane masks say which pixels used each gaussian, so the backward
@@ -836,7 +824,10 @@ def backward(
                     gl[nu] = entries[el[nu]]
                     nu += 1
             rows_dot_lanes(fgl, gl, nu, chans, gT)
-            backward_block(pk, bl_ids, bl_mask, sl, el, nu, x0, y0, T, tf, ga, fgl, wl, buf_geo)
+            if plain:
+                backward_block_plain(pk, bl_ids, bl_mask, sl, el, nu, x0, y0, T, tf, ga, fgl, wl, buf_geo)
+            else:
+                backward_walk(pk, bl_ids, bl_mask, sl, el, nu, x0, y0, T, tf, ga, fgl, wl, buf_geo)
             lanes_dot_rows(buf_chan, el, nu, wl, gL)  # d chans[g] += sum over lanes of w g_out
 
 
