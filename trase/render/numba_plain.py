@@ -19,6 +19,8 @@ one rounding to float32 is correct; ``FUSED`` says whether the host has FMA).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 
@@ -44,17 +46,14 @@ FUSED = _host_has_fma()
 def _round_to_odd_sum(p, c):
     """float64 p + c rounded to odd (an inexact sum gets an odd last bit): TwoSum gives the
     rounding error exactly; when it is non-zero and the nearest sum is even, step one ulp
-    towards the exact sum."""
+    towards the exact sum. No allocation: this runs per lane and gaussian."""
     s = p + c
     bp = s - p
     err = (p - (s - bp)) + (c - bp)
     if err != 0.0:
-        bits = np.array([s]).view(np.int64)[0]
-        if bits & 1 == 0:
-            # the exact sum lies between s and its neighbour in the direction of err
-            up = (err > 0.0) == (s > 0.0)  # away from zero in magnitude
-            bits = bits + 1 if up else bits - 1
-            s = np.array([bits]).view(np.float64)[0]
+        m, _ = math.frexp(s)  # s = m 2^e, |m| in [0.5, 1): 53 significant bits
+        if int(abs(m) * 9007199254740992.0) % 2 == 0:
+            s = np.nextafter(s, math.inf if err > 0.0 else -math.inf)
     return s
 
 
@@ -69,15 +68,9 @@ def fma32(a, b, c):
 
 @njit(inline="always")
 def hsum16(v):
-    """Sum of 16 float32 lanes in the IR's tree order."""
-    w = np.empty(8, np.float32)
-    for k in range(8):
-        w[k] = v[k] + v[k + 8]
-    for k in range(4):
-        w[k] = w[k] + w[k + 4]
-    for k in range(2):
-        w[k] = w[k] + w[k + 2]
-    return w[0] + w[1]
+    """Sum of 16 float32 lanes in the IR's tree order (halves added: 16 -> 8 -> 4 -> 2 -> 1)."""
+    return ((((v[0] + v[8]) + (v[4] + v[12])) + ((v[2] + v[10]) + (v[6] + v[14])))
+            + (((v[1] + v[9]) + (v[5] + v[13])) + ((v[3] + v[11]) + (v[7] + v[15]))))
 
 
 @njit(cache=True)

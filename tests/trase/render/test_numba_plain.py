@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from numba import njit
+from numba import njit, types
+from numba.extending import intrinsic
 
 from trase.render import numba_backend, rasterize
 from trase.render.numba_kernels import LANES, composite_block
@@ -79,10 +80,29 @@ def test_fma32_rounds_once_and_hsum16_is_a_tree():
         # long double carries 64 bits: a * b + c rounded once, then to float32 (a double rounding
         # only at ties, which random inputs do not hit)
         assert got == exact
-    v = np.arange(16, dtype=np.float32) * np.float32(0.1)
-    tree = ((((v[0] + v[8]) + (v[4] + v[12])) + ((v[2] + v[10]) + (v[6] + v[14])))
-            + (((v[1] + v[9]) + (v[5] + v[13])) + ((v[3] + v[11]) + (v[7] + v[15]))))
-    assert hsum16(v) == tree
+    rng = np.random.default_rng(4)
+    for _ in range(50):  # magnitudes spread over 1e-6..1e6: the order of the additions shows
+        v = (rng.standard_normal(16) * 10.0 ** rng.uniform(-6, 6, 16)).astype(np.float32)
+        assert hsum16(v) == _ir_hsum(v)
+
+
+@intrinsic
+def _hsum_ir(typingctx, v):
+    """The IR walks' lane sum (numba_kernels._hsum) of a float32 [16] array."""
+    from llvmlite import ir
+
+    from trase.render.numba_kernels import _array, _hsum, _vload
+
+    def codegen(context, builder, signature, args):
+        ptr, _ = _array(context, builder, signature.args[0], args[0])
+        return _hsum(builder, _vload(builder, ptr, ir.Constant(ir.IntType(64), 0)))
+
+    return types.float32(v), codegen
+
+
+@njit(cache=False)
+def _ir_hsum(v):
+    return _hsum_ir(v)
 
 
 def test_walks_setting_is_checked():
