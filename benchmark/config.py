@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import copy
 import json
+import types
+import typing
 
 from benchmark.errors import UserError
 
@@ -65,6 +67,54 @@ def merge(base: dict, overrides: dict, path: str = "") -> dict:
         else:
             out[k] = v
     return out
+
+
+def typed(cls, data: dict, where: str):
+    """The dataclass ``cls`` built from config section ``data``, every value checked against its
+    annotation first, so a wrong type stops the run at resolution with the setting's name
+    rather than deep inside a stage (``--set geometry.train.iterations=many``)."""
+    hints = typing.get_type_hints(cls)
+    for k, v in data.items():
+        if k not in hints:
+            raise ConfigError(f"--set {where}.{k}: unknown setting (known here: {', '.join(sorted(hints))})")
+        if not _matches(v, hints[k]):
+            raise ConfigError(f"--set {where}.{k}={json.dumps(v)}: expected {_type_name(hints[k])}")
+    try:
+        return cls(**data)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"{where}: {exc}") from None
+
+
+def _matches(value, hint) -> bool:
+    origin = typing.get_origin(hint)
+    if origin in (typing.Union, types.UnionType):
+        return any(_matches(value, a) for a in typing.get_args(hint))
+    if origin is typing.Literal:
+        return value in typing.get_args(hint)
+    if hint is type(None):
+        return value is None
+    if hint is bool:
+        return isinstance(value, bool)
+    if hint is int:
+        return isinstance(value, int) and not isinstance(value, bool)
+    if hint is float:  # an int is a float setting's value too (3 for 3.0)
+        return isinstance(value, int | float) and not isinstance(value, bool)
+    if hint is str:
+        return isinstance(value, str)
+    if hint is dict or origin is dict:
+        return isinstance(value, dict)
+    if hint is list or origin in (list, tuple):
+        return isinstance(value, list | tuple)
+    return True  # other annotations: the dataclass checks them itself
+
+
+def _type_name(hint) -> str:
+    if typing.get_origin(hint) in (typing.Union, types.UnionType):
+        return " or ".join(_type_name(a) for a in typing.get_args(hint))
+    if typing.get_origin(hint) is typing.Literal:
+        return " or ".join(json.dumps(a) for a in typing.get_args(hint))
+    return {type(None): "null", int: "a whole number", float: "a number", bool: "true or false",
+            str: "a string", dict: "a section"}.get(hint, getattr(hint, "__name__", str(hint)))
 
 
 def parse_seeds(text: str) -> list[int]:

@@ -31,9 +31,7 @@ class DatasetSpec:
     resolution: tuple[int, int] | None  # (W, H) at training resolution; None: per sequence
     frame_ranges: dict[str, tuple[int, int]] | None  # seq -> (first, last) inclusive, publisher numbering
     time_rule: str  # human-readable time normalisation (time_of / nerfies_time implement it)
-    n_pixels: int  # Np: pixels sampled per image in feature learning
-    n_masks: int  # M': masks sampled per image
-    filter_threshold: float  # cosine threshold of the cluster filter
+    # the geometry every method segments: the public code's per-dataset reconstruction schedule
     warm_up: int  # reconstruction iterations before the deformation MLP is switched on
     densify_until: int  # last densification iteration
     aliases: dict[str, tuple[str, ...]] = dataclasses.field(default_factory=dict)  # seq -> raw folder names
@@ -89,8 +87,8 @@ def nerfies_time(time_id: float, max_time_id: float) -> float:
     return float(time_id) / float(max_time_id)
 
 
-_MONO = {"monocular": True, "n_pixels": 5000, "n_masks": 25}
-_MULTI = {"monocular": False, "n_pixels": 10000, "n_masks": 50}
+_MONO = {"monocular": True}
+_MULTI = {"monocular": False}
 _NERFIES_TIME = "t = time_id / max(time_id) over all items of dataset.json (warp_id if time_id is missing)"
 _MV_TIME = "frames of the range are indexed i = 0..n-1; t = i / n"
 
@@ -107,7 +105,6 @@ DATASETS: dict[str, DatasetSpec] = {
         resolution=None,
         frame_ranges=None,
         time_rule=_NERFIES_TIME,
-        filter_threshold=0.4,
         warm_up=3000,
         densify_until=15000,
         notes="images rgb/2x",
@@ -125,7 +122,6 @@ DATASETS: dict[str, DatasetSpec] = {
         resolution=None,
         frame_ranges=None,
         time_rule=_NERFIES_TIME,
-        filter_threshold=0.9,
         warm_up=1500,
         densify_until=9000,
         notes="images rgb/2x; publisher folders may sit under interp/ or misc/",
@@ -144,7 +140,6 @@ DATASETS: dict[str, DatasetSpec] = {
         frame_ranges={s: (0, 299) for s in ("coffee_martini", "cook_spinach", "cut_roasted_beef",
                                             "flame_steak", "sear_steak")},
         time_rule=_MV_TIME + " (= frame / 300)",
-        filter_threshold=0.98,
         warm_up=3000,
         densify_until=8000,
         notes="coffee_martini has one unsynchronised camera (kept, as in the public code)",
@@ -161,7 +156,6 @@ DATASETS: dict[str, DatasetSpec] = {
         resolution=(1280, 960),
         frame_ranges={s: (0, 49) for s in ("01_Welder", "02_Flames", "10_Alexa_1", "11_Alexa_2")},
         time_rule=_MV_TIME,
-        filter_threshold=0.6,
         warm_up=1000,
         densify_until=3000,
         aliases={"10_Alexa_1": ("10_Alexa_Meade_Face_Paint_1",),
@@ -181,7 +175,6 @@ DATASETS: dict[str, DatasetSpec] = {
         frame_ranges={"Birthday": (151, 200), "Fabien": (51, 100), "Painter": (100, 149),
                       "Theater": (51, 100)},
         time_rule=_MV_TIME,
-        filter_threshold=0.9,
         warm_up=3000,
         densify_until=5000,
         notes="publisher's undistorted PNGs; images shifted so the principal point is centred",

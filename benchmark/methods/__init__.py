@@ -1,11 +1,13 @@
 """Benchmark methods: a registry of ``Method`` classes by name, like nerfbaselines' specs.
 
-A method turns frozen geometry + 2D masks into per-gaussian labels (``fit``), and prompts into
-predicted masks at the scene's test views (``segment``)::
+A method turns frozen geometry + 2D masks into per-gaussian labels in two halves, ``learn``
+(features: the slow part) and ``group`` (clusters and the filter), which the benchmark caches
+as two stages so a clustering change reuses the features; and prompts into predicted masks at
+the scene's test views (``segment``)::
 
     method = get_method("trase")              # or get_method("trase", objective="trase-hard")
-    cfg = method.default_config(dataset_spec, "cpu")  # plain JSON-able dict; the runner merges --set
-    fitted = method.fit(scene, gaussians, deformation, masks_dir, cfg, work_dir)
+    cfg = method.default_config("hypernerf", "cpu")   # plain JSON-able dict; --set merges into it
+    fitted = method.fit(scene, gaussians, deformation, masks_dir, cfg, work_dir)  # learn + group
     preds = method.segment(fitted, scene, prompts)   # list of bool [H, W], one per scene.test
 
 Method modules are imported lazily: ``METHODS`` names each method's class by its import path
@@ -91,22 +93,46 @@ class FittedModel:
 
 
 class Method:
-    """Base class. Subclasses set ``name`` via ``register_method`` and implement the three
-    methods; ``segment`` returns one bool [H, W] mask per ``scene.test`` view, in order."""
+    """Base class. Subclasses set ``name`` via ``register_method`` and implement
+    ``default_config``, ``learn``, ``group`` and ``segment``; ``segment`` returns one bool
+    [H, W] mask per ``scene.test`` view, in order."""
 
     name: str = ""
+    FEATURE_KEYS: tuple[str, ...] = ()  # config entries that change what ``learn`` produces
 
-    def default_config(self, dataset_spec, preset: str) -> dict:
-        """Plain JSON-able settings for one dataset under ``preset`` (paper or cpu; the run's
-        preset, resolved once by the benchmark)."""
+    def default_config(self, dataset: str | None, preset: str, monocular: bool = True) -> dict:
+        """Plain JSON-able settings for benchmark ``dataset`` (None: a capture of one's own,
+        described by its rig) under ``preset`` (paper or cpu, resolved once by the benchmark)."""
+        raise NotImplementedError
+
+    def check_config(self, config: dict) -> None:
+        """Raise ConfigError for a setting of the wrong type (the run config checks it once,
+        before any stage runs); the base class checks nothing."""
+
+    def learn(self, scene, gaussians, deformation, masks_dir: Path, config: dict, work_dir: Path,
+              progress: bool = True) -> tuple[np.ndarray, dict]:
+        """Per-gaussian features [N, D] float32 and a JSON-able info dict for ``group``."""
+        raise NotImplementedError
+
+    def group(self, feats: np.ndarray, config: dict, gaussians=None, deformation=None,
+              learn_info: dict | None = None) -> FittedModel:
+        """Features -> clusters, filter and stats."""
         raise NotImplementedError
 
     def fit(self, scene, gaussians, deformation, masks_dir: Path, config: dict, work_dir: Path,
             progress: bool = True) -> FittedModel:
-        raise NotImplementedError
+        """``learn`` then ``group`` in one call (the benchmark runs them as two cached stages)."""
+        feats, info = self.learn(scene, gaussians, deformation, masks_dir, config, work_dir, progress)
+        return self.group(feats, config, gaussians, deformation, info)
 
     def segment(self, fitted: FittedModel, scene, prompts) -> list[np.ndarray]:
         raise NotImplementedError
+
+    def segment_oracle(self, fitted: FittedModel, scene, gts: list[np.ndarray]
+                       ) -> tuple[list[np.ndarray], list[int]] | None:
+        """Masks and clusters chosen with the ground truth (an upper bound, never the method's
+        score); None for a method that has no such bound."""
+        return None
 
 
 __all__ = ["METHODS", "FittedModel", "Method", "MethodError", "get_method", "register_method"]

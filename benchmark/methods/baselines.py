@@ -54,10 +54,10 @@ class CGCMethod(TraseMethod):
 
     objective = "cgc"
 
-    def default_config(self, dataset_spec, preset: str) -> dict:
+    def default_config(self, dataset: str | None, preset: str, monocular: bool = True) -> dict:
         from baselines.cgc_inference import PATCH, THRESHOLD
 
-        cfg = super().default_config(dataset_spec, preset)
+        cfg = super().default_config(dataset, preset, monocular)
         params = cfg["features"]["objective_params"]
         # "auto": the public 100-pixel threshold rescaled to the mask resolution (see baselines/cgc.py)
         params.setdefault("min_mask_pixels", "auto")
@@ -130,8 +130,8 @@ class OpenGaussianMethod(TraseMethod):
 
     objective = "opengaussian"
 
-    def default_config(self, dataset_spec, preset: str) -> dict:
-        cfg = super().default_config(dataset_spec, preset)
+    def default_config(self, dataset: str | None, preset: str, monocular: bool = True) -> dict:
+        cfg = super().default_config(dataset, preset, monocular)
         cfg["filter_threshold"] = None  # every gaussian keeps its class (codebook semantics)
         return cfg
 

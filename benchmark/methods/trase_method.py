@@ -14,6 +14,7 @@ import numpy as np
 
 import baselines  # noqa: F401 (registers the baseline objectives: TraseMethod(objective=...) takes any)
 from benchmark.methods import FittedModel, Method, MethodError, register_method
+from benchmark.methods.trase_settings import dataset_settings
 
 # The cpu preset's constants: similarity filter, HDBSCAN min_cluster_size, and (in
 # trase.features) the feature learning rate. Chosen on scenes the benchmark never reports: the
@@ -54,19 +55,21 @@ class TraseMethod(Method):
         self.objective_params = dict(objective_params or {})
 
     # -- config ------------------------------------------------------------------------
-    def default_config(self, dataset_spec, preset: str) -> dict:
-        """``preset``: paper or cpu, resolved once by the benchmark's run config."""
+    def default_config(self, dataset: str | None, preset: str, monocular: bool = True) -> dict:
+        """Settings for benchmark ``dataset`` (None: a capture of one's own, by its rig) under
+        ``preset`` (paper or cpu, resolved once by the benchmark's run config)."""
         from trase.features import CPU_MAX_PIXELS, FeatureConfig
 
         if preset not in ("paper", "cpu"):
             raise MethodError(f"method preset {preset!r}: choose paper or cpu")
-        n_pixels = int(dataset_spec.n_pixels)
+        settings = dataset_settings(dataset, monocular)
+        n_pixels = settings.n_pixels
         if preset == "cpu":
             n_pixels = min(n_pixels, CPU_MAX_PIXELS)
         fc = FeatureConfig.preset(
             preset,
             n_pixels=n_pixels,
-            n_masks=float(dataset_spec.n_masks),
+            n_masks=float(settings.n_masks),
             objective=self.objective,
             objective_params=dict(self.objective_params),
         )
@@ -80,7 +83,7 @@ class TraseMethod(Method):
             "clustering": {"method": "hdbscan", "fraction": 0.02, "min_sample": 5000, "seed": 0,
                            "params": {"min_cluster_size": CPU_MIN_CLUSTER_SIZE if preset == "cpu" else 10,
                                       "cluster_selection_epsilon": 0.01}},
-            "filter_threshold": _filter_threshold(float(dataset_spec.filter_threshold), preset),
+            "filter_threshold": _filter_threshold(settings.filter_threshold, preset),
             # click rule: "weight" = the cluster rendered most under the cursor (3x3 window);
             # "depth" = the paper's depth -> 3D -> nearest gaussian (trase.prompts.click_to_cluster).
             # The benchmark's automatic clicks stand in for the paper's manual ones, which a
@@ -94,10 +97,13 @@ class TraseMethod(Method):
             "render_rule": "alone",
         }
 
-    # -- fit ---------------------------------------------------------------------------
-    # ``fit`` = ``learn`` (features: the slow part) then ``group`` (clustering + filter). The
-    # runner caches the two halves as separate stages, so a clustering or filtering change
-    # reuses the trained features.
+    def check_config(self, config: dict) -> None:
+        from benchmark.config import typed
+        from trase.features import FeatureConfig
+
+        typed(FeatureConfig, config["features"], "method.features")
+
+    # -- fit = learn (features: the slow part) then group (clustering + filter) ----------
     FEATURE_KEYS = ("features", "preset")  # config entries that change the learned features
 
     def learn(self, scene, gaussians, deformation, masks_dir: Path, config: dict, work_dir: Path,
@@ -157,11 +163,6 @@ class TraseMethod(Method):
         }
         timings = {**learn_info.get("timings", {}), "clustering": t_cluster}
         return FittedModel(feats, cl.labels, keep, timings, stats, config, gaussians, deformation)
-
-    def fit(self, scene, gaussians, deformation, masks_dir: Path, config: dict, work_dir: Path,
-            progress: bool = True) -> FittedModel:
-        feats, info = self.learn(scene, gaussians, deformation, masks_dir, config, work_dir, progress)
-        return self.group(feats, config, gaussians, deformation, info)
 
     # -- segment -----------------------------------------------------------------------
     # segment = select clusters by clicks, then render_selection (evaluate re-renders a click

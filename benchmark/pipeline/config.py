@@ -3,7 +3,7 @@ written into every seeded section, then the ``--set`` overrides (a misspelt key 
 
 from __future__ import annotations
 
-from benchmark.config import ConfigError, merge
+from benchmark.config import ConfigError, merge, typed
 
 CPU_TRAIN_MAX_SIDE = 480  # px: the cpu preset's geometry trains at most this large
 
@@ -110,7 +110,7 @@ def default_config(method, spec, variant: str, overrides: dict,
             "model_dir": None,  # for source=import: a Deformable-3DGS/TRASE model directory
             "train": train.to_dict(),
         },
-        "method": method.default_config(spec, preset=method_preset),
+        "method": method.default_config(spec.key, method_preset, spec.monocular),
         # clicks on every object of interest, in the first test frame it appears in
         # (benchmark.protocol.prompts; "gt-first-frame": the first non-empty frame only)
         "prompts": {"rule": "gt-first-appearance",
@@ -118,4 +118,8 @@ def default_config(method, spec, variant: str, overrides: dict,
                     # protocol alone
                     "click_sets": 5},
     }
-    return merge(apply_seed(base, run_seed(overrides)), overrides)
+    cfg = merge(apply_seed(base, run_seed(overrides)), overrides)
+    # typed once, here: a wrong value stops the run before any stage, naming the setting
+    typed(ReconstructionConfig, cfg["geometry"]["train"], "geometry.train")
+    method.check_config(cfg["method"])
+    return cfg

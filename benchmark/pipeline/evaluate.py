@@ -118,8 +118,9 @@ def evaluate(method, fitted, scene, prompts, directory: Path) -> dict:
         "storage": model_storage(fitted.gaussians, fitted.deformation, int(fitted.features.shape[1]))
         if fitted.gaussians is not None else None,
     }
-    if hasattr(method, "segment_oracle"):
-        opreds, oclusters = method.segment_oracle(fitted, scene, gts)
+    bound = method.segment_oracle(fitted, scene, gts)
+    if bound is not None:
+        opreds, oclusters = bound
         oracle = score_masks(dict(zip(names, opreds)), dict(zip(names, gts)), "v1").to_dict()
         out["oracle"] = {k: oracle[k] for k in ("miou", "macc", "pooled_iou")} | {
             "clusters": [int(c) for c in oclusters],

@@ -1,7 +1,6 @@
-"""Stages ``features`` and ``fit``: per-gaussian features, then clusters and the filter.
-
-Methods with ``learn``/``group`` halves get two cached stages, so a clustering or filtering
-change reuses the trained features; the others one ``fit`` stage."""
+"""Stages ``features`` and ``fit``: the method's ``learn`` (per-gaussian features), then its
+``group`` (clusters and the filter), cached apart so a clustering or filtering change reuses
+the trained features."""
 
 from __future__ import annotations
 
@@ -34,29 +33,16 @@ def _features(ctx: SequenceRun) -> StageRecord:
 
 def run(ctx: SequenceRun) -> list[StageRecord]:
     method, mcfg = ctx.method, ctx.cfg["method"]
-    masks_rec, geo_rec = ctx.records["masks"], ctx.records["geometry"]
+    geo_rec = ctx.records["geometry"]
     fit_cfg = {"method": method.name, **mcfg}
-    if hasattr(method, "learn") and hasattr(method, "group"):
-        feat_rec = _features(ctx)
-        key = ctx.cache.key("fit", fit_cfg, {"features": feat_rec.key, "geometry": geo_rec.key})
+    feat_rec = _features(ctx)
+    key = ctx.cache.key("fit", fit_cfg, {"features": feat_rec.key, "geometry": geo_rec.key})
 
-        def work(d: Path) -> dict:
-            gaussians, deformation = ctx.geometry
-            feats = np.load(feat_rec.path / "features.npy")
-            fitted = method.group(feats, mcfg, gaussians, deformation, feat_rec.info)
-            fitted.save(d)
-            return {"timings": fitted.timings, "stats": jsonable(fitted.stats)}
-
-        return [feat_rec, ctx.cache.run("fit", key, work, fit_cfg)]
-
-    key = ctx.cache.key("fit", fit_cfg, {"masks": masks_rec.key, "geometry": geo_rec.key})
-
-    def work_whole(d: Path) -> dict:
+    def work(d: Path) -> dict:
         gaussians, deformation = ctx.geometry
-        fitted = method.fit(ctx.scene, gaussians, deformation, masks_rec.path, mcfg, d / "work",
-                            progress=ctx.progress)
+        feats = np.load(feat_rec.path / "features.npy")
+        fitted = method.group(feats, mcfg, gaussians, deformation, feat_rec.info)
         fitted.save(d)
-        shutil.rmtree(d / "work", ignore_errors=True)
         return {"timings": fitted.timings, "stats": jsonable(fitted.stats)}
 
-    return [ctx.cache.run("fit", key, work_whole, fit_cfg)]
+    return [feat_rec, ctx.cache.run("fit", key, work, fit_cfg)]

@@ -7,7 +7,7 @@ import shutil
 from pathlib import Path
 
 from benchmark.cache import StageRecord
-from benchmark.config import ConfigError
+from benchmark.config import ConfigError, typed
 from benchmark.pipeline.context import SequenceRun, load_geometry, synthetic_truth
 
 SOURCES = ("reconstruct", "ground-truth", "import")
@@ -28,10 +28,7 @@ def run(ctx: SequenceRun) -> list[StageRecord]:
                 raise ConfigError("geometry.source=import needs --set geometry.model_dir=PATH")
             shutil.copytree(gcfg["model_dir"], d / "model", dirs_exist_ok=True)
         elif src == "reconstruct":
-            try:
-                rcfg = ReconstructionConfig(**gcfg["train"])
-            except (TypeError, ValueError) as exc:
-                raise ConfigError(f"geometry.train: {exc}") from None
+            rcfg = typed(ReconstructionConfig, gcfg["train"], "geometry.train")
             reconstruct(scene.train, scene.points, scene.point_colors, rcfg, d / "model",
                         resume=True, progress=ctx.progress)
         else:

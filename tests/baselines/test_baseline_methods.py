@@ -14,20 +14,20 @@ from tests.trase.helpers import exact_masks, tiny_scene
 from benchmark.protocol.prompts import BenchmarkPrompts, interior_points
 from trase.prompts import Click
 
-SPEC = types.SimpleNamespace(n_pixels=300, n_masks=3, filter_threshold=0.5)
+SMALL_FILTER = 0.5  # the cpu preset's 0.7 assumes its 3000-step features; these train 60 steps
 
 
 @pytest.mark.parametrize("name", ["trase-hard", "trase-all", "cgc", "opengaussian"])
 def test_methods_are_registered_with_their_objective(name):
     method = get_method(name)
     assert method.name == name and method.objective == name
-    cfg = method.default_config(SPEC, preset="cpu")
+    cfg = method.default_config("hypernerf", "cpu")
     assert cfg["features"]["objective"] == name
     if name in ("cgc", "opengaussian"):
         assert cfg["filter_threshold"] is None  # baseline's own selection, no TRASE filter
     else:  # the cpu preset's one filter for every dataset; the paper preset keeps the dataset's
         assert cfg["filter_threshold"] == CPU_FILTER_THRESHOLD
-        assert method.default_config(SPEC, preset="paper")["filter_threshold"] == 0.5
+        assert method.default_config("nerfds", "paper")["filter_threshold"] == 0.4
     if name == "cgc":
         assert cfg["features"]["objective_params"]["min_mask_pixels"] == "auto"
         assert cfg["cgc"] == {"threshold": 0.7, "patch": 5}
@@ -53,8 +53,7 @@ def _small(cfg):
     )
     cfg["clustering"].update(method="kmeans", params={"n_clusters": 2})
     if cfg.get("filter_threshold") is not None:
-        # the cpu preset's 0.8 assumes its 3000-step features; these train 60 steps
-        cfg["filter_threshold"] = SPEC.filter_threshold
+        cfg["filter_threshold"] = SMALL_FILTER
     return cfg
 
 
@@ -63,7 +62,7 @@ def _small(cfg):
 def test_fit_and_segment_tiny_scene(tmp_path, name):
     gm, deform, ids, scene, mdir, prompts = _scene(tmp_path)
     method = get_method(name)
-    cfg = _small(method.default_config(SPEC, preset="cpu"))
+    cfg = _small(method.default_config("hypernerf", "cpu"))
     fitted = method.fit(scene, gm, deform, mdir, cfg, tmp_path / "work", progress=False)
     assert fitted.features.shape == (len(ids), 8) and np.isfinite(fitted.features).all()
     agree = (fitted.labels == ids).mean()

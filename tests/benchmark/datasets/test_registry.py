@@ -22,13 +22,11 @@ def test_sequences_match_paper_table():
         assert paper == set(spec.sequences), key
 
 
-def test_method_defaults():
+def test_reconstruction_schedule_and_rig():
     d = DATASETS
-    assert [d[k].filter_threshold for k in d] == [0.4, 0.9, 0.98, 0.6, 0.9]
     assert [(d[k].warm_up, d[k].densify_until) for k in d] == [
         (3000, 15000), (1500, 9000), (3000, 8000), (1000, 3000), (3000, 5000)]
-    assert [(d[k].n_pixels, d[k].n_masks, d[k].monocular) for k in d] == [
-        (5000, 25, True), (5000, 25, True), (10000, 50, False), (10000, 50, False), (10000, 50, False)]
+    assert [d[k].monocular for k in d] == [True, True, False, False, False]
 
 
 def test_frame_ranges():

@@ -12,11 +12,11 @@ from tests.trase.helpers import exact_masks, tiny_scene
 from benchmark.protocol.prompts import make_benchmark_prompts
 
 
-@dataclasses.dataclass
-class _Spec:
-    n_pixels: int = 300
-    n_masks: int = 3
-    filter_threshold: float = 0.5
+def _small_config(method):
+    cfg = method.default_config("hypernerf", "cpu")
+    cfg["features"].update(n_pixels=300, n_masks=3.0)
+    cfg["filter_threshold"] = 0.5
+    return cfg
 
 
 @dataclasses.dataclass
@@ -41,7 +41,7 @@ def test_fit_segment_end_to_end(tmp_path):
         masklib.save(masklib.mask_path(masks_dir, v.name), exact_masks(gm, deform, ids, v))
     scene = _Scene(train=views, test=views)
     method = get_method("trase")
-    cfg = method.default_config(_Spec(), preset="cpu")
+    cfg = _small_config(method)
     cfg["features"].update(iterations=120, dim=8, knn=4, knn_keep=2, lr=0.02)
     cfg["clustering"].update(method="kmeans", params={"n_clusters": 2})
     fitted = method.fit(scene, gm, deform, masks_dir, cfg, tmp_path / "fit", progress=False)
@@ -67,29 +67,32 @@ def test_fit_segment_end_to_end(tmp_path):
 def test_missing_masks_is_a_user_error(tmp_path):
     gm, deform, _, views = tiny_scene(n_per=3)
     method = get_method("trase")
-    cfg = method.default_config(_Spec(), preset="cpu")
+    cfg = _small_config(method)
     with pytest.raises(MethodError, match="masks of training view"):
         method.fit(_Scene(views, views), gm, deform, tmp_path, cfg, tmp_path / "fit", progress=False)
 
 
 def test_filter_threshold_paper_values_one_value_on_cpu():
     m = TraseMethod()
-    for thr in (0.4, 0.6, 0.9, 0.98):
-        spec = _Spec(filter_threshold=thr)
-        assert m.default_config(spec, preset="paper")["filter_threshold"] == thr
-        assert m.default_config(spec, preset="cpu")["filter_threshold"] == CPU_FILTER_THRESHOLD == 0.7
+    for key, thr in (("nerfds", 0.4), ("immersive", 0.6), ("hypernerf", 0.9), ("neu3d", 0.98)):
+        assert m.default_config(key, "paper", monocular=False)["filter_threshold"] == thr
+        assert m.default_config(key, "cpu")["filter_threshold"] == CPU_FILTER_THRESHOLD == 0.7
+    assert m.default_config(None, "paper")["filter_threshold"] == 0.9  # a capture of one's own
 
 
 def test_cpu_preset_clustering_and_steps():
     m = TraseMethod()
-    cpu, paper = m.default_config(_Spec(), preset="cpu"), m.default_config(_Spec(), preset="paper")
+    cpu, paper = m.default_config("hypernerf", "cpu"), m.default_config("hypernerf", "paper")
     assert cpu["clustering"]["params"]["min_cluster_size"] == CPU_MIN_CLUSTER_SIZE == 25
     assert paper["clustering"]["params"] == {"min_cluster_size": 10, "cluster_selection_epsilon": 0.01}
     assert cpu["features"]["iterations"] == 3000 and paper["features"]["iterations"] == 10000
-    assert cpu["features"]["n_pixels"] == 300  # the spec's Np, below the cpu cap
-    assert m.default_config(_Spec(n_pixels=5000), preset="cpu")["features"]["n_pixels"] == 2000
-    assert m.default_config(_Spec(n_pixels=5000), preset="paper")["features"]["n_pixels"] == 5000
-    assert m.default_config(_Spec(), preset="paper")["render_rule"] == "alone"  # the paper's rule
+    assert (cpu["features"]["n_pixels"], paper["features"]["n_pixels"]) == (2000, 5000)  # Np capped on cpu
+    assert (cpu["features"]["n_masks"], paper["features"]["n_masks"]) == (25, 25)
+    multi = m.default_config("neu3d", "paper")["features"]
+    assert (multi["n_pixels"], multi["n_masks"]) == (10000, 50)
+    own = m.default_config(None, "paper", monocular=False)["features"]
+    assert (own["n_pixels"], own["n_masks"]) == (10000, 50)
+    assert paper["render_rule"] == "alone"  # the paper's rule
 
 
 def test_each_click_is_lifted_in_its_own_frame(monkeypatch):
@@ -110,3 +113,22 @@ def test_each_click_is_lifted_in_its_own_frame(monkeypatch):
     fitted = types.SimpleNamespace(gaussians=None, deformation=None, labels=np.zeros(4, int), config={})
     assert TraseMethod().select(fitted, _Scene(train=views, test=views), prompts) == [0]
     assert seen == [views[0].camera.name, views[2].camera.name]
+
+
+def test_the_base_class_fit_is_learn_then_group_and_has_no_oracle():
+    from benchmark.methods import Method
+
+    calls = []
+
+    class Two(Method):
+        def learn(self, scene, gaussians, deformation, masks_dir, config, work_dir, progress=True):
+            calls.append("learn")
+            return np.ones((3, 2), np.float32), {"timings": {"learn": 1.0}}
+
+        def group(self, feats, config, gaussians=None, deformation=None, learn_info=None):
+            calls.append("group")
+            return FittedModel(feats, np.zeros(3, np.int64), np.ones(3, bool), learn_info["timings"], {}, config)
+
+    fitted = Two().fit(None, None, None, Path("m"), {"k": 1}, Path("w"))
+    assert calls == ["learn", "group"] and fitted.timings == {"learn": 1.0} and fitted.config == {"k": 1}
+    assert Two().segment_oracle(fitted, None, []) is None  # no bound: evaluate records oracle None
