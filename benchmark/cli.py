@@ -18,6 +18,8 @@ COMMANDS.add("ablate", "benchmark.commands.ablate:ablate",
              "The paper's ablation studies, run and tabulated.")
 COMMANDS.add("datasets", "benchmark.commands.datasets:datasets",
              "List the five *-Mask benchmarks (--json for data).")
+COMMANDS.add("fit", "benchmark.commands.fit:fit",
+             "Fit the method to a capture of one's own (nerfies, COLMAP, transforms json).")
 COMMANDS.add("figures", "benchmark.commands.figures:figures",
              "The figures page (docs/figures.md): five formats x seeds, measured and written from their data.")
 COMMANDS.add("leaderboard", "benchmark.commands.leaderboard:leaderboard",
@@ -36,6 +38,8 @@ COMMANDS.add("runs", "benchmark.commands.runs:runs",
              "List runs with their kind, config and protocol.")
 COMMANDS.add("score", "benchmark.commands.score:score",
              "Score predicted masks against ground truth.")
+COMMANDS.add("select", "benchmark.commands.select:select",
+             "Select objects of a fitted capture by clicks -> masks of its views.")
 COMMANDS.add("synth", "benchmark.commands.synth:synth",
              "Generate a synthetic scene in a benchmark's raw format.")
 

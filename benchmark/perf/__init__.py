@@ -26,6 +26,8 @@ SUITES.add("pipeline", "benchmark.perf.pipeline:run",
            "Per-stage time and peak memory of the runner per synthetic dataset, 2 sizes; exponents.")
 SUITES.add("determinism", "benchmark.perf.determinism:run",
            "A fixed seed under other thread counts and instruction sets (fresh processes): bit-identical or by how much not.")
+SUITES.add("captures", "benchmark.perf.captures:run",
+           "trase-bench fit on the built-in scene written as nerfies / COLMAP / transforms captures: click IoU, stage times.")
 SUITES.add("pareto", "benchmark.perf.pareto:run",
            "mIoU vs features+fit+evaluate time over a settings grid for one scene; PNG with the Pareto front.")
 

@@ -77,11 +77,36 @@ def resolve_preset(overrides: dict) -> str:
 
 def default_config(method, spec, variant: str, overrides: dict,
                    image_size: tuple[int, int] | None = None) -> dict:
-    """Full config of one run: defaults for the dataset and variant under the one preset
-    (``resolve_preset``), the run seed (``--set seed=S``, written into every seeded section),
-    then ``overrides`` (an explicit ``method.features.seed`` still wins; ``method.preset``
-    follows the geometry's). ``image_size`` (W, H) of the benchmark images picks the cpu
-    preset's training resolution."""
+    """Full config of one benchmark run: defaults for the dataset and variant under the one
+    preset (``resolve_preset``), the run seed (``--set seed=S``, written into every seeded
+    section), then ``overrides`` (an explicit ``method.features.seed`` still wins;
+    ``method.preset`` follows the geometry's). ``image_size`` (W, H) of the benchmark images
+    picks the cpu preset's training resolution."""
+    base = _sections(method, overrides, spec.key, spec.monocular,
+                     {"warm_up": spec.warm_up, "densify_until": spec.densify_until}, image_size,
+                     "synthetic" if variant == "synthetic" else "classical")
+    # clicks on every object of interest, in the first test frame it appears in
+    # (benchmark.protocol.prompts; "gt-first-frame": the first non-empty frame only)
+    base["prompts"] = {"rule": "gt-first-appearance",
+                       # click sets scored beside the run's own (benchmark.protocol.prompts): 1 = the
+                       # single-click protocol alone
+                       "click_sets": 5}
+    return _resolve(method, base, overrides)
+
+
+def capture_config(method, monocular: bool, capture: dict, overrides: dict,
+                   image_size: tuple[int, int] | None = None) -> dict:
+    """Full config of ``trase-bench fit`` on a capture of one's own: as a run's, with the
+    method's settings for the capture's rig, Deformable-3DGS's default schedule under the
+    paper preset, masks by the classical generator (or SAM with --set masks.generator=sam
+    masks.checkpoint=PATH), and the ``capture`` section (benchmark.captures.CaptureOptions)."""
+    base = _sections(method, overrides, None, monocular, {}, image_size, "classical")
+    base["capture"] = dict(capture)
+    return _resolve(method, base, overrides)
+
+
+def _sections(method, overrides: dict, dataset: str | None, monocular: bool, schedule: dict,
+              image_size: tuple[int, int] | None, mask_generator: str) -> dict:
     from trase.reconstruction_config import ReconstructionConfig
 
     preset = resolve_preset(overrides)
@@ -90,17 +115,16 @@ def default_config(method, spec, variant: str, overrides: dict,
     if asked is not None and asked != method_preset:
         raise ConfigError(f"--set method.preset={asked}: the method's preset follows the run's "
                           f"(geometry.preset={preset} gives {method_preset}); set --set geometry.preset instead")
-    sched = {"warm_up": spec.warm_up, "densify_until": spec.densify_until}
     if preset == "paper":
-        train = ReconstructionConfig.paper(**sched)
+        train = ReconstructionConfig.paper(**schedule)
     else:
         # a few CPU minutes (ReconstructionConfig.cpu; cpu-v1: the first CPU preset, kept for
         # comparisons). Training resolution: see cpu_train_downscale.
         make = ReconstructionConfig.cpu if preset == "cpu" else ReconstructionConfig.cpu_v1
         train = make(image_downscale=cpu_train_downscale(image_size))
-    base = {
+    return {
         "masks": {
-            "generator": "synthetic" if variant == "synthetic" else "classical",
+            "generator": mask_generator,
             "checkpoint": None,  # SAM checkpoint path (generator "sam")
             "seed": 0,
         },
@@ -110,14 +134,13 @@ def default_config(method, spec, variant: str, overrides: dict,
             "model_dir": None,  # for source=import: a Deformable-3DGS/TRASE model directory
             "train": train.to_dict(),
         },
-        "method": method.default_config(spec.key, method_preset, spec.monocular),
-        # clicks on every object of interest, in the first test frame it appears in
-        # (benchmark.protocol.prompts; "gt-first-frame": the first non-empty frame only)
-        "prompts": {"rule": "gt-first-appearance",
-                    # click sets scored beside the run's own (benchmark.protocol.prompts): 1 = the single-click
-                    # protocol alone
-                    "click_sets": 5},
+        "method": method.default_config(dataset, method_preset, monocular),
     }
+
+
+def _resolve(method, base: dict, overrides: dict) -> dict:
+    from trase.reconstruction_config import ReconstructionConfig
+
     cfg = merge(apply_seed(base, run_seed(overrides)), overrides)
     # typed once, here: a wrong value stops the run before any stage, naming the setting
     typed(ReconstructionConfig, cfg["geometry"]["train"], "geometry.train")

@@ -1,0 +1,89 @@
+"""``trase-bench select``: objects of a fitted capture chosen by clicks, as masks of its views.
+
+A click ``VIEW:X,Y`` names a view of the capture and a pixel (column X, row Y, as an image
+viewer shows them); the method's click rule picks the cluster under it (the rules of
+``trase.prompts.click_to_cluster``), and the chosen clusters are rendered at every view with
+the method's filter and alpha threshold. Masks land in ``<out>/<view>.png`` (0 / 255).
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+
+from benchmark.errors import UserError
+
+CLICK = re.compile(r"(?P<view>.+):(?P<x>-?\d+(\.\d*)?),(?P<y>-?\d+(\.\d*)?)")
+
+
+def parse_click(text: str) -> tuple[str, float, float]:
+    m = CLICK.fullmatch(text.strip())
+    if not m:
+        raise UserError(f"--click {text!r}: expected VIEW:X,Y (a view name and a pixel's column and row)")
+    return m["view"], float(m["x"]), float(m["y"])
+
+
+def fitted_capture(fit_dir: Path | str):
+    """(fit record, method, FittedModel with its geometry, Scene whose test views are all the
+    capture's views) of a ``trase-bench fit`` folder."""
+    from benchmark.capture_fit import FIT_FILE, VIEWS_FILE
+    from benchmark.datasets.scene import Scene, View
+    from benchmark.io import read_json
+    from benchmark.methods import FittedModel, get_method
+    from trase.camera import Camera
+    from trase.checkpoint import load_model
+
+    fit_dir = Path(fit_dir)
+    if not (fit_dir / FIT_FILE).is_file():
+        raise UserError(f"{fit_dir}: not a fitted capture (no {FIT_FILE}; run trase-bench fit first)")
+    record = read_json(fit_dir / FIT_FILE, FIT_FILE)
+    views_doc = read_json(fit_dir / VIEWS_FILE, VIEWS_FILE)
+    gaussians, deformation = load_model(fit_dir / "model")
+    fitted = FittedModel.load(fit_dir / "segmentation", gaussians, deformation)
+    views = [View(name=v["name"], camera=Camera.from_dict(v["camera"]), image_path=Path(v["image"]), frame=int(v["frame"]))
+             for split in ("train", "test") for v in views_doc[split]]
+    scene = Scene(dataset="capture", sequence=fit_dir.name, root=fit_dir, train=views, test=views,
+                  points=np.zeros((0, 3)))
+    return record, get_method(record["method"]), fitted, scene
+
+
+def select_clicks(fit_dir: Path | str, clicks: list[str], out_dir: Path | str | None = None) -> dict:
+    """Clusters chosen by ``clicks`` and their masks at every view, written to ``out_dir``
+    (default ``<fit>/selection``) -> {"clusters", "per_click", "masks": {view: bool [H, W]}}."""
+    from benchmark.io import atomic_directory, atomic_write_bytes
+    from benchmark.protocol.prompts import BenchmarkPrompts
+    from trase.prompts import Click
+
+    if not clicks:
+        raise UserError("give at least one --click VIEW:X,Y")
+    _, method, fitted, scene = fitted_capture(fit_dir)
+    names = [v.name for v in scene.test]
+    parsed = []
+    for text in clicks:
+        view, x, y = parse_click(text)
+        if view not in names:
+            raise UserError(f"--click {text!r}: no view {view!r} in {fit_dir} (e.g. {', '.join(names[:3])})")
+        cam = scene.test[names.index(view)].camera
+        if not (0 <= x < cam.width and 0 <= y < cam.height):
+            raise UserError(f"--click {text!r}: pixel outside the {cam.width}x{cam.height} view")
+        parsed.append(Click(x + 0.5, y + 0.5, view, cam.time, names.index(view)))  # the pixel's centre
+    prompts = BenchmarkPrompts(parsed[0].view_index, parsed[0].view, parsed[0].time, parsed, source="command-line")
+    per_click = method.click_clusters(fitted, scene, prompts)
+    clusters = sorted({k for k in per_click if k >= 0})
+    masks = method.render_selection(fitted, scene, clusters)
+    out = Path(out_dir) if out_dir else Path(fit_dir) / "selection"
+    import cv2
+
+    with atomic_directory(out) as d:
+        for name, m in zip(names, masks):
+            ok, png = cv2.imencode(".png", np.asarray(m, np.uint8) * 255)
+            atomic_write_bytes(d / f"{name.replace('/', '_')}.png", png.tobytes())
+        atomic_write_bytes(d / "selection.json", json.dumps(
+            {"clicks": list(clicks), "per_click": per_click, "clusters": clusters}, indent=1).encode())
+    return {"clusters": clusters, "per_click": per_click, "masks": dict(zip(names, masks)), "dir": out}
+
+
+__all__ = ["fitted_capture", "parse_click", "select_clicks"]

@@ -1,0 +1,62 @@
+"""Captures of one's own: scenes that are not benchmark sequences, read into a ``Scene`` for
+``trase-bench fit`` (no ground truth, never in a leaderboard).
+
+Layouts, each a module with ``detect(dir) -> bool`` and ``load(dir, options) -> Scene``:
+
+* ``nerfies``: what the nerfies/HyperNeRF capture notebook writes (``dataset.json``,
+  ``metadata.json``, ``scene.json``, ``camera/``, ``rgb/<s>x/``, ``points.npy`` or COLMAP's
+  ``colmap/sparse/0``);
+* ``colmap``: a COLMAP folder (``images/`` + ``sparse/0``), static or with time from the
+  frame order or a ``times.json``;
+* ``transforms``: ``transforms_train.json`` (+ ``transforms_test.json``), the layout of the
+  paper's public code and of D-NeRF.
+
+Usage::
+
+    scene = load_capture("my_capture", CaptureOptions(format="auto", holdout="every:8"))
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from benchmark.captures.options import CaptureOptions
+from benchmark.datasets.errors import DatasetError, fail
+from lazyspecs import Registry
+
+FORMATS = Registry("capture format", DatasetError)
+FORMATS.add("nerfies", "benchmark.captures.nerfies:LAYOUT", "nerfies/HyperNeRF capture notebook output")
+FORMATS.add("colmap", "benchmark.captures.colmap:LAYOUT", "COLMAP folder: images/ + sparse/0")
+FORMATS.add("transforms", "benchmark.captures.transforms:LAYOUT", "transforms_train.json (+ _test.json)")
+
+
+def detect_format(scene_dir: Path | str) -> str:
+    """The one layout ``scene_dir`` is in, or an error listing what each layout looks for."""
+    scene_dir = Path(scene_dir)
+    if not scene_dir.is_dir():
+        raise fail(scene_dir, "capture directory does not exist")
+    found = [name for name in FORMATS.names() if FORMATS.load(name).detect(scene_dir)]
+    if len(found) == 1:
+        return found[0]
+    if not found:
+        wanted = "; ".join(f"{n}: {FORMATS.load(n).signature}" for n in FORMATS.names())
+        raise fail(scene_dir, f"no known capture layout ({wanted})")
+    raise fail(scene_dir, f"matches several capture layouts ({', '.join(found)}); choose one with --format")
+
+
+def load_capture(scene_dir: Path | str, options: CaptureOptions | None = None):
+    """Read a capture into a ``Scene`` (dataset "capture"); ``scene.extras["notices"]`` lists
+    what the reader decided (ignored images, dropped lens distortion, time rule)."""
+    options = options or CaptureOptions()
+    scene_dir = Path(scene_dir)
+    fmt = detect_format(scene_dir) if options.format == "auto" else options.format
+    if fmt not in FORMATS:
+        raise DatasetError(f"--format {fmt}: choose auto, {', '.join(FORMATS.names())}")
+    if not scene_dir.is_dir():
+        raise fail(scene_dir, "capture directory does not exist")
+    scene = FORMATS.load(fmt).load(scene_dir, options)
+    scene.extras["format"] = fmt
+    return scene
+
+
+__all__ = ["FORMATS", "CaptureOptions", "detect_format", "load_capture"]

@@ -1,0 +1,171 @@
+"""What the capture readers share: the holdout split, the frame-order time rule, the world
+normalisation and COLMAP's sparse model (read with pycolmap, COLMAP's own bindings)."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+
+from benchmark.captures.options import CaptureOptions, holdout_every
+from benchmark.datasets.errors import fail
+from benchmark.datasets.scene import Scene, View
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".PNG", ".JPG", ".JPEG")
+
+
+def order_times(names: list[str]) -> dict[str, tuple[int, float]]:
+    """The frame-order rule: name -> (rank, rank / (n - 1)) with names sorted (one moving
+    camera, frames named in capture order)."""
+    ranked = sorted(names)
+    last = max(len(ranked) - 1, 1)
+    return {n: (i, i / last) for i, n in enumerate(ranked)}
+
+
+def split_views(views: list[View], options: CaptureOptions, layout_test: set[str],
+                notices: list[str]) -> tuple[list[View], list[View]]:
+    """(train, test) by ``options.holdout``; every view trains by default."""
+    if options.holdout == "none":
+        return views, []
+    if options.holdout == "layout":
+        test = [v for v in views if v.name in layout_test]
+        if not test:
+            notices.append("holdout layout: the layout lists no test views; every view trains")
+        return [v for v in views if v.name not in layout_test], test
+    every = holdout_every(options.holdout)
+    ordered = sorted(views, key=lambda v: (v.time, v.name))
+    test_names = {v.name for i, v in enumerate(ordered) if i % every == 0}
+    notices.append(f"holdout every:{every}: {len(test_names)} of {len(views)} views held out")
+    return [v for v in views if v.name not in test_names], [v for v in views if v.name in test_names]
+
+
+def normalization(points: np.ndarray) -> tuple[np.ndarray, float]:
+    """(center, scale) putting 95% of the points in the unit ball: p -> (p - center) * scale."""
+    center = np.median(points, axis=0)
+    radius = float(np.percentile(np.linalg.norm(points - center, axis=1), 95)) if len(points) else 0.0
+    return center, (1.0 / radius if radius > 1e-12 else 1.0)
+
+
+def normalize_scene(scene: Scene, options: CaptureOptions, notices: list[str]) -> Scene:
+    """``scene`` in the normalised world (cameras and points; images unchanged)."""
+    if not options.normalize:
+        return scene
+    center, scale = normalization(scene.points)
+
+    def move_camera(cam):
+        if cam is None:
+            return None
+        R = cam.w2c[:3, :3]
+        w2c = np.eye(4)
+        w2c[:3, :3] = R
+        w2c[:3, 3] = -R @ ((cam.center - center) * scale)
+        return dataclasses.replace(cam, w2c=w2c)
+
+    def move(v: View) -> View:
+        return dataclasses.replace(v, camera=move_camera(v.camera), native_camera=move_camera(v.native_camera))
+
+    notices.append(f"world normalised: (p - {np.round(center, 4).tolist()}) x {scale:.4g}")
+    scene.train = [move(v) for v in scene.train]
+    scene.test = [move(v) for v in scene.test]
+    scene.points = (scene.points - center) * scale
+    scene.extras["normalization"] = {"center": center.tolist(), "scale": scale}
+    return scene
+
+
+def points_in_view(views: list[View], n: int = 20000, seed: int = 0) -> np.ndarray:
+    """[n, 3] random points where the cameras look, for a capture with no points: a ball
+    around the point nearest every optical axis (least squares), radius half the median camera
+    distance to it, keeping points that at least half the cameras see. Deterministic."""
+    cams = [v.camera for v in views]
+    centers = np.stack([c.center for c in cams])
+    axes = np.stack([c.c2w[:3, 2] for c in cams])  # optical axes (OpenCV: +z looks forward)
+    A, b = np.zeros((3, 3)), np.zeros(3)
+    for o, d in zip(centers, axes):
+        P = np.eye(3) - np.outer(d, d)
+        A += P
+        b += P @ o
+    target = np.linalg.lstsq(A, b, rcond=None)[0]
+    radius = 0.5 * float(np.median(np.linalg.norm(centers - target, axis=1))) or 1.0
+    rng = np.random.default_rng(seed)
+    out: list[np.ndarray] = []
+    while sum(len(o) for o in out) < n:
+        d = rng.normal(size=(4 * n, 3))
+        p = target + radius * d / np.linalg.norm(d, axis=1, keepdims=True) * rng.uniform(0, 1, (4 * n, 1)) ** (1 / 3)
+        seen = np.zeros(len(p), int)
+        for c in cams:
+            uv, z = c.project(p)
+            seen += (z > 1e-6) & (uv[:, 0] >= 0) & (uv[:, 0] < c.width) & (uv[:, 1] >= 0) & (uv[:, 1] < c.height)
+        out.append(p[seen * 2 >= len(cams)])
+        if not out[-1].size and len(out) > 3:
+            return p[:n]  # no common view (a poorly posed capture): the ball itself
+    return np.concatenate(out)[:n]
+
+
+def find_image(folder: Path, stem_or_name: str) -> Path:
+    """``folder/name`` as given, else with one of the image suffixes."""
+    p = folder / stem_or_name
+    if p.is_file():
+        return p
+    for ext in IMAGE_SUFFIXES:
+        q = folder / f"{stem_or_name}{ext}"
+        if q.is_file():
+            return q
+    raise fail(p, "missing image")
+
+
+def read_colmap_model(sparse_dir: Path):
+    """COLMAP's sparse model (cameras, images, points3D; .bin or .txt, with or without COLMAP
+    4's rigs/frames) through pycolmap, or a one-line error naming the folder."""
+    names = ("cameras", "images", "points3D")
+    if not any((sparse_dir / f"{n}{ext}").is_file() for n in names for ext in (".bin", ".txt")):
+        raise fail(sparse_dir, "no COLMAP model (cameras, images, points3D .bin or .txt)")
+    for n in names:
+        if not ((sparse_dir / f"{n}.bin").is_file() or (sparse_dir / f"{n}.txt").is_file()):
+            raise fail(sparse_dir / f"{n}.bin", "missing COLMAP model file (.bin or .txt)")
+    import pycolmap
+
+    try:
+        return pycolmap.Reconstruction(str(sparse_dir))
+    except (ValueError, RuntimeError, OSError) as exc:
+        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise fail(sparse_dir, f"cannot read the COLMAP model ({reason})") from None
+
+
+def colmap_points(model, where: Path) -> tuple[np.ndarray, np.ndarray | None]:
+    """(points [N, 3] float64, colours [N, 3] in [0, 1]) of a COLMAP model."""
+    pts = [(p.xyz, p.color) for p in model.points3D.values()]
+    if not pts:
+        raise fail(where, "the COLMAP model has no 3D points")
+    xyz = np.array([p[0] for p in pts], np.float64)
+    rgb = np.array([p[1] for p in pts], np.float64) / 255.0
+    if not np.isfinite(xyz).all():
+        raise fail(where, "COLMAP points contain NaN or Inf")
+    return xyz, rgb
+
+
+def check_views(views: list[View], where: Path) -> None:
+    if not views:
+        raise fail(where, "no views to train on")
+    names = [v.name for v in views]
+    if len(set(names)) != len(names):
+        raise fail(where, "two views have the same name")
+
+
+@dataclasses.dataclass(frozen=True)
+class CaptureLayout:
+    """One capture layout: what it looks like (for errors), how to spot it, how to read it."""
+
+    signature: str
+    detect: object  # (scene_dir: Path) -> bool
+    load: object  # (scene_dir: Path, options: CaptureOptions) -> Scene
+
+
+def capture_scene(scene_dir: Path, views: list[View], options: CaptureOptions, layout_test: set[str],
+                  points: np.ndarray, colors: np.ndarray | None, notices: list[str], extras: dict) -> Scene:
+    """The ``Scene`` of a capture: views split by the holdout rule, no ground truth."""
+    check_views(views, scene_dir)
+    train, test = split_views(views, options, layout_test, notices)
+    return Scene(dataset="capture", sequence=scene_dir.resolve().name, root=scene_dir, train=train, test=test,
+                 points=points, point_colors=colors, variant="real",
+                 extras={**extras, "notices": notices, "capture": options.to_dict()})

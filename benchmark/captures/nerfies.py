@@ -1,0 +1,115 @@
+"""A capture as the nerfies/HyperNeRF capture notebook writes it.
+
+``dataset.json`` (ids; val_ids is the layout's test split), ``metadata.json`` (time_id /
+warp_id per item), ``scene.json`` (center, scale: the world normalisation, as for the
+benchmarks), ``camera/<id>.json`` at 1x, ``rgb/<s>x/<id>.png``, and the initial points:
+``points.npy`` when the notebook wrote it, else COLMAP's ``colmap/sparse/0/points3D`` (the
+camera files are in COLMAP's world frame, so the same normalisation applies). Images in
+``rgb/<s>x`` with no id in dataset.json (frames the notebook dropped) are ignored and counted.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from benchmark.captures.common import (
+    IMAGE_SUFFIXES,
+    CaptureLayout,
+    capture_scene,
+    colmap_points,
+    find_image,
+    order_times,
+    read_colmap_model,
+)
+from benchmark.captures.options import CaptureOptions
+from benchmark.datasets.errors import fail
+from benchmark.datasets.images import check_size
+from benchmark.datasets.jsonio import field, finite_array, finite_float, read_json
+from benchmark.datasets.nerfies import _distortion_px, id_list, item_times, normalise_pose, read_camera
+from benchmark.datasets.scene import View
+
+DEFAULT_SCALE = 2  # rgb/2x: the resolution the nerfies benchmarks train on
+FILES = ("dataset.json", "metadata.json", "scene.json")
+
+
+def detect(scene_dir: Path) -> bool:
+    return (scene_dir / "dataset.json").is_file() and (scene_dir / "camera").is_dir()
+
+
+def load(scene_dir: Path, options: CaptureOptions):
+    notices: list[str] = []
+    ds_path, meta_path, scene_path = (scene_dir / n for n in FILES)
+    dataset = read_json(ds_path, "dataset.json")
+    scene_json = read_json(scene_path, "scene.json")
+    center = finite_array(field(scene_json, "center", scene_path), scene_path, "center", (3,))
+    scale = finite_float(field(scene_json, "scale", scene_path), scene_path, "scale")
+    if scale <= 0:
+        raise fail(scene_path, f"scale must be positive, got {scale}")
+    ids = id_list(dataset, "ids", ds_path)
+    if len(set(ids)) != len(ids):
+        raise fail(ds_path, "ids lists an item twice")
+
+    s = options.image_scale or DEFAULT_SCALE
+    image_dir = scene_dir / "rgb" / f"{s}x"
+    if not image_dir.is_dir():
+        have = sorted(p.name for p in (scene_dir / "rgb").glob("*x") if p.is_dir())
+        raise fail(image_dir, f"missing image folder rgb/{s}x (found: {', '.join(have) or 'none'}); "
+                              f"choose one with --set capture.image_scale=N")
+    listed = set(ids)
+    unlisted = sorted(p.name for p in image_dir.iterdir() if p.suffix in IMAGE_SUFFIXES and p.stem not in listed)
+    if unlisted:
+        notices.append(f"ignored {len(unlisted)} image(s) in rgb/{s}x with no id in dataset.json "
+                       f"(e.g. {unlisted[0]})")
+
+    if options.time == "static":
+        times = {i: (0, 0.0) for i in ids}
+    elif options.time == "order":
+        times = order_times(ids)
+    else:
+        metadata = read_json(meta_path, "metadata.json")
+        if not isinstance(metadata, dict):
+            raise fail(meta_path, "top level is not a JSON object")
+        times = item_times(ids, metadata, meta_path)
+
+    dropped = 0.0
+    views = []
+    for item in ids:
+        native = normalise_pose(read_camera(scene_dir / "camera" / f"{item}.json"), center, scale)
+        frame, t = times[item]
+        native = native.with_time(t)
+        cam = native.scaled(s).undistorted()
+        dropped = max(dropped, _distortion_px(native) / s)
+        img = find_image(image_dir, item)
+        check_size(img, cam.width, cam.height, f"camera/{item}.json scaled 1/{s}")
+        views.append(View(name=item, camera=cam, image_path=img, frame=frame, native_camera=native))
+    if dropped > 0:
+        notices.append(f"lens distortion dropped (as the public code does): up to {dropped:.2f} px at rgb/{s}x")
+
+    points, colors = _points(scene_dir)
+    points = (points - center) * scale
+    val = dataset.get("val_ids", []) if isinstance(dataset, dict) else []
+    return capture_scene(scene_dir, views, options, set(val) if isinstance(val, list) else set(),
+                         points, colors, notices, {"scene_json": scene_json, "image_scale": s})
+
+
+def _points(scene_dir: Path) -> tuple[np.ndarray, np.ndarray | None]:
+    """points.npy, else COLMAP's sparse points (both in the camera files' world frame)."""
+    npy = scene_dir / "points.npy"
+    if npy.is_file():
+        try:
+            pts = np.load(npy)
+        except (ValueError, OSError) as exc:
+            raise fail(npy, f"cannot read ({exc.__class__.__name__})") from None
+        pts = finite_array(pts, npy, "points")
+        if pts.ndim != 2 or pts.shape[1] != 3:
+            raise fail(npy, f"points must be [N, 3], got shape {pts.shape}")
+        return pts, None
+    sparse = scene_dir / "colmap" / "sparse" / "0"
+    if not sparse.is_dir():
+        raise fail(npy, "no initial points: neither points.npy nor colmap/sparse/0 (COLMAP's points3D)")
+    return colmap_points(read_colmap_model(sparse), sparse)
+
+
+LAYOUT = CaptureLayout("dataset.json + camera/ + rgb/<s>x/", detect, load)
