@@ -83,7 +83,7 @@ def export(ctx: SequenceRun, out: Path, opts: FitOptions) -> Path:
     """The fitted scene into ``out`` (module docstring); fit.json last."""
     from benchmark.methods import FittedModel
     from benchmark.pipeline.evaluate import render_clusters
-    from imagefiles import read_rgb8
+    from imagefiles import png_bytes, read_rgb8
 
     out.mkdir(parents=True, exist_ok=True)
     (out / FIT_FILE).unlink(missing_ok=True)  # the folder is incomplete until fit.json is back
@@ -98,13 +98,10 @@ def export(ctx: SequenceRun, out: Path, opts: FitOptions) -> Path:
     fitted = FittedModel.load(out / "segmentation", gaussians, deformation)
     scene = ctx.scene
     shown = [scene.train[i] for i in np.unique(np.linspace(0, len(scene.train) - 1, N_PREVIEWS).round().astype(int))]
-    import cv2
-
     with atomic_directory(out / "previews") as d:
         for v in shown:
             pair = np.concatenate([read_rgb8(v.image_path), render_clusters(fitted, v.camera)], axis=1)
-            ok, png = cv2.imencode(".png", np.ascontiguousarray(pair[:, :, ::-1]))
-            atomic_write_bytes(d / f"{_file_name(v.name)}.png", png.tobytes())
+            atomic_write_bytes(d / f"{_file_name(v.name)}.png", png_bytes(pair))
     atomic_write_json(out / VIEWS_FILE, {split: [{"name": v.name, "image": str(v.image_path), "frame": int(v.frame),
                                                    "camera": v.camera.to_dict()} for v in views]
                                          for split, views in (("train", scene.train), ("test", scene.test))})
@@ -151,8 +148,8 @@ def next_steps(fit_json: Path) -> list[str]:
     v = views[len(views) // 2]
     u, w = v["camera"]["width"] // 2, v["camera"]["height"] // 2
     return [f"look at the clusters beside the images: {out / 'previews'}/",
-            f"select objects by clicks (view:u,v in pixels; repeat --click): "
-            f"trase-bench select --fit {out} --click {v['name']}:{u},{w}",
+            ("select objects by clicks (view:x,y in pixels; repeat --click): "
+             f"trase-bench select --fit {out} --click {v['name']}:{u},{w}"),
             f"{rec['n_clusters']} clusters over {rec['n_gaussians']} gaussians"
             + (f"; held-out PSNR {rec['holdout_psnr']:.2f} dB" if rec.get("holdout_psnr") is not None else "")]
 

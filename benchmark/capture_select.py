@@ -75,12 +75,11 @@ def select_clicks(fit_dir: Path | str, clicks: list[str], out_dir: Path | str | 
     clusters = sorted({k for k in per_click if k >= 0})
     masks = method.render_selection(fitted, scene, clusters)
     out = Path(out_dir) if out_dir else Path(fit_dir) / "selection"
-    import cv2
+    from imagefiles import png_bytes
 
     with atomic_directory(out) as d:
         for name, m in zip(names, masks):
-            ok, png = cv2.imencode(".png", np.asarray(m, np.uint8) * 255)
-            atomic_write_bytes(d / f"{name.replace('/', '_')}.png", png.tobytes())
+            atomic_write_bytes(d / f"{name.replace('/', '_')}.png", png_bytes(np.asarray(m, np.uint8) * 255))
         atomic_write_bytes(d / "selection.json", json.dumps(
             {"clicks": list(clicks), "per_click": per_click, "clusters": clusters}, indent=1).encode())
     return {"clusters": clusters, "per_click": per_click, "masks": dict(zip(names, masks)), "dir": out}

@@ -81,6 +81,8 @@ def typed(cls, data: dict, where: str):
             raise ConfigError(f"--set {where}.{k}={json.dumps(v)}: expected {_type_name(hints[k])}")
     try:
         return cls(**data)
+    except UserError:
+        raise  # the class's own one-line message
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"{where}: {exc}") from None
 

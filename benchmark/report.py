@@ -53,12 +53,9 @@ def _read_rgb(path: Path, shape: tuple[int, int]) -> np.ndarray:
 
 
 def _png(rgb: np.ndarray) -> bytes:
-    import cv2
+    from imagefiles import png_bytes
 
-    ok, buf = cv2.imencode(".png", np.ascontiguousarray(rgb[..., ::-1]))
-    if not ok:
-        raise RuntimeError("PNG encoding failed")
-    return buf.tobytes()
+    return png_bytes(rgb)
 
 
 def _iou_plot(record: dict) -> bytes:

@@ -82,4 +82,15 @@ def read_rgb8(path: os.PathLike | str, background=None) -> np.ndarray:
     return np.round(_picture(rgb, alpha, top, background) * 255.0).astype(np.uint8)
 
 
-__all__ = ["BLACK", "WHITE", "ImageFileError", "read_rgb", "read_rgb8"]
+def png_bytes(image: np.ndarray) -> bytes:
+    """PNG file bytes of an RGB uint8 [H, W, 3] picture or a one-channel 8/16-bit map [H, W]."""
+    import cv2
+
+    img = np.ascontiguousarray(image[..., ::-1] if image.ndim == 3 else image)
+    ok, buf = cv2.imencode(".png", img)
+    if not ok:
+        raise ImageFileError(f"cannot encode a {image.dtype} {list(image.shape)} picture as PNG")
+    return buf.tobytes()
+
+
+__all__ = ["BLACK", "WHITE", "ImageFileError", "png_bytes", "read_rgb", "read_rgb8"]

@@ -127,7 +127,7 @@ def read_colmap_model(sparse_dir: Path):
 
     try:
         return pycolmap.Reconstruction(str(sparse_dir))
-    except (ValueError, RuntimeError, OSError) as exc:
+    except (ValueError, RuntimeError, OSError, MemoryError) as exc:  # a truncated count: bad_alloc
         reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise fail(sparse_dir, f"cannot read the COLMAP model ({reason})") from None
 

@@ -27,7 +27,13 @@ from benchmark.captures.options import CaptureOptions
 from benchmark.datasets.errors import fail
 from benchmark.datasets.images import check_size
 from benchmark.datasets.jsonio import field, finite_array, finite_float, read_json
-from benchmark.datasets.nerfies import _distortion_px, id_list, item_times, normalise_pose, read_camera
+from benchmark.datasets.nerfies import (
+    _distortion_px,
+    id_list,
+    item_times,
+    normalise_pose,
+    read_camera,
+)
 from benchmark.datasets.scene import View
 
 DEFAULT_SCALE = 2  # rgb/2x: the resolution the nerfies benchmarks train on

@@ -31,9 +31,9 @@ class CaptureOptions:
 
     def __post_init__(self) -> None:
         if self.time not in TIME_RULES:
-            raise DatasetError(f"capture.time={self.time!r}: choose {', '.join(TIME_RULES)}")
+            raise DatasetError(f"--set capture.time={self.time}: choose {', '.join(TIME_RULES)}")
         if self.image_scale < 0:
-            raise DatasetError(f"capture.image_scale={self.image_scale}: a whole number >= 1 (0: the layout's default)")
+            raise DatasetError(f"--set capture.image_scale={self.image_scale}: a whole number >= 1 (0: the layout's default)")
         holdout_every(self.holdout)  # checks the rule
 
     def to_dict(self) -> dict:

@@ -99,8 +99,9 @@ def capture_config(method, monocular: bool, capture: dict, overrides: dict,
     """Full config of ``trase-bench fit`` on a capture of one's own: as a run's, with the
     method's settings for the capture's rig, Deformable-3DGS's default schedule under the
     paper preset, masks by the classical generator (or SAM with --set masks.generator=sam
-    masks.checkpoint=PATH), and the ``capture`` section (benchmark.captures.CaptureOptions)."""
+    masks.checkpoint=PATH, or masks made elsewhere with masks.generator=files masks.dir=PATH), and the ``capture`` section (benchmark.captures.CaptureOptions)."""
     base = _sections(method, overrides, None, monocular, {}, image_size, "classical")
+    base["masks"]["dir"] = None  # generator "files": masks made elsewhere (benchmark.pipeline.masks)
     base["capture"] = dict(capture)
     return _resolve(method, base, overrides)
 

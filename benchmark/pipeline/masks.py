@@ -25,10 +25,59 @@ def make_mask_generator(mcfg: dict):
     return make_generator(g)
 
 
+def _candidates(src: Path, view) -> list[Path]:
+    """Where a view's masks may lie in masks.dir: named after the view or after its image, in
+    this project's format (``.masks``, what ``trase-bench masks`` writes) or the paper's
+    (``<image stem>.pt``, its SAM script's output)."""
+    import masks as masklib
+
+    stem = Path(view.image_path).stem
+    return [masklib.mask_path(src, view.name), masklib.mask_path(src, stem), src / f"{stem}.pt"]
+
+
+def masks_from_files(views, src: Path, out: Path) -> list[Path]:
+    """Masks made elsewhere (SAM on another machine, the paper's code) for every training
+    view (``_candidates``), each read and checked, then stored."""
+    import masks as masklib
+
+    out_paths = []
+    for v in views:
+        candidates = _candidates(src, v)
+        found = next((c for c in candidates if c.is_file()), None)
+        if found is None:
+            raise ConfigError(f"{candidates[0]}: no masks for training view {v.name} in masks.dir "
+                              f"(nor {candidates[1].name} or {candidates[2].name})")
+        ms = masklib.load(found)
+        ms.info.update({"view": v.name, "source": str(found)})
+        out_paths.append(masklib.mask_path(out, v.name))
+        masklib.save(out_paths[-1], ms)
+    return out_paths
+
+
+def _files_key(views, src: Path) -> str:
+    from benchmark.io import sha256_files
+
+    found = [next((c for c in _candidates(src, v) if c.is_file()), None) for v in views]
+    return sha256_files([p for p in found if p is not None])[:16]
+
+
 def run(ctx: SequenceRun) -> list[StageRecord]:
     import masks as masklib
 
     mcfg = ctx.cfg["masks"]
+    if mcfg["generator"] == "files":
+        if not mcfg.get("dir"):
+            raise ConfigError("masks.generator=files needs --set masks.dir=PATH (a folder of mask files)")
+        src = Path(mcfg["dir"])
+        if not src.is_dir():
+            raise ConfigError(f"{src}: masks.dir is not a folder")
+        key = ctx.cache.key("masks", mcfg, {"scene": ctx.scene_key, "files": _files_key(ctx.scene.train, src)})
+
+        def copy(d: Path) -> dict:
+            paths = masks_from_files(ctx.scene.train, src, d)
+            return {"n_views": len(paths), "source": str(src)}
+
+        return [ctx.cache.run("masks", key, copy, mcfg)]
     # an RGBA image is composited over the reconstruction's background (imagefiles' rule), so
     # masks are cut from the picture the geometry trains on
     white = bool(ctx.cfg["geometry"].get("train", {}).get("white_background", False))

@@ -1,0 +1,121 @@
+"""The capture readers on the layouts as their tools write them: cameras, times, points, the
+holdout rule, format detection."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from benchmark.captures import CaptureOptions, detect_format, load_capture
+from benchmark.captures.common import normalization, order_times, points_in_view
+from benchmark.datasets.errors import DatasetError
+
+
+def _same_cameras(reference, loaded, check_time=True):
+    by_name = {Path(v.name).name: v for v in loaded}
+    for ref in reference:
+        got = by_name[ref.name]
+        assert np.allclose(got.camera.K, ref.camera.K, atol=1e-6)
+        assert np.allclose(got.camera.w2c, ref.camera.w2c, atol=1e-6)
+        assert (got.camera.width, got.camera.height) == (ref.camera.width, ref.camera.height)
+        if check_time:
+            assert got.camera.time == pytest.approx(ref.camera.time, abs=1e-9)
+
+
+@pytest.mark.parametrize("layout", ["nerfies", "colmap", "transforms"])
+def test_each_layout_is_detected_and_reads_back_the_scene(layout, capture_dirs, tiny_scene):
+    assert detect_format(capture_dirs[layout]) == layout
+    scene = load_capture(capture_dirs[layout], CaptureOptions(normalize=False))
+    views = tiny_scene.train + tiny_scene.test
+    expected = {"nerfies": views[:4], "colmap": views, "transforms": views}[layout]
+    assert scene.dataset == "capture" and scene.extras["format"] == layout
+    assert sorted(Path(v.name).name for v in scene.train) == sorted(v.name for v in expected)
+    assert scene.test == [] and scene.gt_masks == [] and scene.truth is None  # all views train
+    # nerfies times: time_id / max over the capture's own items (its layout's rule)
+    _same_cameras(expected, scene.train, check_time=layout == "transforms")
+    assert np.allclose(np.sort(scene.points, 0), np.sort(tiny_scene.points, 0), atol=1e-4)
+
+
+def test_nerfies_capture_uses_colmap_points_in_the_camera_frame_and_counts_dropped_images(capture_dirs, tiny_scene):
+    scene = load_capture(capture_dirs["nerfies"])
+    assert not (capture_dirs["nerfies"] / "points.npy").exists()
+    assert scene.point_colors is not None and len(scene.points) == len(tiny_scene.points)
+    assert any(n.startswith("ignored 2 image(s) in rgb/2x with no id in dataset.json") for n in scene.extras["notices"])
+    frames = sorted(v.frame for v in scene.train)
+    assert [v.time for v in sorted(scene.train, key=lambda v: v.frame)] == [f / max(frames) for f in frames]
+
+
+def test_nerfies_points_npy_wins_and_rgb_scale_is_a_setting(capture_copy):
+    d = capture_copy("nerfies")
+    np.save(d / "points.npy", np.array([[2.25, -0.5, 0.125], [0.25, 1.5, 0.125]]))  # raw frame
+    scene = load_capture(d, CaptureOptions(image_scale=4))
+    assert np.allclose(scene.points, [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])  # (p - center) * scale
+    assert scene.train[0].camera.width * 4 == json.loads((d / "camera" / f"{scene.train[0].name}.json").read_text())["image_size"][0]
+    with pytest.raises(DatasetError, match=r"rgb/8x: missing image folder rgb/8x \(found: 2x, 4x\)"):
+        load_capture(d, CaptureOptions(image_scale=8))
+
+
+def test_colmap_time_rules(capture_copy, tiny_scene):
+    d = capture_copy("colmap")
+    views = tiny_scene.train + tiny_scene.test
+    t = load_capture(d, CaptureOptions(normalize=False))
+    times = {v.name: v.time for v in views}
+    lo, hi = min(times.values()), max(times.values())
+    assert all(v.time == pytest.approx((times[v.name] - lo) / (hi - lo)) for v in t.train)  # times.json
+    (d / "times.json").unlink()
+    order = load_capture(d)
+    names = sorted(v.name for v in order.train)
+    assert [v.time for v in sorted(order.train, key=lambda v: v.name)] == [i / (len(names) - 1) for i in range(len(names))]
+    assert "frame order" in " ".join(order.extras["notices"])
+    assert {v.time for v in load_capture(d, CaptureOptions(time="static")).train} == {0.0}
+
+
+def test_holdout_rules(capture_dirs):
+    every = load_capture(capture_dirs["colmap"], CaptureOptions(holdout="every:3"))
+    assert (len(every.train), len(every.test)) == (4, 2)
+    ordered = sorted(every.train + every.test, key=lambda v: (v.time, v.name))
+    assert [v.name for v in every.test] == [ordered[0].name, ordered[3].name]  # the first included
+    layout = load_capture(capture_dirs["transforms"], CaptureOptions(holdout="layout"))
+    assert len(layout.test) == 3 and all(v.name.startswith("images/") for v in layout.test)
+    nothing = load_capture(capture_dirs["colmap"], CaptureOptions(holdout="layout"))
+    assert nothing.test == [] and any("lists no test views" in n for n in nothing.extras["notices"])
+    for bad in ("every:1", "every:x", "some"):
+        with pytest.raises(DatasetError, match="--holdout"):
+            CaptureOptions(holdout=bad)
+
+
+def test_normalisation_is_a_similarity_that_keeps_projections(capture_dirs):
+    raw = load_capture(capture_dirs["colmap"], CaptureOptions(normalize=False))
+    norm = load_capture(capture_dirs["colmap"])
+    center, scale = normalization(raw.points)
+    assert np.allclose(norm.points, (raw.points - center) * scale)
+    assert np.percentile(np.linalg.norm(norm.points, axis=1), 95) == pytest.approx(1.0, rel=1e-6)
+    for a, b in zip(raw.train, norm.train):
+        uv_a, z_a = a.camera.project(raw.points[:50])
+        uv_b, z_b = b.camera.project(norm.points[:50])
+        assert np.allclose(uv_a, uv_b, atol=1e-6) and np.allclose(z_a * scale, z_b)
+
+
+def test_transforms_without_points_samples_where_the_cameras_look(capture_copy):
+    d = capture_copy("transforms")
+    (d / "points3d.ply").unlink()
+    scene = load_capture(d, CaptureOptions(normalize=False))
+    assert any("random initial points where the cameras look" in n for n in scene.extras["notices"])
+    seen = np.zeros(len(scene.points), int)
+    for v in scene.train:
+        uv, z = v.camera.project(scene.points)
+        seen += (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < v.camera.width) & (uv[:, 1] >= 0) & (uv[:, 1] < v.camera.height)
+    assert (seen * 2 >= len(scene.train)).all()
+    assert np.array_equal(points_in_view(scene.train, n=100), points_in_view(scene.train, n=100))  # deterministic
+
+
+def test_order_times_and_detection_errors(tmp_path):
+    assert order_times(["b", "a", "c"]) == {"a": (0, 0.0), "b": (1, 0.5), "c": (2, 1.0)}
+    assert order_times(["only"]) == {"only": (0, 0.0)}
+    with pytest.raises(DatasetError, match="no known capture layout"):
+        detect_format(tmp_path)
+    with pytest.raises(DatasetError, match="capture directory does not exist"):
+        detect_format(tmp_path / "nope")

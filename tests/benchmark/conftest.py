@@ -1,0 +1,40 @@
+"""A tiny synthetic scene written as a capture in each layout (benchmark.captures.write)."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+
+from benchmark.captures.write import write_colmap_folder, write_nerfies_capture, write_transforms
+
+
+@pytest.fixture(scope="session")
+def tiny_scene(tmp_path_factory):
+    from benchmark.datasets import load_scene
+    from benchmark.datasets.synthetic import generate
+
+    d = generate("hypernerf", tmp_path_factory.mktemp("synthetic") / "scene", seed=0, size="tiny")
+    return load_scene("hypernerf", d)
+
+
+@pytest.fixture(scope="session")
+def capture_dirs(tiny_scene, tmp_path_factory) -> dict[str, Path]:
+    """Pristine captures of the tiny scene's 6 views; copy before changing one."""
+    s = tiny_scene
+    root = tmp_path_factory.mktemp("captures")
+    views = s.train + s.test
+    return {
+        "nerfies": write_nerfies_capture(views[:4], s.points, s.point_colors, root / "nerfies", unlisted=views[4:]),
+        "colmap": write_colmap_folder(views, s.points, s.point_colors, root / "colmap"),
+        "transforms": write_transforms(s.train, s.points, s.point_colors, root / "transforms", test_views=s.test),
+    }
+
+
+@pytest.fixture
+def capture_copy(capture_dirs, tmp_path):
+    def copy(layout: str) -> Path:
+        return Path(shutil.copytree(capture_dirs[layout], tmp_path / layout))
+
+    return copy

@@ -1,0 +1,114 @@
+"""``trase-bench fit`` and ``select`` on captures of one's own: config, masks made elsewhere,
+the exported folder, clicks, errors."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import masks as masklib
+from benchmark.capture_fit import FitOptions, fit_capture, monocular, next_steps
+from benchmark.capture_select import parse_click, select_clicks
+from benchmark.captures import CaptureOptions, load_capture
+from benchmark.config import ConfigError, parse_overrides
+from benchmark.errors import UserError
+from benchmark.methods import get_method
+from benchmark.pipeline.config import capture_config
+from benchmark.pipeline.masks import masks_from_files
+from benchmark.runs import find_runs
+
+FAST = ["geometry.train.iterations=60", "method.features.iterations=40"]
+
+
+def test_capture_config_follows_the_rig_and_checks_the_capture_section():
+    m = get_method("trase")
+    mono = capture_config(m, True, CaptureOptions().to_dict(), {})
+    multi = capture_config(m, False, CaptureOptions().to_dict(), parse_overrides(["geometry.preset=paper"]))
+    assert (mono["method"]["features"]["n_masks"], multi["method"]["features"]["n_masks"]) == (25, 50)
+    assert multi["method"]["features"]["n_pixels"] == 10000 and multi["method"]["filter_threshold"] == 0.9
+    # Deformable-3DGS's own schedule under the paper preset (no benchmark's per-dataset one)
+    assert (multi["geometry"]["train"]["warm_up"], multi["geometry"]["train"]["densify_until"]) == (3000, 15000)
+    assert mono["masks"] == {"generator": "classical", "checkpoint": None, "seed": 0, "dir": None}
+    assert "prompts" not in mono and mono["capture"]["holdout"] == "none"
+    with pytest.raises(ConfigError, match="--set capture.nope: unknown setting"):
+        capture_config(m, True, CaptureOptions().to_dict(), parse_overrides(["capture.nope=1"]))
+
+
+def test_monocular_is_one_view_per_time(tiny_scene, capture_dirs):
+    assert monocular(load_capture(capture_dirs["colmap"]))
+    static = load_capture(capture_dirs["colmap"], CaptureOptions(time="static"))
+    assert not monocular(static)  # six views at one time: a rig
+
+
+def test_masks_made_elsewhere_are_found_by_view_or_image_name(tiny_scene, tmp_path):
+    views = tiny_scene.train
+    gen = masklib.generate_scene_masks(views, masklib_generator(), tmp_path / "made", progress=False)
+    src = tmp_path / "src"
+    src.mkdir()
+    shutil.copy(gen[0], masklib.mask_path(src, views[0].name))  # by view name
+    shutil.copy(gen[1], masklib.mask_path(src, Path(views[1].image_path).stem + "x"))  # wrong name
+    with pytest.raises(ConfigError, match=f"no masks for training view {views[1].name} in masks.dir"):
+        masks_from_files(views, src, tmp_path / "out")
+    shutil.copy(gen[1], masklib.mask_path(src, Path(views[1].image_path).stem))  # by image stem
+    shutil.copy(gen[2], masklib.mask_path(src, views[2].name))
+    out = masks_from_files(views, src, tmp_path / "out")
+    for a, b in zip(gen, out):
+        assert np.array_equal(masklib.load(a).masks, masklib.load(b).masks)
+
+
+def masklib_generator():
+    from masks.generators import make_generator
+
+    return make_generator("classical")
+
+
+def test_fit_refuses_what_it_cannot_read(tmp_path):
+    with pytest.raises(UserError, match="no known capture layout"):
+        fit_capture(FitOptions(tmp_path, progress=False))
+    with pytest.raises(UserError, match="--set capture.time"):
+        fit_capture(FitOptions(tmp_path, overrides=["capture.time=later"], progress=False))
+
+
+def test_click_parsing():
+    assert parse_click("images/000002:12,7") == ("images/000002", 12.0, 7.0)
+    for bad in ("000002", "000002:1", "000002:a,b", ":1,2"):
+        with pytest.raises(UserError, match="expected VIEW:X,Y"):
+            parse_click(bad)
+
+
+@pytest.mark.slow
+def test_fit_exports_a_folder_that_select_reads(capture_dirs, tmp_path):
+    out = tmp_path / "fit"
+    fit_json = fit_capture(FitOptions(capture_dirs["nerfies"], out, holdout="every:2", overrides=FAST,
+                                      cache_dir=tmp_path / "cache", progress=False))
+    rec = json.loads(fit_json.read_text())
+    assert rec["kind"] == "capture-fit" and rec["format"] == "nerfies" and rec["views"] == {"train": 2, "test": 2}
+    assert rec["holdout_psnr"] is not None and np.isfinite(rec["holdout_psnr"])
+    assert set(rec["stages"]) == {"masks", "geometry", "features", "fit"}
+    assert any("ignored 2 image(s)" in n for n in rec["notices"])
+    for name in ("model", "segmentation/features.npy", "segmentation/point_cloud.ply", "views.json", *rec["previews"]):
+        assert (out / name).exists(), name
+    from trase.checkpoint import load_model
+
+    g, _ = load_model(out / "model")
+    assert g.num_gaussians == rec["n_gaussians"]
+    assert find_runs(tmp_path) == []  # a fitted capture is never a benchmark result
+    assert any("trase-bench select --fit" in line for line in next_steps(fit_json))
+    # a rerun reuses every stage
+    again = json.loads(fit_capture(FitOptions(capture_dirs["nerfies"], out, holdout="every:2", overrides=FAST,
+                                              cache_dir=tmp_path / "cache", progress=False)).read_text())
+    assert all(s["skipped"] for s in again["stages"].values())
+
+    views = json.loads((out / "views.json").read_text())
+    v = views["train"][0]
+    res = select_clicks(out, [f"{v['name']}:{v['camera']['width'] // 2},{v['camera']['height'] // 2}"])
+    assert len(res["masks"]) == 4 and (out / "selection" / "selection.json").is_file()
+    assert sorted(p.name for p in (out / "selection").glob("*.png")) == sorted(f"{n}.png" for n in res["masks"])
+    with pytest.raises(UserError, match="pixel outside"):
+        select_clicks(out, [f"{v['name']}:10000,1"])
+    with pytest.raises(UserError, match="not a fitted capture"):
+        select_clicks(tmp_path, [f"{v['name']}:1,1"])
