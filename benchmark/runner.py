@@ -103,7 +103,8 @@ def run_sequence(opts: RunOptions, sequence: str | None, reporter: Reporter, ind
     reporter.start(seq, index)
     if not scene.gt_masks:
         raise UserError(f"{scene_dir}: no ground-truth masks for {spec.key}/{seq}; cannot evaluate "
-                        f"(expected gt_masks/ in the scene or {spec.display_name}/{seq}/gt_masks under the data root)")
+                        f"(expected gt_masks/ in the scene or {spec.display_name}/{seq}/gt_masks under the data root; "
+                        f"to segment a scene without ground truth: trase-bench fit --scene {scene_dir})")
     method = get_method(opts.method)
     overrides = parse_overrides(opts.overrides)
     views = scene.test or scene.train

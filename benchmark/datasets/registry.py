@@ -46,7 +46,8 @@ class DatasetSpec:
             if name in names:
                 return seq
         raise DatasetError(
-            f"{self.key}: unknown sequence {name!r}; valid: {', '.join(self.sequences)}"
+            f"{self.key}: unknown sequence {name!r}; valid: {', '.join(self.sequences)} "
+            f"(a capture of your own: trase-bench fit --scene DIR)"
         )
 
     def folder_names(self, sequence: str) -> tuple[str, ...]:

@@ -41,6 +41,32 @@ def _interest_clicks(scene, ids: list[int]) -> dict[int, tuple[str, int, int]]:
     return {i: b[1:] for i, b in best.items()}
 
 
+def training_view_ceiling(fit_dir: Path, scene, ids: list[int]) -> dict[str, float]:
+    """Per object of interest (and all together): the mean training-view IoU of the gaussians
+    whose largest instance vote is that object, rendered alone (the label ceiling of
+    benchmark.protocol.ceiling, on the capture's own geometry and training views): what a
+    perfect clustering and click could reach on this geometry."""
+    import cv2
+
+    from benchmark.capture_select import fitted_capture
+    from benchmark.protocol.ceiling import instance_votes, truth_selection
+    from trase.segment import render_alpha
+
+    _, _, fitted, cap = fitted_capture(fit_dir)
+    maps = {v.name: cv2.imread(str(scene.truth.instance_maps[v.name]), cv2.IMREAD_UNCHANGED).astype(np.int64)
+            for v in scene.train}
+    views = [v for v in cap.train if Path(v.name).name in maps]
+    g, deform = fitted.gaussians, fitted.deformation
+    votes = instance_votes(g, deform, [v.camera for v in views], [maps[Path(v.name).name] for v in views],
+                           scene.truth.n_ids)
+    out = {}
+    for label, chosen in [*((str(i), [i]) for i in ids), ("all", ids)]:
+        sel = truth_selection(votes, chosen)
+        preds = {Path(v.name).name: render_alpha(g, deform, sel, v.camera) >= 0.5 for v in views}
+        out[label] = float(np.mean(_ious(scene, preds, chosen)))
+    return out
+
+
 def _ious(scene, masks: dict[str, np.ndarray], ids: list[int]) -> list[float]:
     import cv2
 
@@ -115,11 +141,13 @@ def _fit_and_select(scene, cap: Path, fit_dir: Path, cache: Path, sets: list[str
     everything = select_clicks(fit_dir, [f"{_capture_name(rec, v)}:{x},{y}" for v, x, y in clicks.values()])
     union = _ious(scene, _by_view(everything["masks"]), ids)
     stages = {k: {"seconds": v["seconds"], "reused": v["skipped"]} for k, v in rec["stages"].items()}
+    ceiling = training_view_ceiling(fit_dir, scene, ids)
     echo(f"{label:<21} fit {wall:6.1f}s ("
          + ", ".join(f"{k} {v['seconds']:.0f}s{' reused' if v['reused'] else ''}" for k, v in stages.items())
          + f"); IoU all objects {np.mean(union):.3f} (worst view {np.min(union):.3f}); per object "
-         + ", ".join(f"{k}: {v:.3f}" for k, v in per_object.items()))
-    return {"fit_seconds": round(wall, 1), "stages": stages,
+         + ", ".join(f"{k}: {v:.3f}" for k, v in per_object.items())
+         + "; geometry ceiling " + ", ".join(f"{k}: {v:.3f}" for k, v in ceiling.items()))
+    return {"geometry_ceiling": ceiling, "fit_seconds": round(wall, 1), "stages": stages,
             "iou_all_objects": float(np.mean(union)), "iou_worst_view": float(np.min(union)),
             "iou_per_object": per_object, "notices": rec["notices"],
             "n_gaussians": rec["n_gaussians"], "n_clusters": rec["n_clusters"]}

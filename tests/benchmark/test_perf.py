@@ -2,6 +2,8 @@
 
 import json
 
+import pytest
+
 from benchmark.cli import main
 from benchmark.perf import SUITES, get_suite
 
@@ -64,3 +66,16 @@ def test_reconstruct_suite_reports_psnr_per_checkpoint_for_both_presets(monkeypa
     assert old["torch_threads"] == 1 and new["torch_threads"] == 2
     printed = capsys.readouterr().out
     assert "test PSNR" in printed and "s/it deforming" in printed
+
+
+@pytest.mark.slow
+def test_captures_suite_fits_every_layout_with_both_mask_sources(tmp_path):
+    from benchmark.perf import captures
+
+    out = captures.run(quick=True, echo=lambda *_: None, out_dir=tmp_path)
+    assert set(out["layouts"]) == {f"{a}/{b}" for a in ("nerfies", "colmap", "transforms") for b in ("classical", "files")}
+    for name, r in out["layouts"].items():
+        assert set(r["iou_per_object"]) == {str(i) for i in out["scene"]["objects"]}
+        assert 0.0 <= r["iou_all_objects"] <= 1.0 and 0.0 <= r["geometry_ceiling"]["all"] <= 1.0
+        assert r["stages"]["geometry"]["reused"] == name.endswith("/files")  # one reconstruction per layout
+    assert any("ignored 2 image(s)" in n for n in out["layouts"]["nerfies/classical"]["notices"])
