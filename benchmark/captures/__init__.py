@@ -9,7 +9,9 @@ Layouts, each a module with ``detect(dir) -> bool`` and ``load(dir, options) -> 
 * ``colmap``: a COLMAP folder (``images/`` + ``sparse/0``), static or with time from the
   frame order or a ``times.json``;
 * ``transforms``: ``transforms_train.json`` (+ ``transforms_test.json``), the layout of the
-  paper's public code and of D-NeRF.
+  paper's public code and of D-NeRF;
+* ``prepared``: a multi-view recording in a benchmark's raw format after ``trase-bench
+  prepare`` (Neu3D, Immersive, Technicolor).
 
 Usage::
 
@@ -28,6 +30,7 @@ FORMATS = Registry("capture format", DatasetError)
 FORMATS.add("nerfies", "benchmark.captures.nerfies:LAYOUT", "nerfies/HyperNeRF capture notebook output")
 FORMATS.add("colmap", "benchmark.captures.colmap:LAYOUT", "COLMAP folder: images/ + sparse/0")
 FORMATS.add("transforms", "benchmark.captures.transforms:LAYOUT", "transforms_train.json (+ _test.json)")
+FORMATS.add("prepared", "benchmark.captures.prepared:LAYOUT", "a multi-view recording after trase-bench prepare")
 
 
 def detect_format(scene_dir: Path | str) -> str:

@@ -9,9 +9,9 @@ import click
 
 @click.command()
 @click.option("--scene", "scene_dir", required=True, type=click.Path(file_okay=False),
-              help="The capture's folder (nerfies capture, COLMAP folder or transforms json).")
+              help="The capture's folder (nerfies capture, COLMAP folder, transforms json, or a multi-view recording after trase-bench prepare).")
 @click.option("--format", "fmt", default="auto", show_default=True,
-              type=click.Choice(["auto", "nerfies", "colmap", "transforms"]), help="Capture layout.")
+              type=click.Choice(["auto", "nerfies", "colmap", "transforms", "prepared"]), help="Capture layout.")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False), default=None,
               help="Output folder (default fits/<scene folder name>).")
 @click.option("--holdout", default="none", show_default=True, metavar="none|every:N|layout",

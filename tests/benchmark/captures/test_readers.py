@@ -119,3 +119,19 @@ def test_order_times_and_detection_errors(tmp_path):
         detect_format(tmp_path)
     with pytest.raises(DatasetError, match="capture directory does not exist"):
         detect_format(tmp_path / "nope")
+
+
+def test_a_prepared_multiview_recording_is_a_capture(tmp_path):
+    from benchmark.datasets import load_scene
+    from benchmark.datasets.synthetic import generate
+
+    d = generate("neu3d", tmp_path / "rec", seed=0, size="tiny")
+    bench = load_scene("neu3d", d)
+    assert detect_format(d) == "prepared"
+    everything = load_capture(d, CaptureOptions(normalize=False))
+    assert len(everything.train) == len(bench.train) + len(bench.test) and everything.test == []
+    held = load_capture(d, CaptureOptions(holdout="layout", normalize=False))
+    assert [v.name for v in held.test] == [v.name for v in bench.test]  # the registry's test camera
+    assert np.array_equal(held.points, bench.points)
+    with pytest.raises(DatasetError, match="capture.image_scale must stay 0 or 1"):
+        load_capture(d, CaptureOptions(image_scale=2))
