@@ -67,7 +67,7 @@ def run(ctx: SequenceRun) -> list[StageRecord]:
     mcfg = ctx.cfg["masks"]
     if mcfg["generator"] == "files":
         if not mcfg.get("dir"):
-            raise ConfigError("masks.generator=files needs --set masks.dir=PATH (a folder of mask files)")
+            raise ConfigError("masks.generator=files (trase-bench fit) needs --set masks.dir=PATH (a folder of mask files)")
         src = Path(mcfg["dir"])
         if not src.is_dir():
             raise ConfigError(f"{src}: masks.dir is not a folder")
