@@ -18,16 +18,16 @@ from benchmark.captures.common import (
     CaptureLayout,
     capture_scene,
     colmap_points,
-    find_image,
     normalize_scene,
     order_times,
     read_colmap_model,
+    times_from_values,
 )
 from benchmark.captures.options import CaptureOptions
 from benchmark.datasets.errors import fail
-from benchmark.datasets.images import check_size
+from benchmark.datasets.images import check_size, find_image
 from benchmark.datasets.jsonio import finite_float, read_json
-from benchmark.datasets.nerfies import _distortion_px
+from benchmark.datasets.nerfies import distortion_px
 from benchmark.datasets.scene import View
 from trase.camera import Camera, CameraError
 
@@ -80,10 +80,8 @@ def _times(scene_dir: Path, names: list[str], options: CaptureOptions, notices: 
         if missing:
             raise fail(path, f"no time for {len(missing)} image(s) (e.g. {missing[0]!r})")
         t = {n: finite_float(raw[n], path, f"time of {n!r}") for n in names}
-        lo, hi = min(t.values()), max(t.values())
-        distinct = sorted(set(t.values()))
-        notices.append(f"time from {TIMES}: {len(distinct)} distinct times")
-        return {n: (distinct.index(v), (v - lo) / (hi - lo) if hi > lo else 0.0) for n, v in t.items()}
+        notices.append(f"time from {TIMES}: {len(set(t.values()))} distinct times")
+        return times_from_values(t)
     notices.append("time from the frame order (image names sorted); give times.json for another rule")
     return order_times(names)
 
@@ -113,7 +111,7 @@ def load(scene_dir: Path, options: CaptureOptions):
         frame, t = times[im.name]
         native = native.with_time(t)
         cam = native.scaled(s).undistorted()
-        dropped = max(dropped, _distortion_px(native) / s)
+        dropped = max(dropped, distortion_px(native) / s)
         img = find_image(image_dir, im.name)
         check_size(img, cam.width, cam.height, f"COLMAP camera {im.camera_id} scaled 1/{s}")
         views.append(View(name=Path(im.name).with_suffix("").as_posix(), camera=cam, image_path=img,

@@ -12,8 +12,6 @@ from benchmark.captures.options import CaptureOptions, holdout_every
 from benchmark.datasets.errors import fail
 from benchmark.datasets.scene import Scene, View
 
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".PNG", ".JPG", ".JPEG")
-
 
 def order_times(names: list[str]) -> dict[str, tuple[int, float]]:
     """The frame-order rule: name -> (rank, rank / (n - 1)) with names sorted (one moving
@@ -21,6 +19,16 @@ def order_times(names: list[str]) -> dict[str, tuple[int, float]]:
     ranked = sorted(names)
     last = max(len(ranked) - 1, 1)
     return {n: (i, i / last) for i, n in enumerate(ranked)}
+
+
+def times_from_values(raw: dict[str, float], keep_unit: bool = False) -> dict[str, tuple[int, float]]:
+    """name -> (rank among the distinct values, t in [0, 1]): (v - min) / (max - min), or the
+    values themselves when ``keep_unit`` and they all lie in [0, 1] already."""
+    lo, hi = min(raw.values()), max(raw.values())
+    rank = {v: i for i, v in enumerate(sorted(set(raw.values())))}
+    if keep_unit and lo >= 0 and hi <= 1:
+        return {n: (rank[v], v) for n, v in raw.items()}
+    return {n: (rank[v], (v - lo) / (hi - lo) if hi > lo else 0.0) for n, v in raw.items()}
 
 
 def split_views(views: list[View], options: CaptureOptions, layout_test: set[str],
@@ -100,18 +108,6 @@ def points_in_view(views: list[View], n: int = 20000, seed: int = 0) -> np.ndarr
         if not out[-1].size and len(out) > 3:
             return p[:n]  # no common view (a poorly posed capture): the ball itself
     return np.concatenate(out)[:n]
-
-
-def find_image(folder: Path, stem_or_name: str) -> Path:
-    """``folder/name`` as given, else with one of the image suffixes."""
-    p = folder / stem_or_name
-    if p.is_file():
-        return p
-    for ext in IMAGE_SUFFIXES:
-        q = folder / f"{stem_or_name}{ext}"
-        if q.is_file():
-            return q
-    raise fail(p, "missing image")
 
 
 def read_colmap_model(sparse_dir: Path):

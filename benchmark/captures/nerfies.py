@@ -15,26 +15,18 @@ from pathlib import Path
 import numpy as np
 
 from benchmark.captures.common import (
-    IMAGE_SUFFIXES,
     CaptureLayout,
     capture_scene,
     colmap_points,
-    find_image,
     order_times,
     read_colmap_model,
 )
 from benchmark.captures.options import CaptureOptions
 from benchmark.datasets.errors import fail
-from benchmark.datasets.images import check_size
+from benchmark.datasets.images import IMAGE_SUFFIXES
 from benchmark.datasets.jsonio import field, finite_array, finite_float, read_json
-from benchmark.datasets.nerfies import (
-    _distortion_px,
-    id_list,
-    item_times,
-    normalise_pose,
-    read_camera,
-)
-from benchmark.datasets.scene import View
+from benchmark.datasets.nerfies import id_list, item_times, nerfies_view
+from benchmark.datasets.points import read_points
 
 DEFAULT_SCALE = 2  # rgb/2x: the resolution the nerfies benchmarks train on
 FILES = ("dataset.json", "metadata.json", "scene.json")
@@ -79,17 +71,9 @@ def load(scene_dir: Path, options: CaptureOptions):
             raise fail(meta_path, "top level is not a JSON object")
         times = item_times(ids, metadata, meta_path)
 
-    dropped = 0.0
-    views = []
-    for item in ids:
-        native = normalise_pose(read_camera(scene_dir / "camera" / f"{item}.json"), center, scale)
-        frame, t = times[item]
-        native = native.with_time(t)
-        cam = native.scaled(s).undistorted()
-        dropped = max(dropped, _distortion_px(native) / s)
-        img = find_image(image_dir, item)
-        check_size(img, cam.width, cam.height, f"camera/{item}.json scaled 1/{s}")
-        views.append(View(name=item, camera=cam, image_path=img, frame=frame, native_camera=native))
+    built = [nerfies_view(scene_dir, item, image_dir, s, center, scale, times[item]) for item in ids]
+    views = [v for v, _ in built]
+    dropped = max((px for _, px in built), default=0.0)
     if dropped > 0:
         notices.append(f"lens distortion dropped (as the public code does): up to {dropped:.2f} px at rgb/{s}x")
 
@@ -104,14 +88,7 @@ def _points(scene_dir: Path) -> tuple[np.ndarray, np.ndarray | None]:
     """points.npy, else COLMAP's sparse points (both in the camera files' world frame)."""
     npy = scene_dir / "points.npy"
     if npy.is_file():
-        try:
-            pts = np.load(npy)
-        except (ValueError, OSError) as exc:
-            raise fail(npy, f"cannot read ({exc.__class__.__name__})") from None
-        pts = finite_array(pts, npy, "points")
-        if pts.ndim != 2 or pts.shape[1] != 3:
-            raise fail(npy, f"points must be [N, 3], got shape {pts.shape}")
-        return pts, None
+        return read_points(npy)
     sparse = scene_dir / "colmap" / "sparse" / "0"
     if not sparse.is_dir():
         raise fail(npy, "no initial points: neither points.npy nor colmap/sparse/0 (COLMAP's points3D)")

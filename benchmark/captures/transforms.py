@@ -19,14 +19,14 @@ import numpy as np
 from benchmark.captures.common import (
     CaptureLayout,
     capture_scene,
-    find_image,
     normalize_scene,
     order_times,
     points_in_view,
+    times_from_values,
 )
 from benchmark.captures.options import CaptureOptions
 from benchmark.datasets.errors import fail
-from benchmark.datasets.images import image_size
+from benchmark.datasets.images import find_image, image_size
 from benchmark.datasets.jsonio import field, finite_array, finite_float, read_json
 from benchmark.datasets.points import read_points
 from benchmark.datasets.scene import View
@@ -112,12 +112,9 @@ def load(scene_dir: Path, options: CaptureOptions):
         times = {n: (0, 0.0) for n in names}
     elif options.time == "auto" and all("time" in e[2] for e in entries):
         raw = {e[3]: finite_float(e[2]["time"], e[0], f"time of {e[5]}") for e in entries}
-        lo, hi = min(raw.values()), max(raw.values())
-        inside = lo >= 0 and hi <= 1
-        distinct = sorted(set(raw.values()))
-        times = {n: (distinct.index(v), v if inside else ((v - lo) / (hi - lo) if hi > lo else 0.0))
-                 for n, v in raw.items()}
-        notices.append(f"time from the frames' time field{'' if inside else ' mapped to [0, 1]'}")
+        times = times_from_values(raw, keep_unit=True)
+        mapped = any(times[n][1] != v for n, v in raw.items())
+        notices.append(f"time from the frames' time field{' mapped to [0, 1]' if mapped else ''}")
     else:
         times = order_times(names)
         notices.append("time from the frame order (file names sorted)")

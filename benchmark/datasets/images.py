@@ -23,6 +23,22 @@ def image_size(path: Path | str) -> tuple[int, int]:
         raise fail(path, f"cannot read image ({exc.__class__.__name__})") from None
 
 
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".PNG", ".JPG", ".JPEG")
+
+
+def find_image(folder: Path, stem_or_name: str) -> Path:
+    """``folder/name`` as given, else with one of the image suffixes; an error naming the
+    expected ``.png`` when none exists."""
+    p = Path(folder) / stem_or_name
+    if p.is_file():
+        return p
+    for ext in IMAGE_SUFFIXES:
+        q = Path(folder) / f"{stem_or_name}{ext}"
+        if q.is_file():
+            return q
+    raise fail(p if p.suffix in IMAGE_SUFFIXES else Path(folder) / f"{stem_or_name}.png", "missing image")
+
+
 def check_size(path: Path | str, width: int, height: int, what: str) -> None:
     """An image must be exactly the size its camera says."""
     w, h = image_size(path)

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmark.datasets.errors import fail
-from benchmark.datasets.images import check_size
+from benchmark.datasets.images import check_size, find_image
 from benchmark.datasets.jsonio import field, finite_array, finite_float, read_json
 from benchmark.datasets.registry import DatasetSpec, nerfies_time
 from benchmark.datasets.scene import Scene, View
@@ -114,6 +114,20 @@ def split_ids(spec: DatasetSpec, dataset: dict, path: Path) -> tuple[list[str], 
     raise fail(path, f"dataset {spec.key} is not in the nerfies format")
 
 
+def nerfies_view(scene_dir: Path, item: str, image_dir: Path, downscale: int, center: np.ndarray, scale: float,
+                 time: tuple[int, float]) -> tuple[View, float]:
+    """One item's view: ``camera/<item>.json`` normalised by scene.json, at ``time`` (frame,
+    t), scaled to the images of ``image_dir`` (1/downscale) with the lens distortion dropped,
+    -> (view, the largest displacement dropped, in those images' pixels)."""
+    native = normalise_pose(read_camera(scene_dir / "camera" / f"{item}.json"), center, scale)
+    frame, t = time
+    native = native.with_time(t)
+    cam = native.scaled(downscale).undistorted()
+    img = find_image(image_dir, item)
+    check_size(img, cam.width, cam.height, f"camera/{item}.json scaled 1/{downscale}")
+    return View(name=item, camera=cam, image_path=img, frame=frame, native_camera=native), distortion_px(native) / downscale
+
+
 def load_nerfies(spec: DatasetSpec, scene_dir: Path, sequence: str) -> Scene:
     ds_path, meta_path, scene_path = (scene_dir / n for n in ("dataset.json", "metadata.json", "scene.json"))
     dataset = read_json(ds_path, "dataset.json")
@@ -136,21 +150,10 @@ def load_nerfies(spec: DatasetSpec, scene_dir: Path, sequence: str) -> Scene:
     image_dir = scene_dir / "rgb" / f"{spec.downscale}x"
     if not image_dir.is_dir():
         raise fail(image_dir, f"missing image folder rgb/{spec.downscale}x")
-    dropped = 0.0
-
-    def make_view(item: str) -> View:
-        nonlocal dropped
-        native = normalise_pose(read_camera(scene_dir / "camera" / f"{item}.json"), center, scale)
-        frame, t = times[item]
-        native = native.with_time(t)
-        train_cam = native.scaled(spec.downscale).undistorted()
-        dropped = max(dropped, _distortion_px(native) / spec.downscale)
-        img = _find_image(image_dir, item)
-        check_size(img, train_cam.width, train_cam.height, f"camera/{item}.json scaled 1/{spec.downscale}")
-        return View(name=item, camera=train_cam, image_path=img, frame=frame, native_camera=native)
-
-    train = [make_view(i) for i in train_ids]
-    test = [make_view(i) for i in test_ids]
+    built = {i: nerfies_view(scene_dir, i, image_dir, spec.downscale, center, scale, times[i])
+             for i in train_ids + test_ids}
+    train, test = [built[i][0] for i in train_ids], [built[i][0] for i in test_ids]
+    dropped = max((px for _, px in built.values()), default=0.0)
     pts_path = scene_dir / "points.npy"
     if not pts_path.is_file():
         raise fail(pts_path, "missing initial point cloud points.npy")
@@ -168,15 +171,7 @@ def load_nerfies(spec: DatasetSpec, scene_dir: Path, sequence: str) -> Scene:
     )
 
 
-def _find_image(image_dir: Path, item: str) -> Path:
-    for ext in (".png", ".jpg", ".jpeg"):
-        p = image_dir / f"{item}{ext}"
-        if p.is_file():
-            return p
-    raise fail(image_dir / f"{item}.png", "missing image")
-
-
-def _distortion_px(cam: Camera) -> float:
+def distortion_px(cam: Camera) -> float:
     """Largest displacement (native pixels) the lens model applies inside the image."""
     if cam.is_pinhole:
         return 0.0

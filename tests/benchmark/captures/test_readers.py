@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from benchmark.captures import CaptureOptions, detect_format, load_capture
-from benchmark.captures.common import normalization, order_times, points_in_view
+from benchmark.captures.common import normalization, order_times, points_in_view, times_from_values
 from benchmark.datasets.errors import DatasetError
 
 
@@ -114,6 +114,12 @@ def test_transforms_without_points_samples_where_the_cameras_look(capture_copy):
 
 def test_order_times_and_detection_errors(tmp_path):
     assert order_times(["b", "a", "c"]) == {"a": (0, 0.0), "b": (1, 0.5), "c": (2, 1.0)}
+    seconds = {"a": 10.0, "b": 12.0, "c": 10.0, "d": 14.0}
+    assert times_from_values(seconds) == {"a": (0, 0.0), "b": (1, 0.5), "c": (0, 0.0), "d": (2, 1.0)}
+    unit = {"a": 0.25, "b": 0.5}
+    assert times_from_values(unit, keep_unit=True) == {"a": (0, 0.25), "b": (1, 0.5)}
+    assert times_from_values(unit) == {"a": (0, 0.0), "b": (1, 1.0)}
+    assert times_from_values({"a": 3.0, "b": 3.0}) == {"a": (0, 0.0), "b": (0, 0.0)}
     assert order_times(["only"]) == {"only": (0, 0.0)}
     with pytest.raises(DatasetError, match="no known capture layout"):
         detect_format(tmp_path)
