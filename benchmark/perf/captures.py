@@ -24,56 +24,49 @@ import numpy as np
 QUICK_SET = ["geometry.train.iterations=100", "method.features.iterations=50"]
 
 
-def _interest_clicks(scene, ids: list[int]) -> dict[int, tuple[str, int, int]]:
+def _interest_clicks(maps: dict[str, np.ndarray], ids: list[int]) -> dict[int, tuple[str, int, int]]:
     """Per object id: (view, x, y), the deepest interior pixel of its largest training-view area."""
     import cv2
 
     best: dict[int, tuple[int, str, int, int]] = {}
-    for v in scene.train:
-        inst = cv2.imread(str(scene.truth.instance_maps[v.name]), cv2.IMREAD_UNCHANGED)
+    for name, inst in maps.items():
         for i in ids:
             m = (inst == i).astype(np.uint8)
             area = int(m.sum())
             if area and area > best.get(i, (0,))[0]:
                 dist = cv2.distanceTransform(m, cv2.DIST_L2, 3)
                 y, x = np.unravel_index(int(np.argmax(dist)), dist.shape)
-                best[i] = (area, v.name, int(x), int(y))
+                best[i] = (area, name, int(x), int(y))
     return {i: b[1:] for i, b in best.items()}
 
 
-def training_view_ceiling(fit_dir: Path, scene, ids: list[int]) -> dict[str, float]:
+def training_view_ceiling(fit_dir: Path, maps: dict[str, np.ndarray], ids: list[int], n_ids: int) -> dict[str, float]:
     """Per object of interest (and all together): the mean training-view IoU of the gaussians
     whose largest instance vote is that object, rendered alone (the label ceiling of
     benchmark.protocol.ceiling, on the capture's own geometry and training views): what a
     perfect clustering and click could reach on this geometry."""
-    import cv2
-
     from benchmark.capture_select import fitted_capture
     from benchmark.protocol.ceiling import instance_votes, truth_selection
     from trase.segment import render_alpha
 
     _, _, fitted, cap = fitted_capture(fit_dir)
-    maps = {v.name: cv2.imread(str(scene.truth.instance_maps[v.name]), cv2.IMREAD_UNCHANGED).astype(np.int64)
-            for v in scene.train}
     views = [v for v in cap.train if Path(v.name).name in maps]
     g, deform = fitted.gaussians, fitted.deformation
-    votes = instance_votes(g, deform, [v.camera for v in views], [maps[Path(v.name).name] for v in views],
-                           scene.truth.n_ids)
+    votes = instance_votes(g, deform, [v.camera for v in views], [maps[Path(v.name).name] for v in views], n_ids)
     out = {}
     for label, chosen in [*((str(i), [i]) for i in ids), ("all", ids)]:
         sel = truth_selection(votes, chosen)
         preds = {Path(v.name).name: render_alpha(g, deform, sel, v.camera) >= 0.5 for v in views}
-        out[label] = float(np.mean(_ious(scene, preds, chosen)))
+        out[label] = float(np.mean(_ious(maps, preds, chosen)))
     return out
 
 
-def _ious(scene, masks: dict[str, np.ndarray], ids: list[int]) -> list[float]:
-    import cv2
-
+def _ious(maps: dict[str, np.ndarray], masks: dict[str, np.ndarray], ids: list[int]) -> list[float]:
+    """IoU per training view of the predicted masks and the union of objects ``ids``."""
     out = []
-    for v in scene.train:
-        gt = np.isin(cv2.imread(str(scene.truth.instance_maps[v.name]), cv2.IMREAD_UNCHANGED), ids)
-        pred = masks[v.name]
+    for name, inst in maps.items():
+        gt = np.isin(inst, ids)
+        pred = masks[name]
         union = int((gt | pred).sum())
         out.append(1.0 if union == 0 else float((gt & pred).sum()) / union)
     return out
@@ -91,8 +84,11 @@ def run(quick: bool, echo, out_dir: Path) -> dict:
 
     size = "tiny" if quick else "small"
     scene = load_scene("hypernerf", ensure_synthetic("hypernerf", size=size))
+    from masks.generate import read_instance_map
+
     ids = scene.truth.interest_ids
-    clicks = _interest_clicks(scene, ids)
+    maps = {v.name: read_instance_map(scene.truth.instance_maps[v.name]) for v in scene.train}  # read once
+    clicks = _interest_clicks(maps, ids)
     root = Path(out_dir) / "captures"
     views, pts, cols = scene.train, scene.points, scene.point_colors
     sam_like = root / "masks-sam-like"
@@ -101,7 +97,7 @@ def run(quick: bool, echo, out_dir: Path) -> dict:
         from masks.generators import make_generator
 
         masklib.generate_scene_masks(views, make_generator("synthetic", seed=0), sam_like, progress=False,
-                                     instance_maps=scene.truth.instance_maps)
+                                     instance_maps=maps)
     sources = {"classical": [], "files": ["masks.generator=files", f"masks.dir={sam_like}"]}
     layouts = {
         "nerfies": lambda d: write_nerfies_capture(views, pts, cols, d, unlisted=scene.test[:2]),
@@ -120,12 +116,13 @@ def run(quick: bool, echo, out_dir: Path) -> dict:
             (cap / ".complete").touch()
         for source, sets in sources.items():
             result["layouts"][f"{name}/{source}"] = _fit_and_select(
-                scene, cap, root / f"fit-{name}-{source}", root / ".cache", [*sets, *(QUICK_SET if quick else [])],
-                clicks, ids, echo, f"{name}/{source}")
+                maps, scene.truth.n_ids, cap, root / f"fit-{name}-{source}", root / ".cache",
+                [*sets, *(QUICK_SET if quick else [])], clicks, ids, echo, f"{name}/{source}")
     return result
 
 
-def _fit_and_select(scene, cap: Path, fit_dir: Path, cache: Path, sets: list[str], clicks, ids, echo, label) -> dict:
+def _fit_and_select(maps, n_ids: int, cap: Path, fit_dir: Path, cache: Path, sets: list[str], clicks, ids, echo,
+                    label) -> dict:
     """Fit one capture with one mask source, then one click per object and all clicks at once."""
     from benchmark.capture_fit import FitOptions, fit_capture
     from benchmark.capture_select import select_clicks
@@ -137,11 +134,11 @@ def _fit_and_select(scene, cap: Path, fit_dir: Path, cache: Path, sets: list[str
     per_object = {}
     for i, (view, x, y) in clicks.items():
         sel = select_clicks(fit_dir, [f"{_capture_name(rec, view)}:{x},{y}"], fit_dir / f"selection-{i}")
-        per_object[str(i)] = float(np.mean(_ious(scene, _by_view(sel["masks"]), [i])))
+        per_object[str(i)] = float(np.mean(_ious(maps, _by_view(sel["masks"]), [i])))
     everything = select_clicks(fit_dir, [f"{_capture_name(rec, v)}:{x},{y}" for v, x, y in clicks.values()])
-    union = _ious(scene, _by_view(everything["masks"]), ids)
+    union = _ious(maps, _by_view(everything["masks"]), ids)
     stages = {k: {"seconds": v["seconds"], "reused": v["skipped"]} for k, v in rec["stages"].items()}
-    ceiling = training_view_ceiling(fit_dir, scene, ids)
+    ceiling = training_view_ceiling(fit_dir, maps, ids, n_ids)
     echo(f"{label:<21} fit {wall:6.1f}s ("
          + ", ".join(f"{k} {v['seconds']:.0f}s{' reused' if v['reused'] else ''}" for k, v in stages.items())
          + f"); IoU all objects {np.mean(union):.3f} (worst view {np.min(union):.3f}); per object "
