@@ -46,7 +46,9 @@ def test_monocular_is_one_view_per_time(tiny_scene, capture_dirs):
 
 def test_masks_made_elsewhere_are_found_by_view_or_image_name(tiny_scene, tmp_path):
     views = tiny_scene.train
-    gen = masklib.generate_scene_masks(views, masklib_generator(), tmp_path / "made", progress=False)
+    from masks.generators import make_generator
+
+    gen = masklib.generate_scene_masks(views, make_generator("classical"), tmp_path / "made", progress=False)
     src = tmp_path / "src"
     src.mkdir()
     shutil.copy(gen[0], masklib.mask_path(src, views[0].name))  # by view name
@@ -58,12 +60,6 @@ def test_masks_made_elsewhere_are_found_by_view_or_image_name(tiny_scene, tmp_pa
     out = masks_from_files(views, src, tmp_path / "out")
     for a, b in zip(gen, out):
         assert np.array_equal(masklib.load(a).masks, masklib.load(b).masks)
-
-
-def masklib_generator():
-    from masks.generators import make_generator
-
-    return make_generator("classical")
 
 
 def test_fit_refuses_what_it_cannot_read(tmp_path):
