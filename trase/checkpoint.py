@@ -60,6 +60,12 @@ def deform_path(model_dir: str | Path, iteration: int) -> Path:
     return Path(model_dir) / "deform" / f"iteration_{iteration}" / "deform.pth"
 
 
+def deform_table_path(model_dir: str | Path, iteration: int) -> Path:
+    """Tabulated motion (an edited composition baked per time): this project's addition to
+    the layout; the public code reads only deform.pth."""
+    return Path(model_dir) / "deform" / f"iteration_{iteration}" / "deform_table.npz"
+
+
 def write_cfg_args(model_dir: str | Path, sh_degree: int, blender: bool = False, source_path: str = "",
                    white_background: bool = False) -> None:
     """The ``cfg_args`` file the public scripts (render.py, TRASE's train/gui) read from a model
@@ -82,12 +88,16 @@ def save_model(model_dir: str | Path, gaussians: GaussianModel, deformation, ite
     ``cfg_args`` beside them lets the public scripts open the folder (they build the paper
     size network, so only ``DeformMLP.preset("paper")`` models load there).
 
-    ``deformation`` must be a DeformMLP (the public format has no tabulated deformation) or
-    None for a static model (no deform file).
+    ``deformation`` is a DeformMLP (deform.pth, the public format), a TabulatedDeformation
+    (deform_table.npz, read by ``load_model`` here only) or None for a static model.
     """
-    if deformation is not None:
+    if isinstance(deformation, TabulatedDeformation):
+        buf = io.BytesIO()
+        np.savez_compressed(buf, **{k: getattr(deformation, k).cpu().numpy() for k in ("times", "d_xyz", "d_rot", "d_scale")})
+        atomic_write_bytes(deform_table_path(model_dir, iteration), buf.getvalue())
+    elif deformation is not None:
         if not isinstance(deformation, DeformMLP):
-            raise TypeError(f"save_model: can only save a DeformMLP, got {type(deformation).__name__}")
+            raise TypeError(f"save_model: can only save a DeformMLP or a TabulatedDeformation, got {type(deformation).__name__}")
         sd = {k: v.detach().cpu().clone() for k, v in deformation.state_dict().items()}
         atomic_torch_save(sd, deform_path(model_dir, iteration))
     write_cfg_args(model_dir, gaussians.max_sh_degree, bool(getattr(deformation, "blender", False)),
@@ -116,6 +126,16 @@ def load_deformation(path: Path) -> DeformMLP:
     return net
 
 
+def load_deformation_table(path: Path) -> TabulatedDeformation:
+    """A TabulatedDeformation from a ``save_model`` deform_table.npz."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            d = {k: z[k] for k in z.files}
+        return TabulatedDeformation(d["times"], d["d_xyz"], d["d_rot"], d["d_scale"])
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile, EOFError) as exc:
+        raise CheckpointError(f"{path}: not a readable motion table ({type(exc).__name__}: {exc})") from None
+
+
 def load_model(model_dir: str | Path, iteration: int | None = None) -> tuple[GaussianModel, DeformMLP | None]:
     """(gaussians, deformation) saved at ``iteration`` (the latest when None).
 
@@ -141,6 +161,13 @@ def load_model(model_dir: str | Path, iteration: int | None = None) -> tuple[Gau
     dpath = deform_path(model_dir, iteration)
     if not (model_dir / "deform").exists():
         return gaussians, None
+    table = deform_table_path(model_dir, iteration)
+    if table.is_file() and not dpath.is_file():
+        deformation = load_deformation_table(table)
+        if deformation.num_gaussians != gaussians.num_gaussians:
+            raise CheckpointError(f"{table}: motion of {deformation.num_gaussians} gaussians for "
+                                  f"{gaussians.num_gaussians} in the point cloud")
+        return gaussians, deformation
     return gaussians, load_deformation(dpath)
 
 

@@ -238,6 +238,11 @@ class TabulatedDeformation(nn.Module):
     def num_gaussians(self) -> int:
         return int(self.d_xyz.shape[1])
 
+    def rows(self, mask) -> TabulatedDeformation:
+        """The table of the gaussians where mask [N] bool is True (edits that drop gaussians)."""
+        m = torch.as_tensor(mask, dtype=torch.bool)
+        return TabulatedDeformation(self.times, self.d_xyz[:, m], self.d_rot[:, m], self.d_scale[:, m])
+
     def _bracket(self, t: float) -> tuple[int, int, float]:
         """Indices (i0, i1) and weight w of t: value = (1 - w) * v[i0] + w * v[i1]."""
         times = self.times
