@@ -18,6 +18,8 @@ COMMANDS.add("ablate", "benchmark.commands.ablate:ablate",
              "The paper's ablation studies, run and tabulated.")
 COMMANDS.add("datasets", "benchmark.commands.datasets:datasets",
              "List the five *-Mask benchmarks (--json for data).")
+COMMANDS.add("edit", "benchmark.commands.edit:edit",
+             "Edit a scene: remove, extract, recolour a selection, compose objects of two scenes.")
 COMMANDS.add("fit", "benchmark.commands.fit:fit",
              "Fit the method to a capture of one's own (nerfies, COLMAP, transforms json).")
 COMMANDS.add("figures", "benchmark.commands.figures:figures",
@@ -30,6 +32,8 @@ COMMANDS.add("perf", "benchmark.commands.perf:perf",
              "Measured performance suites (rasterizer numba vs torch ...).")
 COMMANDS.add("prepare", "benchmark.commands.prepare:prepare",
              "Raw multi-view downloads -> training frames.")
+COMMANDS.add("render", "benchmark.commands.render:render",
+             "Frames, an MP4 and a preview of a run, a fitted capture or an edited scene.")
 COMMANDS.add("report", "benchmark.commands.report:report",
              "Per-sequence HTML report of a run.")
 COMMANDS.add("run", "benchmark.commands.run:run",

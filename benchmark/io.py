@@ -8,7 +8,7 @@ import hashlib
 import json
 from pathlib import Path
 
-from trase.io import atomic_directory, atomic_write_bytes, atomic_write_text  # noqa: F401 (re-exported)
+from trase.io import atomic_directory, atomic_path, atomic_write_bytes, atomic_write_text  # noqa: F401 (re-exported)
 
 
 def atomic_write_json(path: str | Path, obj) -> None:

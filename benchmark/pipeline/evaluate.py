@@ -18,26 +18,13 @@ OUTPUT_DIRS = ("pred", "clusters")  # copied into the run's directory
 N_SHOWN = 8  # test views rendered with cluster colours (and cluster id maps for benchmark.stability)
 
 
-def cluster_colours(labels: np.ndarray, seed: int = 0) -> np.ndarray:
-    """[N] cluster ids -> [N, 3] RGB in [0, 1], a fixed random colour per cluster."""
-    rng = np.random.default_rng(seed)
-    palette = rng.uniform(0.15, 1.0, size=(int(labels.max()) + 2 if labels.size else 1, 3))
-    return palette[np.asarray(labels, np.int64)]
-
-
 def render_clusters(fitted, camera) -> np.ndarray:
-    """Test view rendered with one colour per cluster -> uint8 [H, W, 3]."""
-    import torch
+    """A view rendered with one colour per cluster -> uint8 [H, W, 3] (trase.visualize)."""
+    from trase.edit import EditableModel
+    from trase.visualize import Painter
 
-    from trase.deformation import deformed
-    from trase.render import rasterize
-
-    g = fitted.gaussians
-    with torch.no_grad():
-        means, quats, scales = deformed(g, fitted.deformation, camera.time)
-        colours = torch.as_tensor(cluster_colours(fitted.labels), dtype=means.dtype)
-        out = rasterize(means, quats, scales, g.opacities.detach(), camera, colors=colours)
-    return (out.color.clamp(0, 1).numpy() * 255).astype(np.uint8)
+    model = EditableModel(fitted.gaussians, fitted.deformation, fitted.labels, fitted.keep)
+    return Painter(model).render(camera, "clusters")
 
 
 def _click_list(prompts) -> list[list[float]]:

@@ -7,7 +7,12 @@ import torch
 from torch import nn
 
 from trase.edit.model import EditableModel, EditError, subset_deformation
-from trase.edit.rigid import RigidTransform, StaticDeformation, TransformedDeformation, transform_gaussians
+from trase.edit.rigid import (
+    RigidTransform,
+    StaticDeformation,
+    TransformedDeformation,
+    transform_gaussians,
+)
 from trase.gaussians import SH_C0, GaussianModel, rgb_to_sh_dc
 
 

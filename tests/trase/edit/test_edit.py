@@ -165,7 +165,7 @@ def test_saved_edits_reload_and_render_the_same(tmp_path, scene):
     edited = recolor(remove(netted, by_clusters(netted, [0])), np.ones(int((ids == 1).sum()), bool), shift=(0.1, 0, 0))
     save_edited(edited, tmp_path / "a")
     assert (tmp_path / "a/model/deform/iteration_1/deform.pth").is_file()
-    g, d = load_model(tmp_path / "a/model")
+    _, d = load_model(tmp_path / "a/model")
     assert isinstance(d, DeformMLP)
     back = load_edited(tmp_path / "a")
     assert np.array_equal(back.labels, edited.labels)
@@ -201,7 +201,7 @@ def test_object_ply_canonical_and_at_a_time(tmp_path, scene):
 
 
 def test_tabulated_rows_follow_the_selection():
-    gm, deform, ids, _ = tiny_scene()
+    _, deform, ids, _ = tiny_scene()
     sub = deform.rows(torch.from_numpy(ids == 1))
     assert sub.num_gaussians == int((ids == 1).sum())
     assert torch.equal(sub.d_xyz, deform.d_xyz[:, torch.from_numpy(ids == 1)])

@@ -1,0 +1,122 @@
+"""``trase-bench edit remove|extract|recolor|compose``: edit a run, a fitted capture or an
+edited scene; the result is a folder that render, view and edit open again."""
+
+from __future__ import annotations
+
+import click
+
+_FOLDER = click.Path(exists=True, file_okay=False)
+
+
+def _selection_options(f):
+    f = click.option("--selected", is_flag=True, help="The clusters the run's prompts chose.")(f)
+    f = click.option("--click", "clicks", multiple=True, metavar="VIEW:X,Y",
+                     help="Select the cluster under a pixel of a view (repeatable).")(f)
+    f = click.option("--clusters", default=None, metavar="IDS", help="Cluster ids, e.g. 3,7.")(f)
+    f = click.option("--cache", type=click.Path(file_okay=False), default=None,
+                     help="Stage cache of a run (default: the .cache above it).")(f)
+    f = click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False),
+                     help="Folder for the edited scene.")(f)
+    return click.option("--run", "run_dir", required=True, type=_FOLDER,
+                        help="A run, a trase-bench fit folder or an edited scene.")(f)
+
+
+def _open(run_dir, cache, clusters, clicks, selected):
+    from benchmark.errors import UserError
+    from benchmark.scene_folders import open_scene_folder, resolve_selection
+
+    folder = open_scene_folder(run_dir, cache)
+    ks, sel = resolve_selection(folder, clusters, clicks, selected)
+    if sel is None:
+        raise UserError("say what to edit: --clusters IDS, --click VIEW:X,Y or --selected")
+    if not sel.any():
+        raise UserError(f"the selection (clusters {ks}) holds no gaussians")
+    return folder, ks, sel
+
+
+def _done(path, record_note: str) -> None:
+    import json
+
+    rec = json.loads(path.read_text())
+    n = rec["n_gaussians"]
+    click.echo(f"{rec['operation']}: {n['before']} -> {n['after']} gaussians ({record_note}); "
+               f"{path.parent}  preview {path.parent / rec['preview']}")
+    click.echo(f"next: trase-bench render --run {path.parent}   |   trase-bench view --run {path.parent}")
+
+
+@click.group(name="edit")
+def edit() -> None:
+    """Edit a scene: remove, extract or recolour a selection, or compose objects of two scenes."""
+
+
+@edit.command(name="remove")
+@_selection_options
+def remove_cmd(run_dir, out_dir, cache, clusters, clicks, selected) -> None:
+    """Delete the selected gaussians."""
+    from benchmark.scene_edit import write_edit
+    from trase.edit import remove
+
+    folder, ks, sel = _open(run_dir, cache, clusters, clicks, selected)
+    _done(write_edit(folder, remove(folder.model, sel), out_dir, "remove", {"clusters": ks}), f"clusters {ks}")
+
+
+@edit.command(name="extract")
+@_selection_options
+def extract_cmd(run_dir, out_dir, cache, clusters, clicks, selected) -> None:
+    """Keep only the selected gaussians."""
+    from benchmark.scene_edit import write_edit
+    from trase.edit import extract
+
+    folder, ks, sel = _open(run_dir, cache, clusters, clicks, selected)
+    _done(write_edit(folder, extract(folder.model, sel), out_dir, "extract", {"clusters": ks}), f"clusters {ks}")
+
+
+@edit.command(name="recolor")
+@_selection_options
+@click.option("--rgb", default=None, metavar="R,G,B", help="Set the colour (0..1 each).")
+@click.option("--shift", default=None, metavar="R,G,B", help="Add to the colour (-1..1 each).")
+def recolor_cmd(run_dir, out_dir, cache, clusters, clicks, selected, rgb, shift) -> None:
+    """Set or shift the colour of the selected gaussians."""
+    from benchmark.errors import UserError
+    from benchmark.scene_edit import parse_vector, write_edit
+    from trase.edit import recolor
+
+    if (rgb is None) == (shift is None):
+        raise UserError("recolor: give exactly one of --rgb R,G,B or --shift R,G,B")
+    folder, ks, sel = _open(run_dir, cache, clusters, clicks, selected)
+    value = {"rgb": parse_vector(rgb, "--rgb"), "shift": parse_vector(shift, "--shift")}
+    edited = recolor(folder.model, sel, **value)
+    _done(write_edit(folder, edited, out_dir, "recolor", {"clusters": ks, **value}), f"clusters {ks}")
+
+
+@edit.command(name="compose")
+@_selection_options
+@click.option("--from", "from_dir", required=True, type=_FOLDER, help="The scene to take the object from.")
+@click.option("--from-clusters", default=None, metavar="IDS", help="Its clusters to insert.")
+@click.option("--from-click", "from_clicks", multiple=True, metavar="VIEW:X,Y", help="Its object under a click.")
+@click.option("--from-selected", is_flag=True, help="The clusters its run's prompts chose.")
+@click.option("--translate", default="0,0,0", metavar="X,Y,Z", help="Move the object (scene units).")
+@click.option("--rotate", default="0,0,0", metavar="RX,RY,RZ", help="Turn it (degrees about x, y, z).")
+@click.option("--time-offset", default=0.0, type=float, help="The object shows its time t + offset.")
+def compose_cmd(run_dir, out_dir, cache, clusters, clicks, selected, from_dir, from_clusters, from_clicks,
+                from_selected, translate, rotate, time_offset) -> None:
+    """Insert an object of another scene (or of this one) with a rigid transform and a time
+    offset; each part keeps its own motion. --clusters/--click/--selected pick nothing here:
+    the base scene is kept whole (use them to remove first, with edit remove)."""
+    from benchmark.errors import UserError
+    from benchmark.scene_edit import parse_vector, write_edit
+    from benchmark.scene_folders import open_scene_folder, resolve_selection
+    from trase.edit import RigidTransform, compose, extract
+
+    if clusters or clicks or selected:
+        raise UserError("compose: select the object with --from-clusters/--from-click/--from-selected")
+    base = open_scene_folder(run_dir, cache)
+    other = open_scene_folder(from_dir, cache)
+    ks, sel = resolve_selection(other, from_clusters, from_clicks, from_selected)
+    if sel is None or not sel.any():
+        raise UserError("compose: say which object to insert (--from-clusters, --from-click or --from-selected)")
+    tf = RigidTransform.from_euler(parse_vector(rotate, "--rotate"), parse_vector(translate, "--translate"))
+    edited = compose(base.model, extract(other.model, sel), tf, time_offset)
+    params = {"from": str(other.path.resolve()), "from_clusters": ks, "translate": translate, "rotate": rotate,
+              "time_offset": time_offset}
+    _done(write_edit(base, edited, out_dir, "compose", params), f"inserted clusters {ks} of {other.path}")

@@ -1,0 +1,181 @@
+"""The folders ``render``, ``edit`` and ``view`` open: a benchmark run, a fitted capture, an
+edited scene. Each gives one ``SceneFolder``: the model (geometry, deformation, clusters, the
+filter's keep mask, learned features) and the named cameras to look through.
+
+* a run (``results.json``): geometry and fit from the run's stage cache (found by walking up
+  from the run to a ``.cache`` holding its stage keys, or given), cameras = the test views;
+* a fitted capture (``fit.json``, ``trase-bench fit``): its model/ and segmentation/, cameras
+  = every view of the capture;
+* an edited scene (``edit.json``, ``trase-bench edit``): its model/ and segmentation/, the
+  cameras of the folder it was edited from.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from benchmark.errors import UserError
+from benchmark.io import read_json
+
+EDIT_FILE, VIEWS_FILE = "edit.json", "views.json"
+
+
+@dataclasses.dataclass
+class SceneFolder:
+    kind: str  # "run" | "fit" | "edit"
+    path: Path
+    model: object  # trase.edit.EditableModel, features on its gaussians when learned
+    views: list  # [(name, trase.camera.Camera)]
+    selected: list[int]  # clusters the run's prompts chose (runs), else []
+    dataset: str  # the benchmark's key, or "capture"
+    click_rule: str = "depth"  # the method's click rule for this model (trase.prompts)
+
+    def camera(self, name: str):
+        names = [n for n, _ in self.views]
+        if name not in names:
+            raise UserError(f"{self.path}: no view {name!r} (e.g. {', '.join(names[:3])})")
+        return self.views[names.index(name)][1]
+
+    def times(self) -> list[float]:
+        return sorted({float(c.time) for _, c in self.views})
+
+
+def open_scene_folder(path: Path | str, cache: Path | str | None = None) -> SceneFolder:
+    """Open a run, fit or edit folder (see the module doc); a clear error for anything else."""
+    path = Path(path)
+    if not path.is_dir():
+        raise UserError(f"{path}: not a folder")
+    if (path / "results.json").is_file():
+        return _open_run(path, Path(cache) if cache else None)
+    if (path / "fit.json").is_file():
+        return _open_saved(path, "fit", read_json(path / "fit.json", "fit.json"))
+    if (path / EDIT_FILE).is_file():
+        return _open_saved(path, "edit", read_json(path / EDIT_FILE, EDIT_FILE))
+    raise UserError(f"{path}: not a run (results.json), a fitted capture (fit.json) or an edited scene ({EDIT_FILE})")
+
+
+def _with_features(gaussians, features: np.ndarray | None):
+    from trase.gaussians import GaussianModel
+
+    if features is None or np.asarray(features).shape[0] != gaussians.num_gaussians:
+        return gaussians
+    g = gaussians
+    return GaussianModel(g.means, g.log_scales, g.quats, g.opacity_logits, g.sh,
+                         torch.as_tensor(np.asarray(features, np.float32)), g.active_sh_degree)
+
+
+def _find_stage(run: Path, stage: str, key: str, cache: Path | None) -> Path:
+    if cache is not None:
+        found = cache / stage / key
+        if not found.is_dir():
+            raise UserError(f"{found}: the run's {stage} stage is not in the cache given")
+        return found
+    for parent in run.parents:
+        found = parent / ".cache" / stage / key
+        if found.is_dir():
+            return found
+    raise UserError(f"{run}: its {stage} stage ({key}) is in no .cache above it; pass --cache")
+
+
+def _open_run(run: Path, cache: Path | None) -> SceneFolder:
+    from benchmark.datasets import load_scene
+    from benchmark.methods import FittedModel
+    from benchmark.pipeline.context import load_geometry
+    from trase.edit import EditableModel
+
+    rec = read_json(run / "results.json", "results.json")
+    stages = rec.get("stages", {})
+    for need in ("geometry", "fit"):
+        if need not in stages:
+            raise UserError(f"{run / 'results.json'}: no {need} stage recorded")
+    gaussians, deformation = load_geometry(_find_stage(run, "geometry", stages["geometry"]["key"], cache))
+    fitted = FittedModel.load(_find_stage(run, "fit", stages["fit"]["key"], cache))
+    scene_dir = Path(rec["scene_dir"])
+    if not scene_dir.is_dir():
+        raise UserError(f"{run / 'results.json'}: its scene {scene_dir} is gone (regenerate or pass the data root)")
+    scene = load_scene(rec["dataset"], scene_dir)
+    model = EditableModel(_with_features(gaussians, fitted.features), deformation, fitted.labels, fitted.keep)
+    rule = rec.get("config", {}).get("method", {}).get("prompts", {}).get("click_rule", "depth")
+    return SceneFolder("run", run, model, [(v.name, v.camera) for v in scene.test],
+                       [int(k) for k in rec.get("selected_clusters", [])], rec["dataset"], str(rule))
+
+
+def _open_saved(path: Path, kind: str, record: dict) -> SceneFolder:
+    from trase.camera import Camera
+    from trase.edit import EditableModel, load_edited
+
+    if kind == "fit":
+        from benchmark.methods import FittedModel
+        from trase.checkpoint import load_model
+
+        g, d = load_model(path / "model")
+        fitted = FittedModel.load(path / "segmentation")
+        model = EditableModel(_with_features(g, fitted.features), d, fitted.labels, fitted.keep)
+    else:
+        model = load_edited(path)
+        feats = path / "segmentation" / "features.npy"
+        if feats.is_file():
+            model.gaussians = _with_features(model.gaussians, np.load(feats))
+    doc = read_json(path / VIEWS_FILE, VIEWS_FILE)
+    views = [(v["name"], Camera.from_dict(v["camera"])) for split in ("train", "test") for v in doc.get(split, [])]
+    if not views:
+        raise UserError(f"{path / VIEWS_FILE}: no views")
+    rule = record.get("click_rule") or record.get("config", {}).get("method", {}).get("prompts", {}).get(
+        "click_rule", "depth")
+    return SceneFolder(kind, path, model, views, [int(k) for k in record.get("selected", [])],
+                       str(record.get("dataset", "capture")), str(rule))
+
+
+def parse_clusters(text: str | None) -> list[int]:
+    """"3,7" -> [3, 7]; None or "" -> []."""
+    if not text:
+        return []
+    try:
+        return sorted({int(x) for x in text.replace(" ", "").split(",") if x})
+    except ValueError:
+        raise UserError(f"--clusters {text!r}: expected cluster ids separated by commas, e.g. 3,7") from None
+
+
+def resolve_selection(folder: SceneFolder, clusters: str | None = None, clicks: tuple[str, ...] = (),
+                      selected: bool = False, filtered: bool = True) -> tuple[list[int], np.ndarray | None]:
+    """(cluster ids, [N] bool or None when nothing was asked) from ``--clusters``,
+    ``--click VIEW:X,Y`` (the method's click rule; pixel centres) and ``--selected`` (the
+    clusters the run's prompts chose)."""
+    from benchmark.capture_select import parse_click
+    from trase.edit import by_click, by_clusters
+
+    ks = set(parse_clusters(clusters))
+    n = folder.model.n_clusters
+    bad = sorted(k for k in ks if k >= n)
+    if bad:
+        raise UserError(f"--clusters: no cluster {bad[0]} in {folder.path} (it has {n}: 0..{n - 1})")
+    if selected:
+        if not folder.selected:
+            raise UserError(f"--selected: {folder.path} records no selected clusters")
+        ks |= set(folder.selected)
+    for text in clicks:
+        view, x, y = parse_click(text)
+        cam = folder.camera(view)
+        if not (0 <= x < cam.width and 0 <= y < cam.height):
+            raise UserError(f"--click {text!r}: pixel outside the {cam.width}x{cam.height} view")
+        k, _ = by_click(folder.model, cam, x + 0.5, y + 0.5, rule=folder.click_rule)
+        if k < 0:
+            raise UserError(f"--click {text!r}: the click hits no surface (rendered alpha below 0.5 there)")
+        ks.add(k)
+    if not ks and not (clusters or clicks or selected):
+        return [], None
+    chosen = sorted(ks)
+    return chosen, by_clusters(folder.model, chosen, filtered)
+
+
+def views_doc(views: list) -> dict:
+    """The views.json of an edited scene: its cameras, in the fit folder's format."""
+    return {"train": [], "test": [{"name": n, "camera": c.to_dict(), "frame": i} for i, (n, c) in enumerate(views)]}
+
+
+__all__ = ["EDIT_FILE", "VIEWS_FILE", "SceneFolder", "open_scene_folder", "parse_clusters", "resolve_selection",
+           "views_doc"]

@@ -1,0 +1,104 @@
+"""render and edit on a tiny run: every mode, the camera paths, edit folders that reopen,
+and one-line errors."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from benchmark.cli import main
+from benchmark.datasets.synthetic import generate
+from benchmark.scene_folders import open_scene_folder
+from imagefiles import read_rgb8
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory):
+    root = tmp_path_factory.mktemp("data")
+    generate("hypernerf", root / "hypernerf" / "synthetic", seed=0, size="tiny")
+    out = root / "runs"
+    args = ["run", "--method", "trase", "--dataset", "hypernerf", "--sequence", "synthetic", "--data-root",
+            str(root), "--out", str(out), "--quiet", "--set", "geometry.source=ground-truth",
+            "--set", "method.features.iterations=40", "--set", "method.features.n_pixels=400"]
+    assert main(args) == 0
+    (results,) = out.glob("trase/hypernerf/synthetic/*/results.json")
+    return results.parent
+
+
+def _frames(d):
+    return sorted(d.glob("*.png"))
+
+
+def test_render_every_mode_and_path(run_dir, tmp_path):
+    folder = open_scene_folder(run_dir)
+    n_test = len(folder.views)
+    for mode in ("rgb", "depth", "clusters", "pca"):
+        assert main(["render", "--run", str(run_dir), "--mode", mode, "--out", str(tmp_path), "--quiet",
+                     "--no-mp4"]) == 0
+        frames = _frames(tmp_path / mode)
+        assert len(frames) == n_test and read_rgb8(frames[0]).max() > 0  # something is drawn
+        assert (tmp_path / f"{mode}.webp").stat().st_size > 0
+    assert main(["render", "--run", str(run_dir), "--cameras", "orbit", "--frames", "5", "--scale", "2",
+                 "--out", str(tmp_path / "orbit"), "--quiet"]) == 0
+    frames = _frames(tmp_path / "orbit" / "rgb")
+    cam = folder.views[0][1]
+    assert len(frames) == 5 and read_rgb8(frames[0]).shape == (2 * cam.height, 2 * cam.width, 3)
+    assert (tmp_path / "orbit" / "rgb.mp4").stat().st_size > 0
+    assert not np.array_equal(read_rgb8(frames[0]), read_rgb8(frames[-1]))  # the camera moved
+
+
+def test_selection_mode_tints_the_selected_objects(run_dir, tmp_path):
+    assert main(["render", "--run", str(run_dir), "--mode", "selection", "--selected", "--out", str(tmp_path),
+                 "--quiet", "--no-mp4"]) == 0
+    assert main(["render", "--run", str(run_dir), "--out", str(tmp_path), "--quiet", "--no-mp4"]) == 0
+    sel = np.stack([read_rgb8(p) for p in _frames(tmp_path / "selection")])
+    rgb = np.stack([read_rgb8(p) for p in _frames(tmp_path / "rgb")])
+    changed = (sel != rgb).any(axis=-1)
+    assert 0 < changed.mean() < 0.5  # the objects, not the whole picture
+
+
+def test_edit_folders_reopen_and_chain(run_dir, tmp_path, capsys):
+    base = open_scene_folder(run_dir)
+    assert main(["edit", "remove", "--run", str(run_dir), "--selected", "--out", str(tmp_path / "rm")]) == 0
+    assert "next: trase-bench render" in capsys.readouterr().out
+    rec = json.loads((tmp_path / "rm" / "edit.json").read_text())
+    assert rec["operation"] == "remove" and rec["params"]["clusters"] == sorted(base.selected)
+    removed = open_scene_folder(tmp_path / "rm")
+    n_sel = int(np.isin(base.model.labels, base.selected)[base.model.keep].sum())
+    assert removed.kind == "edit" and removed.model.num_gaussians == base.model.num_gaussians - n_sel
+    assert [n for n, _ in removed.views] == [n for n, _ in base.views]
+    assert removed.model.gaussians.features is not None  # learned features travel with the edit
+    assert main(["edit", "recolor", "--run", str(tmp_path / "rm"), "--clusters", "0", "--rgb", "1,0,0",
+                 "--out", str(tmp_path / "red")]) == 0
+    assert main(["edit", "compose", "--run", str(tmp_path / "rm"), "--from", str(run_dir), "--from-selected",
+                 "--translate", "0,0,0.2", "--time-offset", "0.1", "--out", str(tmp_path / "comp")]) == 0
+    comp = open_scene_folder(tmp_path / "comp")
+    assert comp.model.num_gaussians == base.model.num_gaussians
+    assert json.loads((tmp_path / "comp" / "edit.json").read_text())["motion"] == "table"
+    assert main(["render", "--run", str(tmp_path / "comp"), "--frames", "2", "--quiet", "--no-mp4"]) == 0
+    assert main(["edit", "extract", "--run", str(run_dir), "--selected", "--out", str(tmp_path / "obj")]) == 0
+    assert open_scene_folder(tmp_path / "obj").model.num_gaussians == n_sel
+
+
+@pytest.mark.parametrize("args, message", [
+    (["render", "--run", "{tmp}"], "not a run (results.json)"),
+    (["render", "--run", "{run}", "--clusters", "999"], "no cluster 999"),
+    (["render", "--run", "{run}", "--clusters", "a,b"], "expected cluster ids"),
+    (["render", "--run", "{run}", "--click", "nosuchview:1,1"], "no view 'nosuchview'"),
+    (["render", "--run", "{run}", "--click", "bad"], "expected VIEW:X,Y"),
+    (["render", "--run", "{run}", "--cache", "{tmp}"], "not in the cache given"),
+    (["edit", "remove", "--run", "{run}", "--out", "{tmp}/x"], "say what to edit"),
+    (["edit", "recolor", "--run", "{run}", "--clusters", "0", "--out", "{tmp}/x"], "exactly one of --rgb"),
+    (["edit", "recolor", "--run", "{run}", "--clusters", "0", "--rgb", "1,0", "--out", "{tmp}/x"], "expected 3 numbers"),
+    (["edit", "recolor", "--run", "{run}", "--clusters", "0", "--rgb", "2,0,0", "--out", "{tmp}/x"], "in [0, 1]"),
+    (["edit", "compose", "--run", "{run}", "--from", "{run}", "--out", "{tmp}/x"], "say which object"),
+    (["edit", "remove", "--run", "{run}", "--selected", "--out", "{run}"], "must differ"),
+])
+def test_errors_are_one_line(run_dir, tmp_path, capsys, args, message):
+    argv = [a.format(run=run_dir, tmp=tmp_path) for a in args]
+    assert main(argv) == 1
+    err = capsys.readouterr().err.strip()
+    assert message in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "x").exists()
