@@ -121,6 +121,11 @@ def read_colmap_model(sparse_dir: Path):
             raise fail(sparse_dir / f"{n}.bin", "missing COLMAP model file (.bin or .txt)")
     import pycolmap
 
+    from benchmark.captures.colmap_binary import binary_model_problem
+
+    problem = binary_model_problem(sparse_dir)
+    if problem is not None:
+        raise fail(*problem)
     try:
         return pycolmap.Reconstruction(str(sparse_dir))
     except (ValueError, RuntimeError, OSError, MemoryError) as exc:  # a truncated count: bad_alloc

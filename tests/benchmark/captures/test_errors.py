@@ -14,6 +14,11 @@ from benchmark.captures import CaptureOptions, load_capture
 from benchmark.datasets.errors import DatasetError
 
 
+def _cut(path: Path) -> None:
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])
+
+
 def _first(d: Path, pattern: str) -> Path:
     return min(d.glob(pattern))
 
@@ -64,14 +69,18 @@ CASES = [
     ("nerfies", "no points", lambda d: [f.unlink() for f in (d / "colmap/sparse/0").iterdir()] and (d / "colmap/sparse/0").rmdir(),
      "points.npy", "no initial points: neither points.npy nor colmap/sparse/0"),
     ("nerfies", "points3D.bin truncated", lambda d: (d / "colmap/sparse/0/points3D.bin").write_bytes(b"\x05\x00"),
-     "colmap/sparse/0", "cannot read the COLMAP model"),
+     "colmap/sparse/0/points3D.bin", "truncated COLMAP file"),
+    ("nerfies", "images.bin cut short", lambda d: _cut(d / "colmap/sparse/0/images.bin"),
+     "colmap/sparse/0/images.bin", "truncated COLMAP file: ends inside"),
     ("nerfies", "points3D missing", lambda d: (d / "colmap/sparse/0/points3D.bin").unlink(),
      "colmap/sparse/0/points3D.bin", "missing COLMAP model file"),
     ("nerfies", "points.npy bad shape", lambda d: np.save(d / "points.npy", np.zeros((4, 2))),
      "points.npy", r"points must be \[N, 3\]"),
     ("colmap", "image missing", lambda d: _first(d, "images/*.png").unlink(), "images/", "missing image"),
     ("colmap", "image size", lambda d: _resize(_first(d, "images/*.png")), "images/", "image is .* but COLMAP camera"),
-    ("colmap", "cameras.bin garbage", lambda d: (d / "sparse/0/cameras.bin").write_bytes(b"\xff" * 7),
+    ("colmap", "cameras.bin short", lambda d: (d / "sparse/0/cameras.bin").write_bytes(b"\xff" * 7),
+     "sparse/0/cameras.bin", "truncated COLMAP file"),
+    ("colmap", "cameras.bin garbage", lambda d: (d / "sparse/0/cameras.bin").write_bytes(b"\x01" + b"\x00" * 7 + b"\xff" * 64),
      "sparse/0", "cannot read the COLMAP model"),
     ("colmap", "unsupported camera model", lambda d: _unsupported_model(d / "sparse/0"),
      "sparse/0", "model OPENCV_FISHEYE; supported: SIMPLE_PINHOLE, PINHOLE"),
