@@ -44,6 +44,8 @@ COMMANDS.add("score", "benchmark.commands.score:score",
              "Score predicted masks against ground truth.")
 COMMANDS.add("select", "benchmark.commands.select:select",
              "Select objects of a fitted capture by clicks -> masks of its views.")
+COMMANDS.add("view", "benchmark.commands.view:view",
+             "A web viewer of a scene: time, render modes, click selection, edits, export.")
 COMMANDS.add("synth", "benchmark.commands.synth:synth",
              "Generate a synthetic scene in a benchmark's raw format.")
 

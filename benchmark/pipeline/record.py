@@ -38,7 +38,7 @@ def build_record(ctx: SequenceRun, run: dict, dataset: str, variant: str, scene_
                "features": cfg["method"].get("features", {}).get("seed"),
                "clustering": cfg["method"].get("clustering", {}).get("seed")},
         checksums={"gt": ctx.gt_key, "pred": sha256_files(pred_files)[:16]},
-        prompts=prompts, scene_dir=str(scene_dir),
+        prompts=prompts, scene_dir=str(Path(scene_dir).resolve()),
         frames=[{"frame": f"{i:05d}", "view": v.name, "image": str(v.image_path), "gt": str(scene.gt_masks[i]),
                  "pred": f"pred/{i:05d}.png"} for i, v in enumerate(scene.test)],
     )

@@ -1,4 +1,5 @@
-"""A tiny synthetic scene written as a capture in each layout (benchmark.captures.write)."""
+"""Shared fixtures: a tiny synthetic scene written as a capture in each layout
+(benchmark.captures.write), and a tiny finished run (render, edit, view)."""
 
 from __future__ import annotations
 
@@ -38,3 +39,21 @@ def capture_copy(capture_dirs, tmp_path):
         return Path(shutil.copytree(capture_dirs[layout], tmp_path / layout))
 
     return copy
+
+
+@pytest.fixture(scope="session")
+def tiny_run(tmp_path_factory) -> Path:
+    """A finished `trase-bench run` on the tiny HyperNeRF-format scene (ground-truth geometry,
+    40 feature steps): a run folder with its stage cache."""
+    from benchmark.cli import main
+    from benchmark.datasets.synthetic import generate
+
+    root = tmp_path_factory.mktemp("tiny-run")
+    generate("hypernerf", root / "hypernerf" / "synthetic", seed=0, size="tiny")
+    out = root / "runs"
+    args = ["run", "--method", "trase", "--dataset", "hypernerf", "--sequence", "synthetic", "--data-root",
+            str(root), "--out", str(out), "--quiet", "--set", "geometry.source=ground-truth",
+            "--set", "method.features.iterations=40", "--set", "method.features.n_pixels=400"]
+    assert main(args) == 0
+    (results,) = out.glob("trase/hypernerf/synthetic/*/results.json")
+    return results.parent

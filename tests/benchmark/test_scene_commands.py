@@ -9,22 +9,13 @@ import numpy as np
 import pytest
 
 from benchmark.cli import main
-from benchmark.datasets.synthetic import generate
 from benchmark.scene_folders import open_scene_folder
 from imagefiles import read_rgb8
 
 
 @pytest.fixture(scope="module")
-def run_dir(tmp_path_factory):
-    root = tmp_path_factory.mktemp("data")
-    generate("hypernerf", root / "hypernerf" / "synthetic", seed=0, size="tiny")
-    out = root / "runs"
-    args = ["run", "--method", "trase", "--dataset", "hypernerf", "--sequence", "synthetic", "--data-root",
-            str(root), "--out", str(out), "--quiet", "--set", "geometry.source=ground-truth",
-            "--set", "method.features.iterations=40", "--set", "method.features.n_pixels=400"]
-    assert main(args) == 0
-    (results,) = out.glob("trase/hypernerf/synthetic/*/results.json")
-    return results.parent
+def run_dir(tiny_run):
+    return tiny_run
 
 
 def _frames(d):

@@ -1,0 +1,35 @@
+"""``trase-bench view``: a web viewer of a run, a fitted capture or an edited scene."""
+
+from __future__ import annotations
+
+import click
+
+
+@click.command(name="view")
+@click.option("--run", "run_dir", required=True, type=click.Path(exists=True, file_okay=False),
+              help="A run, a trase-bench fit folder or an edited scene.")
+@click.option("--cache", type=click.Path(file_okay=False), default=None,
+              help="Stage cache of a run (default: the .cache above it).")
+@click.option("--host", default="127.0.0.1", show_default=True, help="0.0.0.0 to serve other machines.")
+@click.option("--port", default=8080, type=int, show_default=True)
+@click.option("--height", type=click.Choice(["120", "240", "480"]), default="240", show_default=True,
+              help="Render height in pixels (the width follows the browser window).")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False), default=None,
+              help="Where Export writes the edited scene (default <run>-edited).")
+def view(run_dir, cache, host, port, height, out_dir) -> None:
+    """Open a scene in the browser: orbit, time, render modes, click selection, edits, export."""
+    import time
+
+    from benchmark.scene_folders import open_scene_folder
+    from benchmark.viewer import SceneViewer
+
+    folder = open_scene_folder(run_dir, cache)
+    viewer = SceneViewer(folder, host=host, port=port, out=out_dir, height=int(height))
+    click.echo(f"viewer of {folder.path} at {viewer.url()}  (Ctrl+C to stop)", err=False)
+    try:
+        while True:
+            time.sleep(1.0)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        viewer.close()
