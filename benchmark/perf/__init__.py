@@ -28,6 +28,8 @@ SUITES.add("determinism", "benchmark.perf.determinism:run",
            "A fixed seed under other thread counts and instruction sets (fresh processes): bit-identical or by how much not.")
 SUITES.add("captures", "benchmark.perf.captures:run",
            "trase-bench fit on the built-in scene written as nerfies / COLMAP / transforms captures: click IoU, stage times.")
+SUITES.add("viewer", "benchmark.perf.viewer:run",
+           "The web viewer's frame rate at 320x240 and 640x480 per render mode, and click-selection latency.")
 SUITES.add("pareto", "benchmark.perf.pareto:run",
            "mIoU vs features+fit+evaluate time over a settings grid for one scene; PNG with the Pareto front.")
 

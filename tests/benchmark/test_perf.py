@@ -79,3 +79,15 @@ def test_captures_suite_fits_every_layout_with_both_mask_sources(tmp_path):
         assert 0.0 <= r["iou_all_objects"] <= 1.0 and 0.0 <= r["geometry_ceiling"]["all"] <= 1.0
         assert r["stages"]["geometry"]["reused"] == name.endswith("/files")  # one reconstruction per layout
     assert any("ignored 2 image(s)" in n for n in out["layouts"]["nerfies/classical"]["notices"])
+
+
+@pytest.mark.slow
+def test_viewer_suite_times_every_mode_at_both_sizes_and_a_click(tmp_path):
+    from benchmark.perf import viewer
+
+    out = viewer.run(quick=True, echo=lambda *_: None, out_dir=tmp_path)
+    assert set(out["sizes"]) == {"320x240", "640x480"}
+    for per_mode in out["sizes"].values():
+        assert set(per_mode) == set(viewer.MODES)
+        assert all(m["fps"] > 0 and len(m["render_s"]["all"]) == out["frames_per_setting"] for m in per_mode.values())
+    assert out["click"]["clicks"] == len(out["click"]["latency_s"]["all"]) > 0
