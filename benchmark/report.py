@@ -160,6 +160,33 @@ def _img_tag(data: bytes, alt: str) -> str:
     return f'<img alt="{html.escape(alt)}" src="data:image/png;base64,{base64.b64encode(data).decode()}">'
 
 
+CLIP_FRAMES = 24  # test views in the report's clip, evenly spread in time
+
+
+def _clip(run_dir: Path) -> tuple[str, str]:
+    """(html, note): an animated WebP of the run's selection over its test views in time order
+    (``trase-bench render --mode selection --selected``), or why there is none."""
+    import tempfile
+
+    from benchmark.scene_folders import open_scene_folder, resolve_selection
+    from benchmark.scene_render import RenderOptions, render_frames
+
+    try:
+        folder = open_scene_folder(run_dir)
+        _, sel = resolve_selection(folder, selected=True) if folder.selected else ([], None)
+        opts = RenderOptions(mode="selection", frames=CLIP_FRAMES, mp4=False)
+        with tempfile.TemporaryDirectory() as tmp:
+            res = render_frames(folder, opts, Path(tmp), sel, progress=False)
+            data = Path(res["preview"]).read_bytes()
+    except Exception as exc:  # noqa: BLE001 - the report stands without its clip, and says why
+        if not getattr(exc, "user_facing", False):
+            raise
+        return "", f"No clip: {exc}"
+    atomic_write_bytes(run_dir / "report" / "clip.webp", data)
+    tag = f'<img alt="clip" src="data:image/webp;base64,{base64.b64encode(data).decode()}">'
+    return tag, ""
+
+
 def make_report(run_dir: str | Path) -> Path:
     """Write ``report.html`` and ``report/*.png`` into ``run_dir``; returns the HTML path."""
     run_dir = Path(run_dir)
@@ -187,6 +214,7 @@ def make_report(run_dir: str | Path) -> Path:
                      "</figcaption></figure>")
     plot = _iou_plot(record)
     atomic_write_bytes(png_dir / "per_frame_iou.png", plot)
+    clip, clip_note = _clip(run_dir)
 
     m = record["metrics"]
     fmt = lambda x: "n/a" if x is None else f"{x:.4f}"  # noqa: E731
@@ -223,6 +251,9 @@ pre{{background:#f6f6f6;padding:8px;overflow:auto;font-size:12px}}</style></head
 &middot; {m['n_frames']} test frames</p>
 <p>{html.escape(run_line)}</p>
 <p>{' '.join(html.escape(n) for n in notes)}</p>
+<h2>Clip</h2><p>The selected objects tinted over the test views in time order
+(<code>trase-bench render --run {html.escape(str(run_dir))} --mode selection --selected</code>).
+{html.escape(clip_note)}</p>{clip}
 <h2>Test views</h2><p>green: correct object pixels, red: false positives, blue: missed.</p>
 {''.join(tiles)}
 <h2>Per-frame scores</h2>{_img_tag(plot, 'per-frame IoU')}

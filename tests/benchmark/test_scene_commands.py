@@ -93,3 +93,11 @@ def test_errors_are_one_line(run_dir, tmp_path, capsys, args, message):
     err = capsys.readouterr().err.strip()
     assert message in err and len(err.splitlines()) == 1
     assert not (tmp_path / "x").exists()
+
+
+def test_report_carries_a_clip_of_the_selection(run_dir):
+    from benchmark.report import make_report
+
+    page = make_report(run_dir).read_text()
+    assert page.count("data:image/webp;base64") == 1 and "No clip" not in page
+    assert (run_dir / "report" / "clip.webp").stat().st_size > 0
