@@ -178,7 +178,7 @@ def _clip(run_dir: Path) -> tuple[str, str]:
         with tempfile.TemporaryDirectory() as tmp:
             res = render_frames(folder, opts, Path(tmp), sel, progress=False)
             data = Path(res["preview"]).read_bytes()
-    except Exception as exc:  # noqa: BLE001 - the report stands without its clip, and says why
+    except Exception as exc:  # the report stands without its clip, and says why
         if not getattr(exc, "user_facing", False):
             raise
         return "", f"No clip: {exc}"

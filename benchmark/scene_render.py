@@ -60,7 +60,7 @@ def render_frames(folder, opts: RenderOptions, out: Path, selection: np.ndarray 
     cams = path_cameras(folder, opts)
     painter = Painter(folder.model, selection)
     frames, seconds = [], []
-    bar = _bar(progress, len(cams), f"render {opts.mode}")
+    bar = progress_bar(progress, len(cams), f"render {opts.mode}")
     try:
         for cam in cams:
             t0 = time.perf_counter()
@@ -122,7 +122,7 @@ def write_webp(frames: list[np.ndarray], path: str, fps: float, max_width: int =
                  quality=80)
 
 
-def _bar(enabled: bool, total: int, label: str):
+def progress_bar(enabled: bool, total: int, label: str):
     if not enabled:
         return None
     from rich.progress import (
@@ -139,4 +139,4 @@ def _bar(enabled: bool, total: int, label: str):
     return p, task
 
 
-__all__ = ["CAMERA_PATHS", "RenderOptions", "path_cameras", "render_frames", "write_mp4", "write_webp"]
+__all__ = ["CAMERA_PATHS", "RenderOptions", "path_cameras", "progress_bar", "render_frames", "write_mp4", "write_webp"]

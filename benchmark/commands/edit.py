@@ -120,3 +120,35 @@ def compose_cmd(run_dir, out_dir, cache, clusters, clicks, selected, from_dir, f
     params = {"from": str(other.path.resolve()), "from_clusters": ks, "translate": translate, "rotate": rotate,
               "time_offset": time_offset}
     _done(write_edit(base, edited, out_dir, "compose", params), f"inserted clusters {ks} of {other.path}")
+
+
+@edit.command(name="style")
+@_selection_options
+@click.option("--style", "style_path", required=True, type=click.Path(exists=True, dir_okay=False),
+              help="The style image.")
+@click.option("--vgg", "vgg_path", default=None, type=click.Path(dir_okay=False),
+              help="VGG-16 weights (torchvision's vgg16-397923af.pth or a state dict with features.N keys).")
+@click.option("--iterations", default=200, type=int, show_default=True)
+@click.option("--lr", default=0.02, type=float, show_default=True)
+@click.option("--quiet", is_flag=True, help="No progress bar.")
+def style_cmd(run_dir, out_dir, cache, clusters, clicks, selected, style_path, vgg_path, iterations, lr,
+              quiet) -> None:
+    """Restyle the selection's colours after a style image (NNFM on VGG-16 features)."""
+    from benchmark.scene_edit import write_edit
+    from benchmark.scene_render import progress_bar
+    from imagefiles import read_rgb
+    from trase.edit.style import StyleConfig, VGG16Features, stylize
+
+    vgg = VGG16Features.load(vgg_path)  # before anything else: the usual missing piece
+    folder, ks, sel = _open(run_dir, cache, clusters, clicks, selected)
+    cfg = StyleConfig(iterations=iterations, lr=lr)
+    bar = progress_bar(not quiet, iterations, "style")
+    try:
+        edited, losses = stylize(folder.model, sel, [c for _, c in folder.views], read_rgb(style_path), vgg, cfg,
+                                 progress=(lambda it, loss: bar[0].update(bar[1], advance=1)) if bar else None)
+    finally:
+        if bar:
+            bar[0].stop()
+    params = {"clusters": ks, "style": str(style_path), "iterations": iterations, "lr": lr,
+              "content_weight": cfg.content_weight, "loss_first": losses[0], "loss_last": losses[-1]}
+    _done(write_edit(folder, edited, out_dir, "style", params), f"clusters {ks}, loss {losses[0]:.3f} -> {losses[-1]:.3f}")

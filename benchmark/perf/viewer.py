@@ -111,5 +111,5 @@ def _jpeg(img: np.ndarray) -> bytes:
     """The browser's frame: JPEG quality 90 through OpenCV, the encoder viser sends it with."""
     import cv2
 
-    ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(img[..., ::-1]), [cv2.IMWRITE_JPEG_QUALITY, 90])
+    _, buf = cv2.imencode(".jpg", np.ascontiguousarray(img[..., ::-1]), [cv2.IMWRITE_JPEG_QUALITY, 90])
     return buf.tobytes()

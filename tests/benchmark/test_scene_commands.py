@@ -101,3 +101,24 @@ def test_report_carries_a_clip_of_the_selection(run_dir):
     page = make_report(run_dir).read_text()
     assert page.count("data:image/webp;base64") == 1 and "No clip" not in page
     assert (run_dir / "report" / "clip.webp").stat().st_size > 0
+
+
+def test_edit_style_with_local_weights(run_dir, tmp_path, capsys):
+    import cv2
+    import torch
+
+    from trase.edit.style import VGG16Features
+
+    style = tmp_path / "style.png"
+    cv2.imwrite(str(style), np.tile(np.array([[[0, 200, 255]], [[30, 30, 30]]], np.uint8), (8, 16, 1)))
+    args = ["edit", "style", "--run", str(run_dir), "--selected", "--style", str(style), "--out", str(tmp_path / "s"),
+            "--iterations", "3", "--quiet"]
+    assert main(args) == 1 and "needs VGG-16 weights" in capsys.readouterr().err
+    torch.manual_seed(0)
+    torch.save(VGG16Features().state_dict(), tmp_path / "vgg.pth")
+    assert main([*args, "--vgg", str(tmp_path / "vgg.pth")]) == 0
+    rec = json.loads((tmp_path / "s" / "edit.json").read_text())
+    assert rec["operation"] == "style" and rec["params"]["iterations"] == 3
+    styled, base = open_scene_folder(tmp_path / "s").model, open_scene_folder(run_dir).model
+    assert styled.num_gaussians == base.num_gaussians
+    assert not torch.equal(styled.gaussians.sh_dc, base.gaussians.sh_dc)

@@ -205,3 +205,48 @@ def test_tabulated_rows_follow_the_selection():
     sub = deform.rows(torch.from_numpy(ids == 1))
     assert sub.num_gaussians == int((ids == 1).sum())
     assert torch.equal(sub.d_xyz, deform.d_xyz[:, torch.from_numpy(ids == 1)])
+
+
+def _vgg_file(tmp_path, full: bool = True):
+    from trase.edit.style import VGG16Features
+
+    torch.manual_seed(0)
+    net = VGG16Features()
+    sd = {k: v for k, v in net.state_dict().items() if k.startswith("features.")}
+    if full:  # torchvision's whole vgg16 dict carries the classifier too
+        sd["classifier.0.weight"] = torch.zeros(2, 2)
+    path = tmp_path / "vgg16.pth"
+    torch.save(sd, path)
+    return path
+
+
+def test_style_changes_only_the_selection_and_lowers_the_loss(tmp_path, scene):
+    from trase.edit.style import StyleConfig, VGG16Features, stylize
+
+    model, _, views = scene
+    vgg = VGG16Features.load(_vgg_file(tmp_path))
+    stripes = np.zeros((24, 32, 3), np.float32)
+    stripes[:, ::4] = (1.0, 0.8, 0.0)
+    sel = by_clusters(model, [0])
+    styled, losses = stylize(model, sel, [v.camera for v in views], stripes, vgg, StyleConfig(iterations=10, lr=0.1))
+    s = torch.from_numpy(sel)
+    assert torch.equal(styled.gaussians.sh_dc[~s], model.gaussians.sh_dc[~s])
+    assert not torch.equal(styled.gaussians.sh_dc[s], model.gaussians.sh_dc[s])
+    assert torch.equal(styled.gaussians.means, model.gaussians.means)
+    assert np.mean(losses[-3:]) < np.mean(losses[:3])
+
+
+def test_style_needs_a_weights_file(tmp_path):
+    from trase.edit.style import VGG16Features
+
+    with pytest.raises(EditError, match="needs VGG-16 weights"):
+        VGG16Features.load(None)
+    with pytest.raises(EditError, match="not found"):
+        VGG16Features.load(tmp_path / "none.pth")
+    torch.save({"linear.weight": torch.zeros(1)}, tmp_path / "other.pth")
+    with pytest.raises(EditError, match="not VGG-16 weights"):
+        VGG16Features.load(tmp_path / "other.pth")
+    (tmp_path / "bad.pth").write_bytes(b"garbage")
+    with pytest.raises(EditError, match="not a readable"):
+        VGG16Features.load(tmp_path / "bad.pth")
+    assert VGG16Features.load(_vgg_file(tmp_path, full=False)) is not None  # features only
