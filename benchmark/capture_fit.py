@@ -150,6 +150,9 @@ def next_steps(fit_json: Path) -> list[str]:
     return [f"look at the clusters beside the images: {out / 'previews'}/",
             ("select objects by clicks (view:x,y in pixels; repeat --click): "
              f"trase-bench select --fit {out} --click {v['name']}:{u},{w}"),
+            f"look at it in the browser (time, modes, click selection, edits): trase-bench view --run {out}",
+            f"render a clip: trase-bench render --run {out} --cameras orbit --mode clusters",
+            f"edit it: trase-bench edit remove --run {out} --click {v['name']}:{u},{w} --out {out}-edited",
             f"{rec['n_clusters']} clusters over {rec['n_gaussians']} gaussians"
             + (f"; held-out PSNR {rec['holdout_psnr']:.2f} dB" if rec.get("holdout_psnr") is not None else "")]
 

@@ -1,7 +1,7 @@
 """``trase-bench view``: a web viewer of a scene folder, rendered on the server (viser).
 
-The browser shows what the project's rasterizer draws at the browser's camera (numba on CPU,
-gsplat on a GPU when installed), sent as a background image; the scene itself never leaves
+The browser shows what the project's rasterizer draws at the browser's camera (the numba
+kernels: the model stays on the CPU), sent as a background image; the scene itself never leaves
 the server, so a 2-core machine without a GPU serves it. Controls: orbit/fly with the mouse
 (viser's camera), a time slider and play, the render modes of ``trase.visualize``, the render
 height, click to add or remove the cluster under the cursor (the method's click rule), the

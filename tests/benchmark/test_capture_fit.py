@@ -93,7 +93,13 @@ def test_fit_exports_a_folder_that_select_reads(capture_dirs, tmp_path):
     g, _ = load_model(out / "model")
     assert g.num_gaussians == rec["n_gaussians"]
     assert find_runs(tmp_path) == []  # a fitted capture is never a benchmark result
-    assert any("trase-bench select --fit" in line for line in next_steps(fit_json))
+    steps = next_steps(fit_json)
+    assert any("trase-bench select --fit" in line for line in steps)
+    assert any(f"trase-bench view --run {out}" in line for line in steps)
+    from benchmark.scene_folders import open_scene_folder
+
+    folder = open_scene_folder(out)  # what render, edit and view open
+    assert folder.kind == "fit" and len(folder.views) == 4 and folder.model.num_gaussians == rec["n_gaussians"]
     # a rerun reuses every stage
     again = json.loads(fit_capture(FitOptions(capture_dirs["nerfies"], out, holdout="every:2", overrides=FAST,
                                               cache_dir=tmp_path / "cache", progress=False)).read_text())
