@@ -1,7 +1,7 @@
 """``trase-bench view``: a web viewer of a scene folder, rendered on the server (viser).
 
 The browser shows what the project's rasterizer draws at the browser's camera (the numba
-kernels: the model stays on the CPU), sent as a background image; the scene itself never leaves
+kernels on a CPU; gsplat when the scene is put on a GPU, ``device``), sent as a background image; the scene itself never leaves
 the server, so a 2-core machine without a GPU serves it. Controls: orbit/fly with the mouse
 (viser's camera), a time slider and play, the render modes of ``trase.visualize``, the render
 height, click to add or remove the cluster under the cursor (the method's click rule), the
@@ -44,7 +44,7 @@ class SceneViewer:
     writes the edited scene."""
 
     def __init__(self, folder, host: str = "127.0.0.1", port: int = 8080, out: Path | None = None,
-                 height: int = 240) -> None:
+                 height: int = 240, device: str = "auto") -> None:
         import viser
 
         from trase.visualize import MODES, Painter, look_centre
@@ -54,7 +54,8 @@ class SceneViewer:
         self.history = [folder.model]  # undo stack of EditableModels
         self.actions: list[dict] = []  # what each step of the history did
         self.clusters: set[int] = set()
-        self.painter = Painter(folder.model)
+        self.device = device
+        self.painter = Painter(folder.model, device=device)
         self._lock = threading.RLock()
         self._stale: set[int] = set()
         self._stop = threading.Event()
@@ -163,17 +164,20 @@ class SceneViewer:
             if not self.actions:
                 self._status("nothing to export: no edits yet")
                 return None
-            source = self.folder
-            record = write_edit(source, EditableModel(self.model.gaussians, self.model.deformation,
-                                                      self.model.labels, self.model.keep),
-                                self.out, "viewer", {"steps": self.actions})
+            try:
+                record = write_edit(self.folder, EditableModel(self.model.gaussians, self.model.deformation,
+                                                               self.model.labels, self.model.keep),
+                                    self.out, "viewer", {"steps": self.actions})
+            except (OSError, ValueError) as exc:  # shown in the page: the viewer keeps running
+                self._status(f"export failed: {exc}")
+                return None
         self._status(f"exported to {record.parent}")
         return record.parent
 
     def _reset_painter(self) -> None:
         from trase.visualize import Painter
 
-        self.painter = Painter(self.model)
+        self.painter = Painter(self.model, device=self.device)
 
     # -- drawing ------------------------------------------------------------------------
     def mark_all(self) -> None:
@@ -221,8 +225,6 @@ class SceneViewer:
             time.sleep(0.005)
 
     def _connect(self, client) -> None:
-        from trase.visualize import look_centre  # noqa: F401 (the centre was found at start)
-
         c2w = self.home.c2w
         client.camera.up_direction = -c2w[:3, 1]
         client.camera.position = c2w[:3, 3]

@@ -53,18 +53,26 @@ def feature_pca(features: np.ndarray) -> np.ndarray:
 class Painter:
     """Renders the modes of one model; per-gaussian colourings are computed once."""
 
-    def __init__(self, model, selection: np.ndarray | None = None) -> None:
+    def __init__(self, model, selection: np.ndarray | None = None, device: str = "cpu") -> None:
+        """``device``: where the scene is drawn: "cpu" (numba kernels) or "cuda" (the
+        rasterizer's gsplat backend, which needs gsplat and a GPU)."""
+        self.device = resolve_device(device)
         self.model = model
         n = model.num_gaussians
-        self._clusters = torch.from_numpy(cluster_colours(model.labels))  # [N, 3]
-        feats = model.gaussians.features
-        self._pca = torch.from_numpy(feature_pca(feats.detach().numpy())) if feats is not None and n >= 3 else None
+        g = model.gaussians
+        self._gaussians = g if self.device.type == "cpu" else g.copy().to(self.device)
+        d = model.deformation
+        self._deformation = d if d is None or self.device.type == "cpu" else d.to(self.device)
+        self._clusters = torch.from_numpy(cluster_colours(model.labels)).to(self.device)  # [N, 3]
+        feats = g.features
+        self._pca = (torch.from_numpy(feature_pca(feats.detach().cpu().numpy())).to(self.device)
+                     if feats is not None and n >= 3 else None)
         self.set_selection(selection)
 
     def set_selection(self, selection: np.ndarray | None) -> None:
         n = self.model.num_gaussians
         sel = np.zeros(n, bool) if selection is None else self.model.check_selection(selection)
-        self._selection = torch.from_numpy(sel.astype(np.float32))[:, None]  # [N, 1]
+        self._selection = torch.from_numpy(sel.astype(np.float32))[:, None].to(self.device)  # [N, 1]
 
     @torch.no_grad()
     def render(self, camera: Camera, mode: str = "rgb") -> np.ndarray:
@@ -75,26 +83,38 @@ class Painter:
             raise VisualizeError(f"unknown render mode {mode!r}; choose one of {', '.join(MODES)}")
         if mode == "pca" and self._pca is None:
             raise VisualizeError("pca mode needs learned features; this model has none")
-        g = self.model.gaussians
+        g = self._gaussians
         H, W = camera.height, camera.width
         if g.num_gaussians == 0:
             return np.zeros((H, W, 3), np.uint8)
-        m, q, s = deformed(g, self.model.deformation, float(camera.time))
+        m, q, s = deformed(g, self._deformation, float(camera.time))
         extra = {"clusters": self._clusters, "selection": self._selection, "pca": self._pca}.get(mode)
         out = rasterize(m, q, s, g.opacities, camera, colors=g.sh_for_render(), sh_degree=g.active_sh_degree,
                         features=extra)
-        rgb = out.color.numpy()
-        alpha = out.alpha.numpy()
+        host = lambda t: t.detach().cpu().numpy()
+        rgb = host(out.color)
+        alpha = host(out.alpha)
         if mode in ("clusters", "pca"):
-            img = out.features.numpy()
+            img = host(out.features)
         elif mode == "selection":
-            share = out.features.numpy()[..., 0]
+            share = host(out.features)[..., 0]
             img = np.where((share >= 0.5)[..., None], 0.45 * rgb + 0.55 * SELECTION_TINT, rgb)
         elif mode == "depth":
-            img = depth_colors(out.depth.numpy(), alpha)
+            img = depth_colors(host(out.depth), alpha)
         else:
             img = rgb
         return (np.clip(img, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+
+
+def resolve_device(device: str) -> torch.device:
+    """"auto" (a GPU when torch sees one), "cpu" or "cuda"; a clear error for a GPU that is not there."""
+    if device == "auto":
+        device = "cuda" if torch.cuda.is_available() else "cpu"
+    if device not in ("cpu", "cuda"):
+        raise VisualizeError(f"unknown device {device!r}; choose auto, cpu or cuda")
+    if device == "cuda" and not torch.cuda.is_available():
+        raise VisualizeError("device cuda: torch sees no GPU here (this torch build or machine has none)")
+    return torch.device(device)
 
 
 def depth_colors(depth: np.ndarray, alpha: np.ndarray) -> np.ndarray:
@@ -147,5 +167,14 @@ def look_centre(cameras: list[Camera]) -> np.ndarray:
     return np.linalg.solve(A, b)
 
 
-__all__ = ["MODES", "Painter", "VisualizeError", "cluster_colours", "depth_colors", "feature_pca",
-           "look_centre", "orbit_cameras"]
+__all__ = [
+    "MODES",
+    "Painter",
+    "VisualizeError",
+    "cluster_colours",
+    "depth_colors",
+    "feature_pca",
+    "look_centre",
+    "orbit_cameras",
+    "resolve_device",
+]

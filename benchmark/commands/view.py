@@ -14,9 +14,11 @@ import click
 @click.option("--port", default=8080, type=int, show_default=True)
 @click.option("--height", type=click.Choice(["120", "240", "480"]), default="240", show_default=True,
               help="Render height in pixels (the width follows the browser window).")
+@click.option("--device", type=click.Choice(["auto", "cpu", "cuda"]), default="auto", show_default=True,
+              help="Where frames are drawn: cuda uses the rasterizer's gsplat backend (needs gsplat and a GPU).")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False), default=None,
               help="Where Export writes the edited scene (default <run>-edited).")
-def view(run_dir, cache, host, port, height, out_dir) -> None:
+def view(run_dir, cache, host, port, height, device, out_dir) -> None:
     """Open a scene in the browser: orbit, time, render modes, click selection, edits, export."""
     import time
 
@@ -24,8 +26,8 @@ def view(run_dir, cache, host, port, height, out_dir) -> None:
     from benchmark.viewer import SceneViewer
 
     folder = open_scene_folder(run_dir, cache)
-    viewer = SceneViewer(folder, host=host, port=port, out=out_dir, height=int(height))
-    click.echo(f"viewer of {folder.path} at {viewer.url()}  (Ctrl+C to stop)", err=False)
+    viewer = SceneViewer(folder, host=host, port=port, out=out_dir, height=int(height), device=device)
+    click.echo(f"viewer of {folder.path} at {viewer.url()}  (drawn on {viewer.painter.device}; Ctrl+C to stop)")
     try:
         while True:
             time.sleep(1.0)

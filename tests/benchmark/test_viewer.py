@@ -91,12 +91,12 @@ def test_view_command_draws_the_scene_in_chromium(tiny_run, browser, tmp_path):
         proc.wait(timeout=20)
 
 
-def test_selection_through_the_api_and_a_click_change_the_render(tiny_run, browser):
+def test_selection_through_the_api_and_a_click_change_the_render(tiny_run, browser, tmp_path):
     from benchmark.scene_folders import open_scene_folder
     from benchmark.viewer import SceneViewer
 
     folder = open_scene_folder(tiny_run)
-    viewer = SceneViewer(folder, port=_free_port())
+    viewer = SceneViewer(folder, port=_free_port(), out=tmp_path / "edited")
     try:
         page = browser.new_page(viewport=WINDOW)
         page.goto(viewer.url())
@@ -126,9 +126,13 @@ def test_selection_through_the_api_and_a_click_change_the_render(tiny_run, brows
         page.mouse.click(box["x"] + (c + 0.5) * box["width"] / w, box["y"] + (r + 0.5) * box["height"] / h)
         _wait_for(lambda: viewer.clusters != chosen)
         assert viewer.clusters < chosen
-        # the edits and undo
+        # the edits, export and undo
+        assert viewer.export() is None  # nothing to export yet
         viewer.apply("remove")
         assert viewer.model.num_gaussians < folder.model.num_gaussians
+        exported = viewer.export()
+        again = open_scene_folder(exported)
+        assert again.kind == "edit" and again.model.num_gaussians == viewer.model.num_gaussians
         viewer.undo()
         assert viewer.model is folder.model
     finally:
