@@ -3,7 +3,9 @@
 ``<root>/<stage>/<key>/`` holds a finished stage; ``_stage.json`` inside it records how it was
 made. Work in progress lives in ``<root>/<stage>/<key>.partial/`` and is renamed into place
 only when the stage function returns, so a killed run never leaves a directory that looks
-finished. A partial directory is kept on failure: stages that checkpoint (reconstruction)
+finished. Whoever computes a stage holds ``<root>/<stage>/<key>.lock`` meanwhile, so workers
+sharing the cache compute each stage once (``benchmark.stage_lock``: stale locks of dead
+workers are broken). A partial directory is kept on failure: stages that checkpoint (reconstruction)
 resume from what it holds; others simply overwrite their files.
 
 Keys hash the stage name, the stage's own config, the keys of its inputs and the stage's code
@@ -19,12 +21,14 @@ import hashlib
 import json
 import os
 import shutil
+import sys
 import threading
 import time
 from pathlib import Path
 from typing import Callable
 
 from benchmark.io import atomic_write_json, read_json
+from benchmark.stage_lock import HEARTBEAT_S, STALE_AFTER_S, StageLock
 
 STAGE_FILE = "_stage.json"
 
@@ -68,8 +72,14 @@ class StageRecord:
 
 
 class StageCache:
-    def __init__(self, root: str | Path):
+    """Stages by key under ``root``. Many processes (on many machines, on a shared
+    filesystem) may use one cache: a stage is computed by whoever takes its lock
+    (``benchmark.stage_lock``); the others wait for the finished stage and reuse it."""
+
+    def __init__(self, root: str | Path, heartbeat_s: float = HEARTBEAT_S, stale_after_s: float = STALE_AFTER_S,
+                 poll_s: float = 1.0):
         self.root = Path(root)
+        self.heartbeat_s, self.stale_after_s, self.poll_s = heartbeat_s, stale_after_s, poll_s
 
     def key(self, stage: str, config: dict, inputs: dict[str, str] | None = None) -> str:
         payload = {"stage": stage, "config": config, "inputs": inputs or {}}
@@ -94,9 +104,36 @@ class StageCache:
         """Return the finished stage ``key``, computing it with ``fn(work_dir)`` if needed."""
         final = self.path(stage, key)
         if self.is_done(stage, key):
-            meta = read_json(final / STAGE_FILE, "stage record")
-            return StageRecord(stage, key, final, True, meta.get("seconds", 0.0),
-                               meta.get("peak_rss_mb", 0.0), meta.get("info", {}))
+            return self._finished(stage, key)
+        lock = StageLock(final.with_name(key + ".lock"), self.heartbeat_s, self.stale_after_s)
+        waited = False
+        while not lock.acquire():
+            if self.is_done(stage, key):  # another worker finished it while we waited
+                return self._finished(stage, key)
+            holder = lock.holder()
+            if lock.is_stale(holder):
+                lock.break_stale()
+                continue
+            if not waited and holder is not None:
+                print(f"  [{stage}] waiting for {holder.get('host')}:{holder.get('pid')} to finish {key}",
+                      file=sys.stderr, flush=True)
+                waited = True
+            time.sleep(self.poll_s)
+        try:
+            if self.is_done(stage, key):  # finished between our check and our lock
+                return self._finished(stage, key)
+            return self._compute(stage, key, fn, config, final)
+        finally:
+            lock.release()
+
+    def _finished(self, stage: str, key: str) -> StageRecord:
+        final = self.path(stage, key)
+        meta = read_json(final / STAGE_FILE, "stage record")
+        return StageRecord(stage, key, final, True, meta.get("seconds", 0.0),
+                           meta.get("peak_rss_mb", 0.0), meta.get("info", {}))
+
+    def _compute(self, stage: str, key: str, fn: Callable[[Path], dict | None], config: dict | None,
+                 final: Path) -> StageRecord:
         partial = final.with_name(key + ".partial")
         partial.mkdir(parents=True, exist_ok=True)
         with PeakMemory() as mem:
@@ -154,3 +191,13 @@ class PeakMemory:
         if self._thread is not None:
             self._thread.join()
         self.peak_mb = max(self.peak_mb, current_rss_mb())
+
+
+class PlanCache(StageCache):
+    """Answers what a run would do without doing it: ``run`` returns the finished stage's
+    record (skipped) or a record of a stage to compute (not skipped), never calling ``fn``."""
+
+    def run(self, stage: str, key: str, fn, config: dict | None = None) -> StageRecord:
+        if self.is_done(stage, key):
+            return self._finished(stage, key)
+        return StageRecord(stage, key, self.path(stage, key), False, 0.0, 0.0, {})

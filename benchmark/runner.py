@@ -15,7 +15,7 @@ import sys
 import time
 from pathlib import Path
 
-from benchmark.cache import StageCache, StageRecord, config_hash
+from benchmark.cache import PlanCache, StageCache, StageRecord, config_hash
 from benchmark.config import ConfigError, parse_overrides
 from benchmark.errors import UserError
 from benchmark.io import sha256_files
@@ -91,19 +91,35 @@ class Reporter:
         self.done_sequences += 1
 
 
-def run_sequence(opts: RunOptions, sequence: str | None, reporter: Reporter, index: int) -> Path:
+@dataclasses.dataclass
+class Prepared:
+    """One sequence of a run, resolved: its scene, config, name and directory."""
+
+    spec: object
+    scene: object
+    scene_dir: Path
+    variant: str
+    method: object
+    cfg: dict
+    chash: str
+    group: str
+    is_default: bool
+    name: str
+    out_dir: Path
+
+
+def prepare_sequence(opts: RunOptions, sequence: str | None, generate: bool = True) -> Prepared:
+    """Find (or generate) the scene and resolve the run's config, name and directory; no stage runs."""
     from benchmark.datasets import get_dataset, load_scene
     from benchmark.datasets.synthetic import find_or_generate
     from benchmark.methods import get_method
 
     spec = get_dataset(opts.dataset)
-    scene_dir, variant = find_or_generate(spec.key, sequence, opts.data_root)
+    scene_dir, variant = find_or_generate(spec.key, sequence, opts.data_root, generate=generate)
     scene = load_scene(spec.key, scene_dir)
-    seq = scene.sequence
-    reporter.start(seq, index)
     if not scene.gt_masks:
-        raise UserError(f"{scene_dir}: no ground-truth masks for {spec.key}/{seq}; cannot evaluate "
-                        f"(expected gt_masks/ in the scene or {spec.display_name}/{seq}/gt_masks under the data root; "
+        raise UserError(f"{scene_dir}: no ground-truth masks for {spec.key}/{scene.sequence}; cannot evaluate "
+                        f"(expected gt_masks/ in the scene or {spec.display_name}/{scene.sequence}/gt_masks under the data root; "
                         f"to segment a scene without ground truth: trase-bench fit --scene {scene_dir})")
     method = get_method(opts.method)
     overrides = parse_overrides(opts.overrides)
@@ -115,7 +131,31 @@ def run_sequence(opts: RunOptions, sequence: str | None, reporter: Reporter, ind
     group = config_hash(default_config(method, spec, variant, without_seed(overrides), size))
     is_default = group == config_hash(default_config(method, spec, variant, {}, size))
     name = run_name(group, opts.name, with_hash=bool(opts.study), seed=cfg["seed"])
-    out_dir = run_dir(opts.out_dir, opts.method, spec.key, seq, name)
+    out_dir = run_dir(opts.out_dir, opts.method, spec.key, scene.sequence, name)
+    return Prepared(spec, scene, scene_dir, variant, method, cfg, chash, group, is_default, name, out_dir)
+
+
+def plan_sequence(opts: RunOptions, sequence: str | None) -> list[tuple[str, str, bool]]:
+    """(stage, key, finished in the cache) for every stage the run would run, computing none
+    and writing nothing (a missing synthetic scene is an error, not generated)."""
+    p = prepare_sequence(opts, sequence, generate=False)
+    check_free(p.out_dir, p.chash)
+    ctx = SequenceRun(PlanCache(opts.cache_root), p.scene, p.cfg, p.method, False, scene_fingerprint(p.scene),
+                      sha256_files(list(p.scene.gt_masks))[:16])
+    plan = []
+    for stage in STAGES:
+        for rec in stage(ctx):
+            ctx.records[rec.stage] = rec
+            plan.append((rec.stage, rec.key, rec.skipped))
+    return plan
+
+
+def run_sequence(opts: RunOptions, sequence: str | None, reporter: Reporter, index: int) -> Path:
+    p = prepare_sequence(opts, sequence)
+    spec, scene, scene_dir, variant, seq = p.spec, p.scene, p.scene_dir, p.variant, p.scene.sequence
+    cfg, chash, group, is_default, name, out_dir, method = p.cfg, p.chash, p.group, p.is_default, p.name, \
+        p.out_dir, p.method
+    reporter.start(seq, index)
     check_free(out_dir, chash)  # before any work: a run with another config is never overwritten
     if opts.keep_existing and (out_dir / "results.json").is_file():
         if opts.progress:

@@ -51,8 +51,10 @@ def _check_version(scene_dir: Path) -> None:
 
 
 def ensure_synthetic(dataset: str, size: str = "small", seed: int = 0,
-                     cache_dir: Path | str | None = None, progress=None, difficulty: str = "standard") -> Path:
-    """The cached synthetic scene of ``dataset`` (generated on first use, with a notice).
+                     cache_dir: Path | str | None = None, progress=None, difficulty: str = "standard",
+                     generate: bool = True) -> Path:
+    """The cached synthetic scene of ``dataset`` (generated on first use, with a notice;
+    ``generate=False``: an error instead, for plans that must not write anything).
 
     Seed 0 lives at ``<cache>/<dataset>/v<version>/<sequence>``; another seed at
     ``<sequence>-seed<N>``.
@@ -66,6 +68,8 @@ def ensure_synthetic(dataset: str, size: str = "small", seed: int = 0,
         return final
     if final.exists():
         raise SyntheticError(f"{final}: incomplete synthetic scene (no synthetic/manifest.json); delete it to regenerate")
+    if not generate:
+        raise SyntheticError(f"{final}: synthetic scene not generated yet (the first run generates it)")
     final.parent.mkdir(parents=True, exist_ok=True)
     print(f"trase-bench: no real {dataset} data found; generating the synthetic scene "
           f"(size {size}, {difficulty}, seed {seed}) into {final}", file=sys.stderr)
@@ -85,7 +89,7 @@ def ensure_synthetic(dataset: str, size: str = "small", seed: int = 0,
 
 def find_or_generate(dataset: str, sequence: str | None = None,
                      data_root: Path | str | None = None,
-                     cache_dir: Path | str | None = None) -> tuple[Path, str]:
+                     cache_dir: Path | str | None = None, generate: bool = True) -> tuple[Path, str]:
     """(scene_dir, variant) for ``dataset``/``sequence``: real data wins, else synthetic.
 
     Real data is looked up at ``<root>/<dataset>/<sequence>/`` (and the publishers' other
@@ -122,4 +126,5 @@ def find_or_generate(dataset: str, sequence: str | None = None,
         if _is_complete(d):
             return d, "synthetic"
     size, difficulty = synthetic
-    return ensure_synthetic(spec.key, size=size, cache_dir=cache_dir, difficulty=difficulty), "synthetic"
+    return ensure_synthetic(spec.key, size=size, cache_dir=cache_dir, difficulty=difficulty, generate=generate), \
+        "synthetic"
