@@ -108,14 +108,14 @@ class Prepared:
     out_dir: Path
 
 
-def prepare_sequence(opts: RunOptions, sequence: str | None, generate: bool = True) -> Prepared:
+def prepare_sequence(opts: RunOptions, sequence: str | None, create: bool = True) -> Prepared:
     """Find (or generate) the scene and resolve the run's config, name and directory; no stage runs."""
     from benchmark.datasets import get_dataset, load_scene
     from benchmark.datasets.synthetic import find_or_generate
     from benchmark.methods import get_method
 
     spec = get_dataset(opts.dataset)
-    scene_dir, variant = find_or_generate(spec.key, sequence, opts.data_root, generate=generate)
+    scene_dir, variant = find_or_generate(spec.key, sequence, opts.data_root, create=create)
     scene = load_scene(spec.key, scene_dir)
     if not scene.gt_masks:
         raise UserError(f"{scene_dir}: no ground-truth masks for {spec.key}/{scene.sequence}; cannot evaluate "
@@ -138,7 +138,7 @@ def prepare_sequence(opts: RunOptions, sequence: str | None, generate: bool = Tr
 def plan_sequence(opts: RunOptions, sequence: str | None) -> list[tuple[str, str, bool]]:
     """(stage, key, finished in the cache) for every stage the run would run, computing none
     and writing nothing (a missing synthetic scene is an error, not generated)."""
-    p = prepare_sequence(opts, sequence, generate=False)
+    p = prepare_sequence(opts, sequence, create=False)
     check_free(p.out_dir, p.chash)
     ctx = SequenceRun(PlanCache(opts.cache_root), p.scene, p.cfg, p.method, False, scene_fingerprint(p.scene),
                       sha256_files(list(p.scene.gt_masks))[:16])

@@ -26,7 +26,8 @@ def test_one_holder_and_release(tmp_path):
 
 
 def test_stale_when_the_holder_is_dead_or_silent(tmp_path):
-    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True,
+                          check=True)
     pid = int(dead.stdout)
     lock = StageLock(tmp_path / "k.lock", stale_after_s=60)
     import json

@@ -52,9 +52,9 @@ def _check_version(scene_dir: Path) -> None:
 
 def ensure_synthetic(dataset: str, size: str = "small", seed: int = 0,
                      cache_dir: Path | str | None = None, progress=None, difficulty: str = "standard",
-                     generate: bool = True) -> Path:
+                     create: bool = True) -> Path:
     """The cached synthetic scene of ``dataset`` (generated on first use, with a notice;
-    ``generate=False``: an error instead, for plans that must not write anything).
+    ``create=False``: an error instead, for plans that must not write anything).
 
     Seed 0 lives at ``<cache>/<dataset>/v<version>/<sequence>``; another seed at
     ``<sequence>-seed<N>``.
@@ -68,7 +68,7 @@ def ensure_synthetic(dataset: str, size: str = "small", seed: int = 0,
         return final
     if final.exists():
         raise SyntheticError(f"{final}: incomplete synthetic scene (no synthetic/manifest.json); delete it to regenerate")
-    if not generate:
+    if not create:
         raise SyntheticError(f"{final}: synthetic scene not generated yet (the first run generates it)")
     final.parent.mkdir(parents=True, exist_ok=True)
     print(f"trase-bench: no real {dataset} data found; generating the synthetic scene "
@@ -89,7 +89,7 @@ def ensure_synthetic(dataset: str, size: str = "small", seed: int = 0,
 
 def find_or_generate(dataset: str, sequence: str | None = None,
                      data_root: Path | str | None = None,
-                     cache_dir: Path | str | None = None, generate: bool = True) -> tuple[Path, str]:
+                     cache_dir: Path | str | None = None, create: bool = True) -> tuple[Path, str]:
     """(scene_dir, variant) for ``dataset``/``sequence``: real data wins, else synthetic.
 
     Real data is looked up at ``<root>/<dataset>/<sequence>/`` (and the publishers' other
@@ -126,5 +126,5 @@ def find_or_generate(dataset: str, sequence: str | None = None,
         if _is_complete(d):
             return d, "synthetic"
     size, difficulty = synthetic
-    return ensure_synthetic(spec.key, size=size, cache_dir=cache_dir, difficulty=difficulty, generate=generate), \
+    return ensure_synthetic(spec.key, size=size, cache_dir=cache_dir, difficulty=difficulty, create=create), \
         "synthetic"
