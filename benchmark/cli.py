@@ -46,6 +46,10 @@ COMMANDS.add("select", "benchmark.commands.select:select",
              "Select objects of a fitted capture by clicks -> masks of its views.")
 COMMANDS.add("view", "benchmark.commands.view:view",
              "A web viewer of a scene: time, render modes, click selection, edits, export.")
+COMMANDS.add("sweep", "benchmark.commands.sweep:sweep",
+             "A sweep from a TOML spec, locally or on SLURM (submitit); reruns run only what is missing.")
+COMMANDS.add("sweep-status", "benchmark.commands.sweep:sweep_status",
+             "done / running / failed / pending per job of a sweep, with errors and logs.")
 COMMANDS.add("synth", "benchmark.commands.synth:synth",
              "Generate a synthetic scene in a benchmark's raw format.")
 

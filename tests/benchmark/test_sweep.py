@@ -1,0 +1,173 @@
+"""Sweeps: the spec, its jobs, the SLURM submission it makes, and local sweeps on tiny scenes
+through submitit's local executor (shared stages computed once, a killed worker, reruns)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import time
+from pathlib import Path
+
+import pytest
+
+from benchmark.cli import main
+from benchmark.sweep import SweepError, load_spec, read_state, sbatch_script, slurm_parameters
+
+FAST = ["geometry.source=ground-truth", "method.features.iterations=40", "method.features.n_pixels=400"]
+
+
+def _spec(tmp_path: Path, body: str, name: str = "s.toml") -> Path:
+    p = tmp_path / name
+    p.write_text(body)
+    return p
+
+
+TINY = """
+name = "tiny"
+out = "out"
+methods = ["trase", "cgc"]
+datasets = ["hypernerf"]
+[sequences]
+hypernerf = ["synthetic-tiny"]
+[variants]
+fast = [{fast}]
+[executor]
+kind = "local"
+workers = 2
+""".replace("{fast}", ", ".join(f'"{o}"' for o in FAST))
+
+
+def test_jobs_expand_the_spec_in_order(tmp_path):
+    spec = load_spec(_spec(tmp_path, """
+methods = ["trase", "cgc"]
+datasets = ["hypernerf", "nerfds"]
+seeds = [0, 1]
+[sequences]
+hypernerf = ["a", "b"]
+nerfds = ["c"]
+[variants]
+main = []
+fast = ["method.features.iterations=10"]
+"""))
+    jobs = spec.jobs()
+    assert len(jobs) == 2 * (2 + 1) * 2 * 2 and len({j.id for j in jobs}) == len(jobs)
+    assert jobs[0].id == "0000-trase-hypernerf-a-main-s0" and jobs[-1].id.endswith("-cgc-nerfds-c-fast-s1")
+    opts = spec.run_options(jobs[1])
+    assert opts.overrides == ["seed=1"] and opts.name is None and opts.keep_existing  # main: the main run
+    fast = spec.run_options(next(j for j in jobs if j.variant == "fast"))
+    assert fast.name == "fast" and fast.overrides[0] == "method.features.iterations=10"
+    assert spec.out == tmp_path / "sweeps" / "s" and spec.cache_root == spec.out / ".cache"
+
+
+@pytest.mark.parametrize("body, message", [
+    ("methods = [\n", "malformed TOML"),
+    ('datasets = ["hypernerf"]', "methods must be a non-empty list"),
+    ('methods = ["nope"]\ndatasets = ["hypernerf"]', "methods: unknown 'nope'"),
+    ('methods = ["trase"]\ndatasets = ["kitti"]', "datasets: unknown 'kitti'"),
+    ('methods = ["trase"]\ndatasets = ["hypernerf"]\nseeds = [-1]', "seeds must be"),
+    ('methods = ["trase"]\ndatasets = ["hypernerf"]\nmethod = "x"', "unknown key 'method'"),
+    ('methods = ["trase"]\ndatasets = ["hypernerf"]\n[variants]\na = ["no-equals"]', "KEY=VALUE"),
+    ('methods = ["trase"]\ndatasets = ["hypernerf"]\n[executor]\nkind = "pbs"', "executor.kind 'pbs'"),
+    ('methods = ["trase"]\ndatasets = ["hypernerf"]\n[slurm]\ngpus = 1', "slurm.gpus: unknown"),
+    ('methods = ["trase"]\ndatasets = ["hypernerf"]\n[slurm]\nmem_gb = "32G"', "expected int"),
+])
+def test_bad_specs_are_one_line_naming_the_file(tmp_path, capsys, body, message):
+    path = _spec(tmp_path, body)
+    with pytest.raises(SweepError) as err:
+        load_spec(path)
+    assert str(err.value).startswith(str(path)) and message in str(err.value) and "\n" not in str(err.value)
+    assert main(["sweep", str(path), "--dry-run"]) == 1
+    assert message in capsys.readouterr().err
+    assert main(["sweep", str(tmp_path / "none.toml")]) == 1 and "sweep spec not found" in capsys.readouterr().err
+
+
+def test_the_slurm_submission_of_a_sample_spec(tmp_path):
+    spec = load_spec(_spec(tmp_path, """
+name = "table1"
+methods = ["trase", "cgc"]
+datasets = ["hypernerf", "nerfds"]
+[executor]
+kind = "slurm"
+[slurm]
+partition = "gpu"
+gpus_per_node = 1
+cpus_per_task = 8
+mem_gb = 32
+timeout_min = 120
+array_parallelism = 6
+account = "vision"
+"""), {"slurm": {"timeout_min": 90}})  # the command line's --time wins
+    assert slurm_parameters(spec) == {
+        "name": "trase-table1", "timeout_min": 90, "slurm_partition": "gpu", "gpus_per_node": 1, "cpus_per_task": 8,
+        "mem_gb": 32, "slurm_array_parallelism": 6, "slurm_additional_parameters": {"account": "vision"}}
+    n = len(spec.jobs())
+    script = sbatch_script(spec, n)
+    for line in ("#SBATCH --partition=gpu", "#SBATCH --gpus-per-node=1", "#SBATCH --cpus-per-task=8",
+                 "#SBATCH --mem=32GB", "#SBATCH --time=90", f"#SBATCH --array=0-{n - 1}%{min(6, n)}",  # submitit caps it at the array size
+                 "#SBATCH --job-name=trase-table1", "#SBATCH --account=vision"):
+        assert line in script, line
+    assert str(spec.state_dir / "logs") in script
+
+
+@pytest.mark.slow
+def test_a_local_sweep_computes_shared_stages_once_and_reruns_nothing(tmp_path, capsys):
+    path = _spec(tmp_path, TINY)
+    assert main(["sweep", str(path), "--dry-run"]) == 0
+    plan = capsys.readouterr().out
+    assert "masks+ geometry+" in plan and "masks^ geometry^" in plan  # the second job reuses the first's
+    assert main(["sweep", str(path)]) == 0
+    out = capsys.readouterr().out
+    spec = load_spec(path)
+    states = [read_state(spec, j) for j in spec.jobs()]
+    assert [s["state"] for s in states] == ["done", "done"]
+    records = [json.loads(Path(s["results"][0]).read_text())["stages"] for s in states]
+    for stage in ("masks", "geometry", "prompts", "ceiling"):  # the two workers share these
+        assert sum(not r[stage]["skipped"] for r in records) == 1, stage
+    assert "4 reused" in out or "reused 4" in out
+    assert not list(spec.cache_root.glob("*/*.lock"))
+    assert main(["sweep", str(path)]) == 0
+    assert "0 to run" in capsys.readouterr().out
+    assert main(["sweep-status", str(path), "--table"]) == 0
+    status = capsys.readouterr().out
+    assert "2 done" in status and "trase" in status and "cgc" in status
+
+
+@pytest.mark.slow
+def test_a_worker_killed_mid_stage_is_resumed_by_a_rerun(tmp_path, capsys):
+    import subprocess
+    import sys
+
+    slow = TINY.replace('workers = 2', 'workers = 1').replace('methods = ["trase", "cgc"]', 'methods = ["trase"]')
+    slow = slow.replace("iterations=40", "iterations=150")
+    (tmp_path / "a").mkdir()
+    path = _spec(tmp_path / "a", slow)
+    spec = load_spec(path)
+    (job,) = spec.jobs()
+    p = subprocess.Popen([sys.executable, "-m", "benchmark.cli", "sweep", str(path)], cwd=tmp_path,
+                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                         env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])})
+    try:
+        deadline = time.time() + 300
+        while not list(spec.cache_root.glob("features/*.partial")):
+            assert time.time() < deadline and p.poll() is None, "the features stage never started"
+            time.sleep(0.05)
+        pid = json.loads((spec.state_dir / "jobs" / f"{job.id}.json").read_text())["pid"]
+        os.kill(pid, signal.SIGKILL)
+        p.wait(timeout=120)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert read_state(spec, job)["state"] == "died"
+    assert not [d for d in spec.cache_root.glob("features/*") if d.is_dir() and not d.name.endswith(".partial")]
+    assert main(["sweep", str(path)]) == 0
+    assert read_state(spec, job)["state"] == "done"
+    # an undisturbed sweep of the same spec elsewhere gives the same results
+    (tmp_path / "b").mkdir()
+    other = _spec(tmp_path / "b", slow)
+    assert main(["sweep", str(other)]) == 0
+    a = json.loads(Path(read_state(spec, job)["results"][0]).read_text())
+    b_spec = load_spec(other)
+    b = json.loads(Path(read_state(b_spec, b_spec.jobs()[0])["results"][0]).read_text())
+    assert a["metrics"] == b["metrics"] and a["checksums"] == b["checksums"] and a["n_clusters"] == b["n_clusters"]
+    assert not list(spec.cache_root.glob("*/*.lock")) and not list(spec.cache_root.glob("*/*.partial"))
