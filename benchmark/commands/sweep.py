@@ -35,6 +35,9 @@ def sweep(spec_path, dry_run, executor, workers, partition, gpus, time_min, mem,
     from benchmark.sweep import load_spec, pending_jobs, submit
 
     spec = load_spec(spec_path, _overrides(executor, workers, partition, gpus, time_min, mem, array_parallelism))
+    if not any(o.startswith("geometry.preset=") for v in spec.variants.values() for o in v):
+        click.echo("note: no variant pins geometry.preset; 'auto' resolves on each worker (paper where torch "
+                   "sees a GPU, cpu elsewhere), so jobs on mixed nodes would run different presets", err=True)
     if dry_run:
         _dry_run(spec)
         return
