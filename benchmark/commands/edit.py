@@ -62,13 +62,21 @@ def remove_cmd(run_dir, out_dir, cache, clusters, clicks, selected) -> None:
 
 @edit.command(name="extract")
 @_selection_options
-def extract_cmd(run_dir, out_dir, cache, clusters, clicks, selected) -> None:
-    """Keep only the selected gaussians."""
+@click.option("--ply", "ply_path", default=None, type=click.Path(dir_okay=False),
+              help="Also write the object as one 3DGS PLY (what 3DGS viewers open).")
+@click.option("--time", "at_time", default=None, type=click.FloatRange(0.0, 1.0),
+              help="With --ply: the object as it stands at this time (0..1), its motion applied; default canonical.")
+def extract_cmd(run_dir, out_dir, cache, clusters, clicks, selected, ply_path, at_time) -> None:
+    """Keep only the selected gaussians (and, with --ply, write them as one PLY)."""
     from benchmark.scene_edit import write_edit
-    from trase.edit import extract
+    from trase.edit import export_object_ply, extract
 
     folder, ks, sel = _open(run_dir, cache, clusters, clicks, selected)
     _done(write_edit(folder, extract(folder.model, sel), out_dir, "extract", {"clusters": ks}), f"clusters {ks}")
+    if ply_path:
+        export_object_ply(folder.model, sel, ply_path, time=at_time)
+        click.echo(f"object PLY ({int(sel.sum())} gaussians, {'canonical' if at_time is None else f'at time {at_time}'})"
+                   f": {ply_path}")
 
 
 @edit.command(name="recolor")

@@ -69,8 +69,12 @@ def test_edit_folders_reopen_and_chain(run_dir, tmp_path, capsys):
     assert comp.model.num_gaussians == base.model.num_gaussians
     assert json.loads((tmp_path / "comp" / "edit.json").read_text())["motion"] == "table"
     assert main(["render", "--run", str(tmp_path / "comp"), "--frames", "2", "--quiet", "--no-mp4"]) == 0
-    assert main(["edit", "extract", "--run", str(run_dir), "--selected", "--out", str(tmp_path / "obj")]) == 0
+    assert main(["edit", "extract", "--run", str(run_dir), "--selected", "--out", str(tmp_path / "obj"),
+                 "--ply", str(tmp_path / "obj.ply"), "--time", "0.5"]) == 0
     assert open_scene_folder(tmp_path / "obj").model.num_gaussians == n_sel
+    from trase.gaussians import GaussianModel
+
+    assert GaussianModel.load_ply(tmp_path / "obj.ply").num_gaussians == n_sel
 
 
 @pytest.mark.parametrize("args, message", [
