@@ -171,3 +171,20 @@ def test_a_worker_killed_mid_stage_is_resumed_by_a_rerun(tmp_path, capsys):
     b = json.loads(Path(read_state(b_spec, b_spec.jobs()[0])["results"][0]).read_text())
     assert a["metrics"] == b["metrics"] and a["checksums"] == b["checksums"] and a["n_clusters"] == b["n_clusters"]
     assert not list(spec.cache_root.glob("*/*.lock")) and not list(spec.cache_root.glob("*/*.partial"))
+
+
+@pytest.mark.slow
+def test_two_methods_on_the_five_formats(tmp_path, capsys):
+    body = TINY.replace('datasets = ["hypernerf"]',
+                        'datasets = ["nerfds", "hypernerf", "neu3d", "immersive", "technicolor"]')
+    body = body.replace('[sequences]\nhypernerf = ["synthetic-tiny"]',
+                        "[sequences]\n" + "\n".join(f'{d} = ["synthetic-tiny"]' for d in
+                                                      ("nerfds", "hypernerf", "neu3d", "immersive", "technicolor")))
+    path = _spec(tmp_path, body)
+    assert main(["sweep", str(path)]) == 0
+    spec = load_spec(path)
+    states = [read_state(spec, j) for j in spec.jobs()]
+    assert len(states) == 10 and all(s["state"] == "done" for s in states), [s.get("error") for s in states]
+    assert main(["sweep-status", str(path), "--table"]) == 0
+    table = capsys.readouterr().out
+    assert all(d in table for d in ("nerfds", "hypernerf", "neu3d", "immersive", "technicolor"))
