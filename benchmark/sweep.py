@@ -210,6 +210,7 @@ def run_job(spec: SweepSpec, job: SweepJob, log: str | None = None) -> list[str]
     from benchmark.runner import run
 
     write_state(spec, job, state="running", host=socket.gethostname(), pid=os.getpid(), started=time.time(), log=log)
+    print(f"[{time.strftime('%H:%M:%S')}] job {job.id}: {job.label()}", flush=True)
     t0 = time.time()
     try:
         paths = [str(p) for p in run(spec.run_options(job))]
@@ -217,8 +218,10 @@ def run_job(spec: SweepSpec, job: SweepJob, log: str | None = None) -> list[str]
         line = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         error = line if is_user_error(exc) else f"{type(exc).__name__}: {line}"
         write_state(spec, job, state="failed", error=error, log=log, seconds=time.time() - t0)
+        print(f"[{time.strftime('%H:%M:%S')}] job {job.id} failed: {error}", flush=True)
         raise
     write_state(spec, job, state="done", results=paths, log=log, seconds=time.time() - t0)
+    print(f"[{time.strftime('%H:%M:%S')}] job {job.id} done in {time.time() - t0:.0f}s: {', '.join(paths)}", flush=True)
     return paths
 
 
