@@ -103,9 +103,11 @@ class StageCache:
     ) -> StageRecord:
         """Return the finished stage ``key``, computing it with ``fn(work_dir)`` if needed."""
         final = self.path(stage, key)
-        if self.is_done(stage, key):
-            return self._finished(stage, key)
         lock = StageLock(final.with_name(key + ".lock"), self.heartbeat_s, self.stale_after_s)
+        if self.is_done(stage, key):
+            if lock.path.exists() and lock.is_stale():  # its holder died after finishing, before unlocking
+                lock.break_stale()
+            return self._finished(stage, key)
         waited = False
         while not lock.acquire():
             if self.is_done(stage, key):  # another worker finished it while we waited

@@ -100,3 +100,17 @@ def test_a_worker_killed_mid_stage_leaves_nothing_finished(tmp_path):
     rec = StageCache(root, poll_s=0.05).run("stage", "k", lambda d: (d / "out.txt").write_text("ok") and {})
     assert not rec.skipped and (root / "stage/k/out.txt").read_text() == "ok"
     assert not (root / "stage/k.lock").exists() and not (root / "stage/k.partial").exists()
+
+
+def test_a_lock_left_beside_a_finished_stage_is_cleared(tmp_path):
+    """A worker killed after its stage was renamed into place but before it unlocked."""
+    import json
+    import socket
+
+    root = tmp_path / "cache"
+    StageCache(root).run("stage", "k", lambda d: {})
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True,
+                          check=True)
+    (root / "stage/k.lock").write_text(json.dumps({"host": socket.gethostname(), "pid": int(dead.stdout)}))
+    assert StageCache(root).run("stage", "k", lambda d: {}).skipped
+    assert not (root / "stage/k.lock").exists()
