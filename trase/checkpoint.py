@@ -21,7 +21,7 @@ import torch
 
 from trase.deformation import DeformMLP, TabulatedDeformation, infer_mlp_config
 from trase.gaussians import GaussianFileError, GaussianModel, rgb_to_sh_dc
-from trase.io import atomic_write_bytes
+from trase.io import atomic_write_bytes, read_torch
 
 
 class CheckpointError(ValueError):
@@ -109,11 +109,7 @@ def load_deformation(path: Path) -> DeformMLP:
     """A DeformMLP from a public-layout deform.pth (architecture inferred from its shapes)."""
     if not path.is_file():
         raise CheckpointError(f"{path}: deformation weights not found")
-    try:
-        sd = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # noqa: BLE001 - torch raises many types for a damaged file
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else ""  # one-line message
-        raise CheckpointError(f"{path}: not a readable torch state dict ({type(exc).__name__}: {first})") from None
+    sd = read_torch(path, CheckpointError)
     if not isinstance(sd, dict) or not all(torch.is_tensor(v) for v in sd.values()):
         raise CheckpointError(f"{path}: expected a state dict of tensors, got {type(sd).__name__}")
     try:

@@ -67,3 +67,16 @@ def atomic_directory(final: str | Path) -> Iterator[Path]:
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+
+
+
+def read_torch(path: str | Path, error: type[Exception], unreadable: str = "not a readable torch state dict"):
+    """``torch.load`` of a local file (CPU, weights only); a damaged file raises ``error`` with
+    one line: "<path>: <unreadable> (ExcType: first line)". Callers check that it exists."""
+    import torch
+
+    try:
+        return torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # noqa: BLE001 - torch raises many types for a damaged file
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+        raise error(f"{path}: {unreadable} ({type(exc).__name__}: {first})") from None

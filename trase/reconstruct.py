@@ -41,6 +41,7 @@ from trase.checkpoint import (
 from trase.deformation import DeformMLP, deformed, deformed_visible
 from trase.densify import densify_and_prune, lstsq_screen_grad_norm, scene_extent, screen_grad_norm
 from trase.gaussians import GaussianModel
+from trase.io import read_torch
 from trase.losses import l1_loss, opacity_entropy, psnr, ssim
 from trase.reconstruction_config import ReconstructionConfig, expon_lr, time_noise_scale
 from trase.training_images import ImageCache, load_image
@@ -230,10 +231,7 @@ def _reconstruct(views, points, point_colors, config, out_dir, resume, progress,
         sp = _state_path(out_dir, start)
         if not sp.is_file():
             raise CheckpointError(f"{sp}: trainer state for iteration {start} is missing; cannot resume")
-        try:
-            state = torch.load(sp, map_location="cpu", weights_only=True)
-        except Exception as exc:  # noqa: BLE001 - torch raises many types for a damaged file
-            raise CheckpointError(f"{sp}: unreadable trainer state ({type(exc).__name__})") from None
+        state = read_torch(sp, CheckpointError, "unreadable trainer state")
         need = ["active_sh_degree", "opt_g", "opt_d", "grad_accum", "denom", "rng", "view_stack", "ema_loss", "ema_psnr"]
         lost = [k for k in need if not isinstance(state, dict) or k not in state]
         if lost:

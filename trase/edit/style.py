@@ -22,6 +22,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from trase.edit.model import EditableModel, EditError
+from trase.io import read_torch
 
 # torchvision's vgg16 "features" up to conv3_3's ReLU: channels per conv, "M" = max pool
 VGG16_LAYOUT = (64, 64, "M", 128, 128, "M", 256, 256, 256)
@@ -56,10 +57,7 @@ class VGG16Features(nn.Module):
         path = Path(path)
         if not path.is_file():
             raise EditError(f"{path}: VGG-16 weights file not found")
-        try:
-            sd = torch.load(path, map_location="cpu", weights_only=True)
-        except Exception as exc:  # noqa: BLE001 - torch raises many types for a damaged file
-            raise EditError(f"{path}: not a readable torch state dict ({type(exc).__name__})") from None
+        sd = read_torch(path, EditError)
         if not isinstance(sd, dict):
             raise EditError(f"{path}: expected a state dict, got {type(sd).__name__}")
         net = cls()
