@@ -53,6 +53,8 @@ def render_frames(folder, opts: RenderOptions, out: Path, selection: np.ndarray 
     what was written and the seconds per frame."""
     import time
 
+    from rich.progress import track
+
     from benchmark.io import atomic_directory, atomic_path
     from imagefiles import png_bytes
     from trase.visualize import Painter
@@ -60,17 +62,10 @@ def render_frames(folder, opts: RenderOptions, out: Path, selection: np.ndarray 
     cams = path_cameras(folder, opts)
     painter = Painter(folder.model, selection)
     frames, seconds = [], []
-    bar = progress_bar(progress, len(cams), f"render {opts.mode}")
-    try:
-        for cam in cams:
-            t0 = time.perf_counter()
-            frames.append(painter.render(cam, opts.mode))
-            seconds.append(time.perf_counter() - t0)
-            if bar:
-                bar[0].update(bar[1], advance=1)
-    finally:
-        if bar:
-            bar[0].stop()
+    for cam in track(cams, description=f"render {opts.mode}", disable=not progress, transient=True):
+        t0 = time.perf_counter()
+        frames.append(painter.render(cam, opts.mode))
+        seconds.append(time.perf_counter() - t0)
     with atomic_directory(out / opts.mode) as d:
         for k, img in enumerate(frames):
             (d / f"{k:04d}.png").write_bytes(png_bytes(img))
@@ -122,21 +117,4 @@ def write_webp(frames: list[np.ndarray], path: str, fps: float, max_width: int =
                  quality=80)
 
 
-def progress_bar(enabled: bool, total: int, label: str):
-    if not enabled:
-        return None
-    from rich.progress import (
-        BarColumn,
-        MofNCompleteColumn,
-        Progress,
-        TextColumn,
-        TimeRemainingColumn,
-    )
-
-    p = Progress(TextColumn(label), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(), transient=True)
-    task = p.add_task(label, total=total)
-    p.start()
-    return p, task
-
-
-__all__ = ["CAMERA_PATHS", "RenderOptions", "path_cameras", "progress_bar", "render_frames", "write_mp4", "write_webp"]
+__all__ = ["CAMERA_PATHS", "RenderOptions", "path_cameras", "render_frames", "write_mp4", "write_webp"]

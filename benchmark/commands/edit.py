@@ -142,21 +142,19 @@ def compose_cmd(run_dir, out_dir, cache, clusters, clicks, selected, from_dir, f
 def style_cmd(run_dir, out_dir, cache, clusters, clicks, selected, style_path, vgg_path, iterations, lr,
               quiet) -> None:
     """Restyle the selection's colours after a style image (NNFM on VGG-16 features)."""
+    from rich.progress import Progress
+
     from benchmark.scene_edit import write_edit
-    from benchmark.scene_render import progress_bar
     from imagefiles import read_rgb
     from trase.edit.style import StyleConfig, VGG16Features, stylize
 
     vgg = VGG16Features.load(vgg_path)  # before anything else: the usual missing piece
     folder, ks, sel = _open(run_dir, cache, clusters, clicks, selected)
     cfg = StyleConfig(iterations=iterations, lr=lr)
-    bar = progress_bar(not quiet, iterations, "style")
-    try:
+    with Progress(disable=quiet, transient=True) as bar:
+        task = bar.add_task("style", total=iterations)
         edited, losses = stylize(folder.model, sel, [c for _, c in folder.views], read_rgb(style_path), vgg, cfg,
-                                 progress=(lambda it, loss: bar[0].update(bar[1], advance=1)) if bar else None)
-    finally:
-        if bar:
-            bar[0].stop()
+                                 progress=lambda it, loss: bar.update(task, advance=1, description=f"style {loss:.3f}"))
     params = {"clusters": ks, "style": str(style_path), "iterations": iterations, "lr": lr,
               "content_weight": cfg.content_weight, "loss_first": losses[0], "loss_last": losses[-1]}
     _done(write_edit(folder, edited, out_dir, "style", params), f"clusters {ks}, loss {losses[0]:.3f} -> {losses[-1]:.3f}")
