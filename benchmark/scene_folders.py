@@ -52,9 +52,9 @@ def open_scene_folder(path: Path | str, cache: Path | str | None = None) -> Scen
     if (path / "results.json").is_file():
         return _open_run(path, Path(cache) if cache else None)
     if (path / "fit.json").is_file():
-        return _open_saved(path, "fit", read_json(path / "fit.json", "fit.json"))
+        return _open_fit(path)
     if (path / EDIT_FILE).is_file():
-        return _open_saved(path, "edit", read_json(path / EDIT_FILE, EDIT_FILE))
+        return _open_edit(path)
     raise UserError(f"{path}: not a run (results.json), a fitted capture (fit.json) or an edited scene ({EDIT_FILE})")
 
 
@@ -99,35 +99,41 @@ def _open_run(run: Path, cache: Path | None) -> SceneFolder:
         raise UserError(f"{run / 'results.json'}: its scene {scene_dir} is gone (regenerate or pass the data root)")
     scene = load_scene(rec["dataset"], scene_dir)
     model = EditableModel(_with_features(gaussians, fitted.features), deformation, fitted.labels, fitted.keep)
-    rule = rec.get("config", {}).get("method", {}).get("prompts", {}).get("click_rule", "depth")
     return SceneFolder("run", run, model, [(v.name, v.camera) for v in scene.test],
-                       [int(k) for k in rec.get("selected_clusters", [])], rec["dataset"], str(rule))
+                       [int(k) for k in rec.get("selected_clusters", [])], rec["dataset"], _click_rule(rec))
 
 
-def _open_saved(path: Path, kind: str, record: dict) -> SceneFolder:
+def _click_rule(record: dict) -> str:
+    """The method's click rule as the record states it (a run's or fit's config, an edit's own)."""
+    return str(record.get("click_rule")
+               or record.get("config", {}).get("method", {}).get("prompts", {}).get("click_rule", "depth"))
+
+
+def _open_fit(path: Path) -> SceneFolder:
+    from benchmark.capture_select import fitted_capture
+    from trase.edit import EditableModel
+
+    record, _, fitted, scene = fitted_capture(path)
+    model = EditableModel(_with_features(fitted.gaussians, fitted.features), fitted.deformation, fitted.labels,
+                          fitted.keep)
+    return SceneFolder("fit", path, model, [(v.name, v.camera) for v in scene.test], [], "capture",
+                       _click_rule(record))
+
+
+def _open_edit(path: Path) -> SceneFolder:
     from trase.camera import Camera
-    from trase.edit import EditableModel, load_edited
+    from trase.edit import load_edited
 
-    if kind == "fit":
-        from benchmark.methods import FittedModel
-        from trase.checkpoint import load_model
-
-        g, d = load_model(path / "model")
-        fitted = FittedModel.load(path / "segmentation")
-        model = EditableModel(_with_features(g, fitted.features), d, fitted.labels, fitted.keep)
-    else:
-        model = load_edited(path)
-        feats = path / "segmentation" / "features.npy"
-        if feats.is_file():
-            model.gaussians = _with_features(model.gaussians, np.load(feats))
+    record = read_json(path / EDIT_FILE, EDIT_FILE)
+    model = load_edited(path)
+    feats = path / "segmentation" / "features.npy"
+    if feats.is_file():
+        model.gaussians = _with_features(model.gaussians, np.load(feats))
     doc = read_json(path / VIEWS_FILE, VIEWS_FILE)
     views = [(v["name"], Camera.from_dict(v["camera"])) for split in ("train", "test") for v in doc.get(split, [])]
     if not views:
         raise UserError(f"{path / VIEWS_FILE}: no views")
-    rule = record.get("click_rule") or record.get("config", {}).get("method", {}).get("prompts", {}).get(
-        "click_rule", "depth")
-    return SceneFolder(kind, path, model, views, [int(k) for k in record.get("selected", [])],
-                       str(record.get("dataset", "capture")), str(rule))
+    return SceneFolder("edit", path, model, views, [], str(record.get("dataset", "capture")), _click_rule(record))
 
 
 def parse_clusters(text: str | None) -> list[int]:
