@@ -107,6 +107,11 @@ class Prepared:
     name: str
     out_dir: Path
 
+    def context(self, cache: StageCache, progress: bool) -> SequenceRun:
+        """What the stages read, on ``cache``."""
+        return SequenceRun(cache, self.scene, self.cfg, self.method, progress, scene_fingerprint(self.scene),
+                           sha256_files(list(self.scene.gt_masks))[:16])
+
 
 def prepare_sequence(opts: RunOptions, sequence: str | None, create: bool = True) -> Prepared:
     """Find (or generate) the scene and resolve the run's config, name and directory; no stage runs."""
@@ -140,8 +145,7 @@ def plan_sequence(opts: RunOptions, sequence: str | None) -> list[tuple[str, str
     and writing nothing (a missing synthetic scene is an error, not generated)."""
     p = prepare_sequence(opts, sequence, create=False)
     check_free(p.out_dir, p.chash)
-    ctx = SequenceRun(PlanCache(opts.cache_root), p.scene, p.cfg, p.method, False, scene_fingerprint(p.scene),
-                      sha256_files(list(p.scene.gt_masks))[:16])
+    ctx = p.context(PlanCache(opts.cache_root), False)
     plan = []
     for stage in STAGES:
         for rec in stage(ctx):
@@ -152,30 +156,27 @@ def plan_sequence(opts: RunOptions, sequence: str | None) -> list[tuple[str, str
 
 def run_sequence(opts: RunOptions, sequence: str | None, reporter: Reporter, index: int) -> Path:
     p = prepare_sequence(opts, sequence)
-    spec, scene, scene_dir, variant, seq = p.spec, p.scene, p.scene_dir, p.variant, p.scene.sequence
-    cfg, chash, group, is_default, name, out_dir, method = p.cfg, p.chash, p.group, p.is_default, p.name, \
-        p.out_dir, p.method
+    seq = p.scene.sequence
     reporter.start(seq, index)
-    check_free(out_dir, chash)  # before any work: a run with another config is never overwritten
-    if opts.keep_existing and (out_dir / "results.json").is_file():
+    check_free(p.out_dir, p.chash)  # before any work: a run with another config is never overwritten
+    path = p.out_dir / "results.json"
+    if opts.keep_existing and path.is_file():
         if opts.progress:
-            print(f"  [{seq}] kept: {out_dir} holds this config's results", file=sys.stderr, flush=True)
+            print(f"  [{seq}] kept: {p.out_dir} holds this config's results", file=sys.stderr, flush=True)
         reporter.finish()
-        return out_dir / "results.json"
+        return path
 
-    ctx = SequenceRun(StageCache(opts.cache_root), scene, cfg, method, opts.progress, scene_fingerprint(scene),
-                      sha256_files(list(scene.gt_masks))[:16])
+    ctx = p.context(StageCache(opts.cache_root), opts.progress)
     for stage in STAGES:
         for rec in stage(ctx):
             ctx.records[rec.stage] = rec
             reporter.stage(seq, rec)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    evaluate.copy_outputs(ctx.records["evaluate"], out_dir)
+    p.out_dir.mkdir(parents=True, exist_ok=True)
+    evaluate.copy_outputs(ctx.records["evaluate"], p.out_dir)
     _, prompts_dict = prompts.load_prompts(ctx.records["prompts"])
-    info = run_info(name, opts.overrides, is_default, opts.study, opts.study_variant, seed=cfg["seed"], group=group)
-    record = build_record(ctx, info, spec.key, variant, scene_dir, chash, prompts_dict, out_dir)
-    path = out_dir / "results.json"
-    write_results(path, record)
+    info = run_info(p.name, opts.overrides, p.is_default, opts.study, opts.study_variant, seed=p.cfg["seed"],
+                    group=p.group)
+    write_results(path, build_record(ctx, info, p.spec.key, p.variant, p.scene_dir, p.chash, prompts_dict, p.out_dir))
     reporter.finish()
     return path
 

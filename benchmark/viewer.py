@@ -158,16 +158,13 @@ class SceneViewer:
 
     def export(self) -> Path | None:
         from benchmark.scene_edit import write_edit
-        from trase.edit import EditableModel
 
         with self._lock:
             if not self.actions:
                 self._status("nothing to export: no edits yet")
                 return None
             try:
-                record = write_edit(self.folder, EditableModel(self.model.gaussians, self.model.deformation,
-                                                               self.model.labels, self.model.keep),
-                                    self.out, "viewer", {"steps": self.actions})
+                record = write_edit(self.folder, self.model, self.out, "viewer", {"steps": self.actions})
             except (OSError, ValueError) as exc:  # shown in the page: the viewer keeps running
                 self._status(f"export failed: {exc}")
                 return None

@@ -58,15 +58,12 @@ class Painter:
         rasterizer's gsplat backend, which needs gsplat and a GPU)."""
         self.device = resolve_device(device)
         self.model = model
-        n = model.num_gaussians
         g = model.gaussians
         self._gaussians = g if self.device.type == "cpu" else g.copy().to(self.device)
         d = model.deformation
         self._deformation = d if d is None or self.device.type == "cpu" else d.to(self.device)
         self._clusters = torch.from_numpy(cluster_colours(model.labels)).to(self.device)  # [N, 3]
-        feats = g.features
-        self._pca = (torch.from_numpy(feature_pca(feats.detach().cpu().numpy())).to(self.device)
-                     if feats is not None and n >= 3 else None)
+        self._pca: torch.Tensor | None = None  # [N, 3], computed on the first pca picture
         self.set_selection(selection)
 
     def set_selection(self, selection: np.ndarray | None) -> None:
@@ -82,7 +79,10 @@ class Painter:
         if mode not in MODES:
             raise VisualizeError(f"unknown render mode {mode!r}; choose one of {', '.join(MODES)}")
         if mode == "pca" and self._pca is None:
-            raise VisualizeError("pca mode needs learned features; this model has none")
+            feats = self.model.gaussians.features
+            if feats is None:
+                raise VisualizeError("pca mode needs learned features; this model has none")
+            self._pca = torch.from_numpy(feature_pca(feats.detach().cpu().numpy())).to(self.device)
         g = self._gaussians
         H, W = camera.height, camera.width
         if g.num_gaussians == 0:
