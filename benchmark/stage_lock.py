@@ -25,14 +25,18 @@ HEARTBEAT_S = 10.0
 STALE_AFTER_S = 120.0
 
 
-def _alive(pid: int) -> bool:
+def known_dead(host, pid) -> bool:
+    """True when ``pid`` on ``host`` is this machine's and no such process runs (a process on
+    another machine, or of another user, cannot be judged dead from here)."""
+    if host != socket.gethostname() or not isinstance(pid, int):
+        return False
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
-        return False
-    except PermissionError:  # another user's process: alive
         return True
-    return True
+    except PermissionError:  # another user's process: alive
+        return False
+    return False
 
 
 class StageLock:
@@ -87,7 +91,7 @@ class StageLock:
         h = holder if holder is not None else self.holder()
         if h is None:
             return False
-        if h.get("host") == socket.gethostname() and isinstance(h.get("pid"), int) and not _alive(h["pid"]):
+        if known_dead(h.get("host"), h.get("pid")):
             return True
         return h["heartbeat_age_s"] > self.stale_after_s
 
@@ -102,4 +106,4 @@ class StageLock:
         return True
 
 
-__all__ = ["HEARTBEAT_S", "STALE_AFTER_S", "StageLock"]
+__all__ = ["HEARTBEAT_S", "STALE_AFTER_S", "StageLock", "known_dead"]

@@ -24,6 +24,7 @@ import time
 from pathlib import Path
 
 from benchmark.errors import UserError
+from benchmark.stage_lock import known_dead
 
 MAIN = "main"
 EXECUTORS = ("local", "slurm")
@@ -190,14 +191,9 @@ def read_state(spec: SweepSpec, job: SweepJob) -> dict:
         return {"state": "pending"}
     except (OSError, ValueError):
         return {"state": "pending", "note": f"{p}: unreadable state"}
-    if st.get("state") == "running" and st.get("host") == socket.gethostname():
-        try:
-            os.kill(int(st["pid"]), 0)
-        except ProcessLookupError:
-            st["state"] = "died"
-            st.setdefault("error", "the worker stopped without a word (killed?)")
-        except (PermissionError, KeyError, ValueError):
-            pass
+    if st.get("state") == "running" and known_dead(st.get("host"), st.get("pid")):
+        st["state"] = "died"
+        st.setdefault("error", "the worker stopped without a word (killed?)")
     if st.get("state") == "done" and not all(Path(r).is_file() for r in st.get("results", [])):
         st["state"] = "pending"
         st["note"] = "its results are gone"

@@ -75,8 +75,9 @@ def read_torch(path: str | Path, error: type[Exception], unreadable: str = "not 
     one line: "<path>: <unreadable> (ExcType: first line)". Callers check that it exists."""
     import torch
 
+    from masks.store import first_line  # torch's real cause, not its long weights_only notice
+
     try:
         return torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # noqa: BLE001 - torch raises many types for a damaged file
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
-        raise error(f"{path}: {unreadable} ({type(exc).__name__}: {first})") from None
+        raise error(f"{path}: {unreadable} ({first_line(exc)})") from None
