@@ -2,7 +2,7 @@
 
     <out>/model/         the edited geometry (trase.edit.save_edited: public layout, or a
                          baked motion table for compositions)
-    <out>/segmentation/  clusters.npy, keep.npy, features.npy (when learned)
+    <out>/segmentation/  clusters.npy, keep.npy (learned features are columns of model/'s PLY)
     <out>/views.json     the source folder's cameras (render, view and further edits use them)
     <out>/preview.png    before | after at the middle view
     <out>/edit.json      what was done, to what, from where (written last: its presence
@@ -31,10 +31,7 @@ def write_edit(source: SceneFolder, edited, out: Path, operation: str, params: d
         raise UserError(f"--out {out}: must differ from the folder being edited")
     if (out / EDIT_FILE).is_file():
         (out / EDIT_FILE).unlink()  # the folder is rewritten below; no stale record meanwhile
-    save_edited(edited, out, times=source.times())
-    feats = edited.gaussians.features
-    if feats is not None:
-        np.save(out / "segmentation" / "features.npy", feats.detach().numpy().astype(np.float32))
+    save_edited(edited, out, times=source.times())  # learned features travel in the PLY's feature columns
     atomic_write_json(out / VIEWS_FILE, views_doc(source.views))
     name, cam = source.views[len(source.views) // 2]
     before, after = Painter(source.model).render(cam, "rgb"), Painter(edited).render(cam, "rgb")

@@ -125,10 +125,7 @@ def _open_edit(path: Path) -> SceneFolder:
     from trase.edit import load_edited
 
     record = read_json(path / EDIT_FILE, EDIT_FILE)
-    model = load_edited(path)
-    feats = path / "segmentation" / "features.npy"
-    if feats.is_file():
-        model.gaussians = _with_features(model.gaussians, np.load(feats))
+    model = load_edited(path)  # with the learned features the PLY carries
     doc = read_json(path / VIEWS_FILE, VIEWS_FILE)
     views = [(v["name"], Camera.from_dict(v["camera"])) for split in ("train", "test") for v in doc.get(split, [])]
     if not views:
