@@ -18,13 +18,24 @@ from benchmark.perf import SUITES, get_suite, machine_info
 @click.option("--json", "json_out", type=click.Path(dir_okay=False), help="Also write all figures to this JSON file.")
 @click.option("--out-dir", type=click.Path(file_okay=False), default=None,
               help="Where suites write files (pareto.png). Default: the --json file's folder, else ./perf-out.")
+@click.option("--dataset", default=None,
+              help="The built-in scene's format for suites that take one (reconstruct, captures; "
+                   "default: each suite's own, hypernerf).")
 @click.option("--threads", type=click.IntRange(min=1), default=None,
               help="Threads for torch and numba (default: theirs, all cores). On a shared, loaded "
                    "machine --threads 1 gives the steadiest side-by-side ratios.")
 def perf(suites: tuple[str, ...], quick: bool, json_out: str | None, out_dir: str | None,
-         threads: int | None) -> None:
+         dataset: str | None, threads: int | None) -> None:
     """Run performance SUITES (default: all) and print their figures."""
     names = suites or tuple(SUITES.names())
+    if dataset is not None:
+        from benchmark.datasets import get_dataset
+
+        dataset = get_dataset(dataset).key  # one-line error for an unknown name
+        takes = [n for n in names if "dataset" in inspect.signature(get_suite(n)).parameters]
+        if not takes:
+            raise click.UsageError(f"--dataset: none of {', '.join(names)} takes a dataset "
+                                   "(suites that do: reconstruct, captures)")
     if threads:
         import numba
         import torch
@@ -32,13 +43,15 @@ def perf(suites: tuple[str, ...], quick: bool, json_out: str | None, out_dir: st
         torch.set_num_threads(threads)
         numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
     result = {"machine": machine_info(), "started": time.strftime("%Y-%m-%dT%H:%M:%S"), "suites": {},
-              "threads": threads}
+              "threads": threads, "dataset": dataset}
     for name in names:
         click.echo(f"== {name} ==")
         fn = get_suite(name)
         extra = {}
         if "out_dir" in inspect.signature(fn).parameters:  # suites that write files (pareto)
             extra["out_dir"] = Path(out_dir) if out_dir else (Path(json_out).parent if json_out else Path("perf-out"))
+        if dataset is not None and "dataset" in inspect.signature(fn).parameters:
+            extra["dataset"] = dataset
         result["suites"][name] = fn(quick=quick, echo=click.echo, **extra)
     if json_out:
         with open(json_out, "w") as f:

@@ -1,9 +1,13 @@
-"""``trase-bench perf captures``: ``trase-bench fit`` on the built-in HyperNeRF-format scene
-written as a capture in each layout (a nerfies capture with COLMAP points only and two images
-the notebook dropped, a COLMAP folder with times.json, transforms json), then one click per
-object of interest (the interior point of its largest appearance among the training views)
-through ``trase-bench select``: IoU of the selection against the synthetic instance maps at
-every training view, per object and for all objects together, and the stage times of ``fit``.
+"""``trase-bench perf captures [--dataset D]``: ``trase-bench fit`` on a built-in scene written
+as a capture in each layout, then one click per object of interest (the interior point of its
+largest appearance among the training views) through ``trase-bench select``: IoU of the
+selection against the synthetic instance maps at every training view, per object and for all
+objects together, the geometry's label ceiling on those views, and the stage times of ``fit``.
+
+Layouts: a monocular scene (the default HyperNeRF format, or NeRF-DS) is written as a nerfies
+capture with COLMAP points only and two images the notebook dropped, a COLMAP folder with
+times.json, and transforms json; a multi-view scene (Neu3D, Immersive, Technicolor) as the
+COLMAP folder and transforms json only (the nerfies capture is one phone's video).
 
 Two mask sources: ``classical`` (the offline generator, what ``fit`` uses without SAM) and
 ``files`` (SAM-like masks cut from the scene's instance maps by the synthetic generator,
@@ -50,13 +54,13 @@ def training_view_ceiling(fit_dir: Path, maps: dict[str, np.ndarray], ids: list[
     from trase.segment import render_alpha
 
     _, _, fitted, cap = fitted_capture(fit_dir)
-    views = [v for v in cap.train if Path(v.name).name in maps]
+    views = [v for v in cap.train if _scene_name(v.name) in maps]
     g, deform = fitted.gaussians, fitted.deformation
-    votes = instance_votes(g, deform, [v.camera for v in views], [maps[Path(v.name).name] for v in views], n_ids)
+    votes = instance_votes(g, deform, [v.camera for v in views], [maps[_scene_name(v.name)] for v in views], n_ids)
     out = {}
     for label, chosen in [*((str(i), [i]) for i in ids), ("all", ids)]:
         sel = truth_selection(votes, chosen)
-        preds = {Path(v.name).name: render_alpha(g, deform, sel, v.camera) >= 0.5 for v in views}
+        preds = {_scene_name(v.name): render_alpha(g, deform, sel, v.camera) >= 0.5 for v in views}
         out[label] = float(np.mean(_ious(maps, preds, chosen)))
     return out
 
@@ -72,26 +76,28 @@ def _ious(maps: dict[str, np.ndarray], masks: dict[str, np.ndarray], ids: list[i
     return out
 
 
-def run(quick: bool, echo, out_dir: Path) -> dict:
+def run(quick: bool, echo, out_dir: Path, dataset: str = "hypernerf") -> dict:
     from benchmark.captures.write import (
         clear,
         write_colmap_folder,
         write_nerfies_capture,
         write_transforms,
     )
-    from benchmark.datasets import load_scene
+    from benchmark.datasets import get_dataset, load_scene
     from benchmark.datasets.synthetic import ensure_synthetic
 
     size = "tiny" if quick else "small"
-    scene = load_scene("hypernerf", ensure_synthetic("hypernerf", size=size))
+    spec = get_dataset(dataset)
+    scene = load_scene(spec.key, ensure_synthetic(spec.key, size=size))
     from masks.generate import read_instance_map
 
     ids = scene.truth.interest_ids
     maps = {v.name: read_instance_map(scene.truth.instance_maps[v.name]) for v in scene.train}  # read once
     clicks = _interest_clicks(maps, ids)
-    root = Path(out_dir) / "captures"
+    root = Path(out_dir) / "captures"  # one stage cache for every scene and layout
+    base = root if spec.key == "hypernerf" else root / spec.key
     views, pts, cols = scene.train, scene.points, scene.point_colors
-    sam_like = root / "masks-sam-like"
+    sam_like = base / "masks-sam-like"
     if not sam_like.is_dir():
         import masks as masklib
         from masks.generators import make_generator
@@ -104,19 +110,21 @@ def run(quick: bool, echo, out_dir: Path) -> dict:
         "colmap": lambda d: write_colmap_folder(views, pts, cols, d),
         "transforms": lambda d: write_transforms(views, pts, cols, d),
     }
-    echo(f"scene: synthetic hypernerf ({size}), {len(views)} training views at "
+    if not spec.monocular:  # a nerfies capture is one phone's video
+        del layouts["nerfies"]
+    echo(f"scene: synthetic {spec.key} ({size}), {len(views)} training views at "
          f"{views[0].camera.width}x{views[0].camera.height}; objects of interest {ids}; clicks {clicks}")
-    result = {"scene": {"dataset": "hypernerf", "size": size, "views": len(views), "objects": ids,
+    result = {"scene": {"dataset": spec.key, "size": size, "views": len(views), "objects": ids,
                         "clicks": {str(k): v for k, v in clicks.items()}}, "layouts": {}}
     for name, write in layouts.items():
-        cap = root / name
+        cap = base / name
         if not (cap / ".complete").is_file():  # written once: its images' mtimes key the cache
             clear(cap)
             write(cap)
             (cap / ".complete").touch()
         for source, sets in sources.items():
             result["layouts"][f"{name}/{source}"] = _fit_and_select(
-                maps, scene.truth.n_ids, cap, root / f"fit-{name}-{source}", root / ".cache",
+                maps, scene.truth.n_ids, cap, cap.parent / f"fit-{name}-{source}", root / ".cache",
                 [*sets, *(QUICK_SET if quick else [])], clicks, ids, echo, f"{name}/{source}")
     return result
 
@@ -156,4 +164,10 @@ def _capture_name(rec: dict, view: str) -> str:
 
 
 def _by_view(masks: dict) -> dict:
-    return {Path(k).name: v for k, v in masks.items()}
+    return {_scene_name(k): v for k, v in masks.items()}
+
+
+def _scene_name(capture_name: str) -> str:
+    """The scene's view name of a capture's view (transforms names carry their images/ folder;
+    a multi-view scene's names keep their camera folder: cam01/00001)."""
+    return capture_name.removeprefix("images/")

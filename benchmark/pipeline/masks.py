@@ -26,13 +26,17 @@ def make_mask_generator(mcfg: dict):
 
 
 def _candidates(src: Path, view) -> list[Path]:
-    """Where a view's masks may lie in masks.dir: named after the view or after its image, in
-    this project's format (``.masks``, what ``trase-bench masks`` writes) or the paper's
+    """Where a view's masks may lie in masks.dir: named after the view or after its image (the
+    image's path without its suffix, keeping up to its two parent folders, longest first, so
+    ``cam01/00001`` is found for a multi-camera capture's ``images/cam01/00001.png``), in this
+    project's format (``.masks``, what ``trase-bench masks`` writes) or the paper's
     (``<image stem>.pt``, its SAM script's output)."""
     import masks as masklib
 
-    stem = Path(view.image_path).stem
-    return [masklib.mask_path(src, view.name), masklib.mask_path(src, stem), src / f"{stem}.pt"]
+    parts = Path(view.image_path).with_suffix("").parts
+    names = [view.name, *("/".join(parts[-k:]) for k in (3, 2, 1) if len(parts) >= k)]
+    names = list(dict.fromkeys(names))  # once each, in order
+    return [*(masklib.mask_path(src, n) for n in names), src / f"{parts[-1]}.pt"]
 
 
 def masks_from_files(views, src: Path, out: Path) -> list[Path]:
@@ -45,8 +49,8 @@ def masks_from_files(views, src: Path, out: Path) -> list[Path]:
         candidates = _candidates(src, v)
         found = next((c for c in candidates if c.is_file()), None)
         if found is None:
-            raise ConfigError(f"{candidates[0]}: no masks for training view {v.name} in masks.dir "
-                              f"(nor {candidates[1].name} or {candidates[2].name})")
+            others = ", ".join(str(c.relative_to(src)) for c in candidates[1:])
+            raise ConfigError(f"{candidates[0]}: no masks for training view {v.name} in masks.dir (nor {others})")
         ms = masklib.load(found)
         ms.info.update({"view": v.name, "source": str(found)})
         out_paths.append(masklib.mask_path(out, v.name))

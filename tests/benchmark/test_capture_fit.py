@@ -62,6 +62,31 @@ def test_masks_made_elsewhere_are_found_by_view_or_image_name(tiny_scene, tmp_pa
         assert np.array_equal(masklib.load(a).masks, masklib.load(b).masks)
 
 
+def test_masks_made_elsewhere_are_found_by_camera_folder_of_a_multi_camera_capture(tiny_scene, tmp_path):
+    """A transforms capture names its views images/cam01/00001; masks stored for the view
+    cam01/00001 (what a multi-view scene's mask folder holds) are found, and a view with none
+    names every place looked at."""
+    from benchmark.datasets.scene import View
+    from masks.generators import make_generator
+
+    gen = masklib.generate_scene_masks(tiny_scene.train[:1], make_generator("classical"), tmp_path / "made",
+                                       progress=False)
+    cap = tmp_path / "cap" / "images" / "cam01"
+    cap.mkdir(parents=True)
+    image = cap / "00001.png"
+    shutil.copy(tiny_scene.train[0].image_path, image)
+    view = View(name="images/cam01/00001", camera=tiny_scene.train[0].camera, image_path=image, frame=0)
+    src = tmp_path / "src"
+    with pytest.raises(ConfigError, match=r"src/images__cam01__00001.masks: no masks for training view "
+                                          r"images/cam01/00001 in masks.dir \(nor cam01__00001.masks, "
+                                          r"00001.masks, 00001.pt\)"):
+        masks_from_files([view], src, tmp_path / "out")
+    src.mkdir()
+    shutil.copy(gen[0], masklib.mask_path(src, "cam01/00001"))
+    out = masks_from_files([view], src, tmp_path / "out")
+    assert np.array_equal(masklib.load(out[0]).masks, masklib.load(gen[0]).masks)
+
+
 def test_fit_refuses_what_it_cannot_read(tmp_path):
     with pytest.raises(UserError, match="no known capture layout"):
         fit_capture(FitOptions(tmp_path, progress=False))

@@ -53,7 +53,7 @@ def test_reconstruct_suite_reports_psnr_per_checkpoint_for_both_presets(monkeypa
 
     monkeypatch.setattr(reconstruct, "QUICK", {"size": "tiny", "budget_s": 60.0, "iterations": 10, "interval": 5})
     out = reconstruct.run(quick=True, echo=print)
-    assert [r["preset"] for r in out["runs"]] == ["cpu-v1", "cpu"]
+    assert [r["preset"] for r in out["runs"]] == ["cpu-v1", "cpu-v2", "cpu"]
     for r in out["runs"]:
         assert [c["iteration"] for c in r["curve"]] == [5, 10]
         for c in r["curve"]:
@@ -62,8 +62,9 @@ def test_reconstruct_suite_reports_psnr_per_checkpoint_for_both_presets(monkeypa
         assert r["finished"] and r["iterations_planned"] == 10
         # the runner's settings for this scene (the tiny scene trains at full resolution)
         assert r["train_config"]["image_downscale"] == 1.0 and r["train_config"]["deform_preset"] == "small"
-    old, new = (r["train_config"] for r in out["runs"])
-    assert old["torch_threads"] == 1 and new["torch_threads"] == 2
+    old, v2, new = (r["train_config"] for r in out["runs"])
+    assert old["torch_threads"] == 1 and v2["torch_threads"] == new["torch_threads"] == 2
+    assert (v2["warm_up"], new["warm_up"]) == (300, 600)  # the same schedule, stretched
     printed = capsys.readouterr().out
     assert "test PSNR" in printed and "s/it deforming" in printed
 
@@ -91,3 +92,23 @@ def test_viewer_suite_times_every_mode_at_both_sizes_and_a_click(tmp_path):
         assert set(per_mode) == set(viewer.MODES)
         assert all(m["fps"] > 0 and len(m["render_s"]["all"]) == out["frames_per_setting"] for m in per_mode.values())
     assert out["click"]["clicks"] == len(out["click"]["latency_s"]["all"]) > 0
+
+
+def test_dataset_option_reaches_suites_that_take_one_and_is_refused_elsewhere(monkeypatch, capsys):
+    from benchmark.commands import perf as perf_command
+
+    seen = []
+
+    def fake_reconstruct(quick, echo, dataset="hypernerf"):
+        seen.append(dataset)
+        return {}
+
+    real = perf_command.get_suite
+    monkeypatch.setattr(perf_command, "get_suite", lambda n: fake_reconstruct if n == "reconstruct" else real(n))
+    assert main(["perf", "reconstruct", "--quick", "--dataset", "Technicolor"]) == 0
+    assert seen == ["technicolor"]
+    assert main(["perf", "raster", "--quick", "--dataset", "technicolor"]) == 2
+    assert "none of raster takes a dataset" in capsys.readouterr().err
+    assert main(["perf", "reconstruct", "--dataset", "nope"]) == 1
+    assert "unknown dataset 'nope'" in capsys.readouterr().err
+    assert seen == ["technicolor"]
