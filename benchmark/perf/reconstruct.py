@@ -1,13 +1,14 @@
-"""Reconstruction quality against wall-clock time: the old and the new CPU preset side by side.
+"""Reconstruction quality against wall-clock time: the old and the new CPU presets side by side.
 
 Trains the runner's geometry settings for the synthetic HyperNeRF-format scene (the `make
-demo` scene) once per CPU preset (``cpu-v1``, the first one, and ``cpu``, the current one),
+demo` scene) once per CPU preset (``cpu-v1``, the first one, ``cpu-v2``, the second, and
+``cpu``, the current one: cpu-v2's schedule over twice the iterations),
 one after the other in this process, saving a checkpoint every few hundred iterations; then
 renders every checkpoint at the test views and prints test PSNR against the time at which the
 checkpoint was written (setup and image loading included), and the median seconds per
 iteration before and after the deformation switches on. Threads as in the runner: torch as the
 preset says (``torch_threads``), numba compositing on all cores (or ``trase-bench perf
---threads N``). Run it on a quiet machine: the two presets are timed one after the other.
+--threads N``). Run it on a quiet machine: the presets are timed one after the other.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-PRESETS = ("cpu-v1", "cpu")
+PRESETS = ("cpu-v1", "cpu-v2", "cpu")
 QUICK = {"size": "tiny", "budget_s": 20.0, "iterations": 60, "interval": 30}
 FULL = {"size": "small", "budget_s": 900.0, "iterations": None, "interval": 250}  # None: the preset's
 

@@ -57,9 +57,11 @@ def without_seed(overrides: dict) -> dict:
     return {k: v for k, v in overrides.items() if k != "seed"}
 
 
-PRESETS = ("paper", "cpu", "cpu-v1")  # geometry presets; "auto": paper with a GPU, cpu without
-# the method's preset under each geometry preset (cpu-v1: an older CPU geometry, today's CPU features)
-METHOD_PRESET = {"paper": "paper", "cpu": "cpu", "cpu-v1": "cpu"}
+PRESETS = ("paper", "cpu", "cpu-v2", "cpu-v1")  # geometry presets; "auto": paper with a GPU, cpu without
+# the method's preset under each geometry preset (cpu-v2, cpu-v1: older CPU geometry, today's CPU features)
+METHOD_PRESET = {"paper": "paper", "cpu": "cpu", "cpu-v2": "cpu", "cpu-v1": "cpu"}
+# the geometry's settings under each CPU preset (trase.reconstruction_config)
+CPU_GEOMETRY = {"cpu": "cpu", "cpu-v2": "cpu_v2", "cpu-v1": "cpu_v1"}
 
 
 def resolve_preset(overrides: dict) -> str:
@@ -119,10 +121,11 @@ def _sections(method, overrides: dict, dataset: str | None, monocular: bool, sch
     if preset == "paper":
         train = ReconstructionConfig.paper(**schedule)
     else:
-        # a few CPU minutes (ReconstructionConfig.cpu; cpu-v1: the first CPU preset, kept for
-        # comparisons). Training resolution: see cpu_train_downscale.
-        make = ReconstructionConfig.cpu if preset == "cpu" else ReconstructionConfig.cpu_v1
-        train = make(image_downscale=cpu_train_downscale(image_size))
+        # a few CPU minutes (ReconstructionConfig.cpu; cpu-v2, cpu-v1: the earlier CPU presets,
+        # kept for comparisons). Training resolution: see cpu_train_downscale.
+        make = getattr(ReconstructionConfig, CPU_GEOMETRY[preset])
+        rig = {"monocular": monocular} if preset == "cpu" else {}  # the cpu preset's schedule is per rig
+        train = make(image_downscale=cpu_train_downscale(image_size), **rig)
     return {
         "masks": {
             "generator": mask_generator,

@@ -1,6 +1,5 @@
 """End-to-end: the whole pipeline on a tiny synthetic scene, results file, cache reuse, leaderboard."""
 
-import json
 
 import pytest
 
@@ -141,9 +140,15 @@ def test_paper_preset_takes_the_registry_schedule():
     # one preset for the whole run: the paper's geometry comes with the paper's method settings
     assert cfg["method"]["preset"] == "paper" and cfg["method"]["features"]["iterations"] == 10_000
     assert default_config(get_method("trase"), spec, "real", {"geometry": {"preset": "cpu-v1"}})["method"]["preset"] == "cpu"
+    multi = get_dataset("technicolor")
+    for preset, mono_its, multi_its in (("cpu", 4000, 2000), ("cpu-v2", 2000, 2000), ("cpu-v1", 2000, 2000)):
+        cfg = default_config(get_method("trase"), spec, "real", {"geometry": {"preset": preset}})
+        assert cfg["geometry"]["train"]["iterations"] == mono_its and cfg["method"]["preset"] == "cpu"
+        cfg = default_config(get_method("trase"), multi, "real", {"geometry": {"preset": preset}})
+        assert cfg["geometry"]["train"]["iterations"] == multi_its
     with pytest.raises(ConfigError, match="method.preset=paper: the method's preset follows the run's"):
         default_config(get_method("trase"), spec, "real", {"geometry": {"preset": "cpu"}, "method": {"preset": "paper"}})
-    with pytest.raises(ConfigError, match="geometry.preset=gpu: choose auto, paper, cpu, cpu-v1"):
+    with pytest.raises(ConfigError, match="geometry.preset=gpu: choose auto, paper, cpu, cpu-v2, cpu-v1"):
         default_config(get_method("trase"), spec, "real", {"geometry": {"preset": "gpu"}})
 
 
@@ -160,8 +165,8 @@ def test_cpu_preset_training_resolution_follows_the_images():
     spec = get_dataset("hypernerf")
     cfg = default_config(get_method("trase"), spec, "synthetic", {"geometry": {"preset": "cpu"}}, (160, 120))
     train = cfg["geometry"]["train"]
-    assert train["image_downscale"] == 1.0 and train["iterations"] == 2000
-    assert (train["position_lr_max_steps"], train["deform_lr_max_steps"]) == (20_000, 20_000)  # no annealing in 2000 steps
+    assert train["image_downscale"] == 1.0 and train["iterations"] == 4000
+    assert (train["position_lr_max_steps"], train["deform_lr_max_steps"]) == (20_000, 20_000)  # no annealing in 4000 steps
     cfg = default_config(get_method("trase"), spec, "real", {"geometry": {"preset": "cpu"}}, (960, 536))
     assert cfg["geometry"]["train"]["image_downscale"] == 2.0
 

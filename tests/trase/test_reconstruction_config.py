@@ -5,7 +5,12 @@ import dataclasses
 import numpy as np
 import pytest
 
-from trase.reconstruction_config import CPU_CHANGES, ReconstructionConfig, expon_lr
+from trase.reconstruction_config import (
+    CPU_CHANGES,
+    CPU_MONOCULAR_SCHEDULE,
+    ReconstructionConfig,
+    expon_lr,
+)
 
 
 def test_presets_and_schedule():
@@ -25,18 +30,28 @@ def test_presets_and_schedule():
 def test_cpu_preset_keeps_the_long_lr_decay_for_any_run_length():
     v1 = ReconstructionConfig.cpu_v1()
     assert v1.iterations == 2000 and v1.densify_until == 1500 and v1.warm_up == 300 and v1.torch_threads == 1
-    new = ReconstructionConfig.cpu()
-    changed = {k for k, v in dataclasses.asdict(new).items() if v != getattr(v1, k)}
+    v2 = ReconstructionConfig.cpu_v2()
+    changed = {k for k, v in dataclasses.asdict(v2).items() if v != getattr(v1, k)}
     assert changed == set(CPU_CHANGES)
-    short = ReconstructionConfig.cpu(iterations=2000)
+    new = ReconstructionConfig.cpu()  # a monocular capture
+    changed = {k for k, v in dataclasses.asdict(new).items() if v != getattr(v2, k)}
+    assert changed == set(CPU_MONOCULAR_SCHEDULE)
+    # the same schedule over twice the iterations: every step point doubled
+    for k in CPU_MONOCULAR_SCHEDULE:
+        assert getattr(new, k) == 2 * getattr(v2, k), k
+    assert (new.iterations, new.position_lr_max_steps) == (4000, 20_000)
+    assert ReconstructionConfig.cpu(monocular=False) == v2  # a multi-view rig keeps cpu_v2's schedule
+    short = ReconstructionConfig.cpu_v2(iterations=2000)
     # the runner's 2000 steps: learning rates still decay over 20000 steps (annealing inside a
     # short run cost 1.2-1.7 dB), the densification/warm-up points are not rescaled
     assert (short.position_lr_max_steps, short.deform_lr_max_steps) == (20_000, 20_000)
     assert (short.warm_up, short.densify_until, short.time_noise_steps) == (300, 1500, 2000)
     assert ReconstructionConfig.cpu(iterations=2000, position_lr_max_steps=2000).position_lr_max_steps == 2000
+    assert ReconstructionConfig.cpu(iterations=2000).warm_up == 600  # an override changes that setting alone
 
 
 def test_presets_name_their_densification_statistic():
     assert ReconstructionConfig.paper().densify_statistic == "means2d"  # 3DGS's statistic
     assert ReconstructionConfig.cpu().densify_statistic == "lstsq"  # what the cpu presets were tuned with
     assert ReconstructionConfig.cpu_v1().densify_statistic == "lstsq"
+    assert ReconstructionConfig.cpu_v2().densify_statistic == "lstsq"
