@@ -105,8 +105,9 @@ class StageCache:
         final = self.path(stage, key)
         lock = StageLock(final.with_name(key + ".lock"), self.heartbeat_s, self.stale_after_s)
         if self.is_done(stage, key):
-            if lock.path.exists() and lock.is_stale():  # its holder died after finishing, before unlocking
-                lock.break_stale()
+            holder = lock.holder()
+            if lock.is_stale(holder):  # its holder died after finishing, before unlocking
+                lock.break_stale(holder)
             return self._finished(stage, key)
         waited = False
         while not lock.acquire():
@@ -114,7 +115,7 @@ class StageCache:
                 return self._finished(stage, key)
             holder = lock.holder()
             if lock.is_stale(holder):
-                lock.break_stale()
+                lock.break_stale(holder)
                 continue
             if not waited and holder is not None:
                 print(f"  [{stage}] waiting for {holder.get('host')}:{holder.get('pid')} to finish {key}",

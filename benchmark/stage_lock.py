@@ -6,7 +6,9 @@ filesystems and on NFS v3 and later), holding who took it (host, pid, time). Whi
 stage computes, a thread touches the file every ``heartbeat_s`` seconds. A lock is stale
 when its holder is known dead (same host, no such process) or its heartbeat is older than
 ``stale_after_s`` (a killed machine, a lost node); a waiter breaks a stale lock by renaming it
-to a unique name first (only one waiter's rename succeeds), then takes a fresh one. Why not
+to a unique name first (only one waiter's rename succeeds), then takes a fresh one. A waiter
+that was too slow may rename the fresh lock of the one that won: it sees that the file is not
+the lock it judged stale and puts it back. Why not
 ``filelock``: its flock-based lock is unreliable on NFS and its soft lock has no stale rule,
 so a worker killed mid-stage would block the sweep forever.
 """
@@ -65,8 +67,8 @@ class StageLock:
         while not self._stop.wait(self.heartbeat_s):
             try:
                 os.utime(self.path)
-            except FileNotFoundError:  # broken by a waiter that judged us dead: nothing to do
-                return
+            except FileNotFoundError:  # renamed aside this instant by a slow waiter, who puts it back
+                continue
 
     def release(self) -> None:
         self._stop.set()
@@ -79,11 +81,9 @@ class StageLock:
         """Who holds it (host, pid, taken, age of the heartbeat in s), None when free."""
         try:
             st = self.path.stat()
-            info = json.loads(self.path.read_text() or "{}")
         except FileNotFoundError:
             return None
-        except (OSError, ValueError):  # being written this instant: judge by its age only
-            info = {}
+        info = _read_holder(self.path)
         info["heartbeat_age_s"] = max(0.0, time.time() - st.st_mtime)
         return info
 
@@ -95,15 +95,38 @@ class StageLock:
             return True
         return h["heartbeat_age_s"] > self.stale_after_s
 
-    def break_stale(self) -> bool:
-        """Remove a stale lock; True if this call removed it (a rename only one waiter wins)."""
+    def break_stale(self, judged: dict | None = None) -> bool:
+        """Remove a stale lock; True if this call removed it (a rename only one waiter wins).
+        ``judged``: the holder() that was found stale; when the file renamed aside is another
+        holder's (a faster waiter broke the stale lock and took a fresh one meanwhile), it is
+        put back and nothing is broken."""
         aside = self.path.with_name(f"{self.path.name}.broken-{uuid.uuid4().hex[:8]}")
         try:
             os.rename(self.path, aside)
         except FileNotFoundError:
             return False
+        if judged is not None and _identity(_read_holder(aside)) != _identity(judged):
+            try:
+                os.link(aside, self.path)  # put it back, unless yet another lock was taken meanwhile
+            except FileExistsError:
+                pass
+            aside.unlink(missing_ok=True)
+            return False
         aside.unlink(missing_ok=True)
         return True
+
+
+def _read_holder(path: Path) -> dict:
+    """What a lock file says (host, pid, taken); {} while it is being written or unreadable."""
+    try:
+        info = json.loads(path.read_text() or "{}")
+    except (OSError, ValueError):
+        return {}
+    return info if isinstance(info, dict) else {}
+
+
+def _identity(holder: dict) -> tuple:
+    return holder.get("host"), holder.get("pid"), holder.get("taken")
 
 
 __all__ = ["HEARTBEAT_S", "STALE_AFTER_S", "StageLock", "known_dead"]

@@ -45,6 +45,25 @@ def test_stale_when_the_holder_is_dead_or_silent(tmp_path):
     lock.release()
 
 
+def test_a_slow_breaker_puts_back_the_fresh_lock_it_renamed(tmp_path):
+    """Two waiters judge a dead holder's lock stale; the first breaks it and takes a fresh
+    lock; the second, breaking late, must not remove the first one's lock."""
+    import json
+    import socket
+
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True,
+                          check=True)
+    (tmp_path / "k.lock").write_text(json.dumps({"host": socket.gethostname(), "pid": int(dead.stdout), "taken": 0}))
+    first, second = StageLock(tmp_path / "k.lock"), StageLock(tmp_path / "k.lock")
+    judged_first, judged_second = first.holder(), second.holder()
+    assert first.is_stale(judged_first) and second.is_stale(judged_second)
+    assert first.break_stale(judged_first) and first.acquire()
+    assert not second.break_stale(judged_second)  # the file it renamed was the fresh lock: put back
+    assert second.holder()["pid"] == os.getpid() and not second.acquire()
+    assert [p.name for p in tmp_path.iterdir()] == ["k.lock"]  # nothing left aside
+    first.release()
+
+
 def test_heartbeat_keeps_a_long_holder_fresh(tmp_path):
     lock = StageLock(tmp_path / "k.lock", heartbeat_s=0.05, stale_after_s=0.5)
     assert lock.acquire()
