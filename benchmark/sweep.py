@@ -200,12 +200,14 @@ def read_state(spec: SweepSpec, job: SweepJob) -> dict:
     return st
 
 
-def run_job(spec: SweepSpec, job: SweepJob, log: str | None = None) -> list[str]:
-    """Run one job here and record its state; returns its results.json paths."""
+def run_job(spec: SweepSpec, job: SweepJob, log: str | None = None, task_id: str | None = None) -> list[str]:
+    """Run one job here and record its state (with the scheduler's task id when run by one);
+    returns its results.json paths."""
     from benchmark.errors import is_user_error
     from benchmark.runner import run
 
-    write_state(spec, job, state="running", host=socket.gethostname(), pid=os.getpid(), started=time.time(), log=log)
+    write_state(spec, job, state="running", host=socket.gethostname(), pid=os.getpid(), started=time.time(), log=log,
+                task=task_id)
     print(f"[{time.strftime('%H:%M:%S')}] job {job.id}: {job.label()}", flush=True)
     t0 = time.time()
     try:
@@ -231,11 +233,12 @@ class SweepTask:
     def __call__(self) -> dict:
         spec = load_spec(self.spec_path, self.overrides)
         by_id = {j.id: j for j in spec.jobs()}
-        log = None
+        log, task_id = None, None
         try:
             import submitit
 
-            log = str(submitit.JobEnvironment().paths.stdout)
+            env = submitit.JobEnvironment()
+            log, task_id = str(env.paths.stdout), str(env.job_id)
         except RuntimeError:  # not inside a submitit job (tests call it directly)
             pass
         done, failed = [], []
@@ -248,7 +251,7 @@ class SweepTask:
                 done.append(jid)
                 continue
             try:
-                run_job(spec, job, log)
+                run_job(spec, job, log, task_id)
                 done.append(jid)
             except Exception:  # noqa: BLE001 - recorded in the job's state; the next job runs
                 failed.append(jid)
@@ -313,13 +316,10 @@ def submit(spec: SweepSpec, wait: bool = True, echo=print) -> dict:
         ex.update_parameters(**slurm_parameters(spec))
         shares = [[j.id] for j in jobs]
     tasks = [SweepTask(spec_path, cli, share) for share in shares]
+    for job in jobs:  # before submitting: a worker that starts at once overwrites it with running
+        write_state(spec, job, state="submitted", executor=spec.executor)
     with ex.batch():
         handles = [ex.submit(t) for t in tasks]
-    by_id = {j.id: j for j in jobs}
-    for h, share in zip(handles, shares):
-        for jid in share:
-            write_state(spec, by_id[jid], state="submitted", scheduler_id=str(h.job_id), executor=spec.executor,
-                        log=str(h.paths.stdout))
     echo(f"submitted {len(jobs)} job(s) as {len(handles)} {spec.executor} task(s); logs in {logs}")
     out = {"submitted": len(jobs), "tasks": len(handles), "scheduler_ids": [str(h.job_id) for h in handles]}
     if wait:
@@ -346,8 +346,8 @@ def results_table(spec: SweepSpec) -> str:
     for job, st in status(spec):
         for r in st.get("results", []) if st["state"] == "done" else []:
             rec = load_results(r)
-            miou = (rec["metrics"].get("official") or rec["metrics"])["miou"]
-            rows.append({"method": job.method, "variant": job.variant, "dataset": job.dataset, "miou": miou})
+            rows.append({"method": job.method, "variant": job.variant, "dataset": job.dataset,
+                         "miou": rec["metrics"]["official"]["miou"]})
     if not rows:
         return "no finished runs yet"
     df = pd.DataFrame(rows)

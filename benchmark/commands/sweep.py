@@ -81,9 +81,7 @@ def _dry_run(spec) -> None:
 
 
 def _summary(spec) -> None:
-    import json
-    from pathlib import Path
-
+    from benchmark.results import load_results
     from benchmark.sweep import status
 
     states: dict[str, int] = {}
@@ -91,7 +89,7 @@ def _summary(spec) -> None:
     for _, st in status(spec):
         states[st["state"]] = states.get(st["state"], 0) + 1
         for r in st.get("results", []):
-            for s in json.loads(Path(r).read_text()).get("stages", {}).values():
+            for s in load_results(r).get("stages", {}).values():
                 stages["reused" if s.get("skipped") else "computed"] += 1
     click.echo(", ".join(f"{n} {k}" for k, n in sorted(states.items())) +
                f"; stages computed {stages['computed']}, reused {stages['reused']}")
@@ -115,9 +113,10 @@ def sweep_status(spec_path, table) -> None:
         elif state == "done":
             line += f"  {st.get('seconds', 0):.0f}s"
         elif state == "running":
-            line += f"  on {st.get('host')} (pid {st.get('pid')}), log {st.get('log') or 'none'}"
+            task = f", {st['task']}" if st.get("task") else ""
+            line += f"  on {st.get('host')} (pid {st.get('pid')}{task}), log {st.get('log') or 'none'}"
         elif st["state"] == "submitted":
-            line += f"  submitted as {st.get('executor')} task {st.get('scheduler_id')}"
+            line += f"  submitted ({st.get('executor')}), not started"
         click.echo(line)
     click.echo(", ".join(f"{n} {k}" for k, n in sorted(counts.items())))
     if table:

@@ -188,3 +188,39 @@ def test_two_methods_on_the_five_formats(tmp_path, capsys):
     assert main(["sweep-status", str(path), "--table"]) == 0
     table = capsys.readouterr().out
     assert all(d in table for d in ("nerfds", "hypernerf", "neu3d", "immersive", "technicolor"))
+
+
+def test_a_job_that_ends_before_submit_returns_keeps_its_state(tmp_path, monkeypatch):
+    """A local worker starts at once: the submitted state is written before the jobs are
+    submitted, so a job that is already running or done is never set back to submitted."""
+    import contextlib
+
+    import submitit
+
+    from benchmark import sweep as sw
+
+    spec = load_spec(_spec(tmp_path, TINY))
+    by_id = {j.id: j for j in spec.jobs()}
+
+    class Handle:
+        job_id = "42"
+
+    class InstantExecutor:  # a worker that finishes its share before submit returns
+        def __init__(self, folder, cluster):
+            pass
+
+        def update_parameters(self, **_):
+            pass
+
+        def batch(self):
+            return contextlib.nullcontext()
+
+        def submit(self, task):
+            for jid in task.job_ids:
+                sw.write_state(spec, by_id[jid], state="done", results=[])
+            return Handle()
+
+    monkeypatch.setattr(submitit, "AutoExecutor", InstantExecutor)
+    out = sw.submit(spec, wait=False, echo=lambda *_: None)
+    assert out["submitted"] == len(by_id) == 2
+    assert [read_state(spec, j)["state"] for j in by_id.values()] == ["done", "done"]
