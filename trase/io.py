@@ -69,7 +69,6 @@ def atomic_directory(final: str | Path) -> Iterator[Path]:
         raise
 
 
-
 def read_torch(path: str | Path, error: type[Exception], unreadable: str = "not a readable torch state dict"):
     """``torch.load`` of a local file (CPU, weights only); a damaged file raises ``error`` with
     one line: "<path>: <unreadable> (ExcType: first line)". Callers check that it exists."""

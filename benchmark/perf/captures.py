@@ -95,7 +95,7 @@ def run(quick: bool, echo, out_dir: Path, dataset: str = "hypernerf") -> dict:
     maps = {v.name: read_instance_map(scene.truth.instance_maps[v.name]) for v in scene.train}  # read once
     clicks = _interest_clicks(maps, ids)
     root = Path(out_dir) / "captures"  # one stage cache for every scene and layout
-    base = root if spec.key == "hypernerf" else root / spec.key
+    base = root / spec.key
     views, pts, cols = scene.train, scene.points, scene.point_colors
     sam_like = base / "masks-sam-like"
     if not sam_like.is_dir():

@@ -125,7 +125,7 @@ def stylize(model: EditableModel, selection: np.ndarray, cameras: Sequence, styl
     idx = torch.from_numpy(np.flatnonzero(sel))
     with torch.no_grad():
         style_feats = [f.detach() for f in vgg(torch.from_numpy(img).permute(2, 0, 1))]
-        geoms = {}
+    geoms = {}  # camera -> its deformed geometry and the unedited render's features (computed once)
     dc = nn.Parameter(g.sh_dc.detach()[idx].clone())  # [S, 1, 3]: the only thing optimised
     opt = torch.optim.Adam([dc], lr=cfg.lr)
     rng = np.random.default_rng(cfg.seed)
