@@ -120,7 +120,7 @@ def prepare_sequence(opts: RunOptions, sequence: str | None, create: bool = True
     from benchmark.methods import get_method
 
     spec = get_dataset(opts.dataset)
-    scene_dir, variant = find_or_generate(spec.key, sequence, opts.data_root, create=create)
+    scene_dir, variant = find_or_generate(spec.key, sequence, opts.data_root, create=create, precompile=True)
     scene = load_scene(spec.key, scene_dir)
     if not scene.gt_masks:
         raise UserError(f"{scene_dir}: no ground-truth masks for {spec.key}/{scene.sequence}; cannot evaluate "

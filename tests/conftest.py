@@ -11,7 +11,12 @@ Profiles (``hypothesis.settings``):
 
 from __future__ import annotations
 
+import os
 import sys
+
+# no kernel compilation beside scene generation in tests (benchmark.background_compile): its
+# own tests turn it on
+os.environ.setdefault("TRASE_PRECOMPILE", "0")
 
 try:  # hypothesis is a dev dependency; the rest of the suite runs without it
     from hypothesis import HealthCheck, settings

@@ -27,6 +27,7 @@ def synth(dataset: str, out_dir: str, seed: int, size: str, difficulty: str) -> 
     """
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+    from benchmark.background_compile import kernels_compiled_meanwhile
     from benchmark.datasets.synthetic import generate
 
     t0 = time.perf_counter()
@@ -39,6 +40,7 @@ def synth(dataset: str, out_dir: str, seed: int, size: str, difficulty: str) -> 
                 tasks[stage] = bar.add_task(stage, total=max(total, 1))
             bar.update(tasks[stage], completed=done, total=max(total, 1))
 
-        path = generate(dataset, out_dir, seed=seed, size=size, progress=report, difficulty=difficulty)
+        with kernels_compiled_meanwhile():  # a run on this scene needs them next
+            path = generate(dataset, out_dir, seed=seed, size=size, progress=report, difficulty=difficulty)
     click.echo(f"wrote {dataset} synthetic scene (size {size}, {difficulty}, seed {seed}) to {path} "
                f"in {time.perf_counter() - t0:.1f} s")

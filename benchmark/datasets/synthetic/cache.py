@@ -9,11 +9,14 @@ later run would trust; concurrent generators race harmlessly (the loser's copy i
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import sys
 import tempfile
 from pathlib import Path
+
+from benchmark.background_compile import kernels_compiled_meanwhile
 
 from .generate import (
     GENERATOR_VERSION,
@@ -52,9 +55,11 @@ def _check_version(scene_dir: Path) -> None:
 
 def ensure_synthetic(dataset: str, size: str = "small", seed: int = 0,
                      cache_dir: Path | str | None = None, progress=None, difficulty: str = "standard",
-                     create: bool = True) -> Path:
+                     create: bool = True, precompile: bool = False) -> Path:
     """The cached synthetic scene of ``dataset`` (generated on first use, with a notice;
     ``create=False``: an error instead, for plans that must not write anything).
+    ``precompile``: compile trase's kernels in another process while the scene is generated
+    (``benchmark.background_compile``; what a run does, since it needs them next).
 
     Seed 0 lives at ``<cache>/<dataset>/v<version>/<sequence>``; another seed at
     ``<sequence>-seed<N>``.
@@ -76,7 +81,8 @@ def ensure_synthetic(dataset: str, size: str = "small", seed: int = 0,
     tmp = Path(tempfile.mkdtemp(prefix=f".{name}.tmp-", dir=final.parent))
     try:
         scene_tmp = tmp / name  # the scene folder's name is its sequence name
-        generate(dataset, scene_tmp, seed=seed, size=size, progress=progress, difficulty=difficulty)
+        with kernels_compiled_meanwhile() if precompile else contextlib.nullcontext():
+            generate(dataset, scene_tmp, seed=seed, size=size, progress=progress, difficulty=difficulty)
         try:
             os.rename(scene_tmp, final)
         except OSError:
@@ -89,7 +95,8 @@ def ensure_synthetic(dataset: str, size: str = "small", seed: int = 0,
 
 def find_or_generate(dataset: str, sequence: str | None = None,
                      data_root: Path | str | None = None,
-                     cache_dir: Path | str | None = None, create: bool = True) -> tuple[Path, str]:
+                     cache_dir: Path | str | None = None, create: bool = True,
+                     precompile: bool = False) -> tuple[Path, str]:
     """(scene_dir, variant) for ``dataset``/``sequence``: real data wins, else synthetic.
 
     Real data is looked up at ``<root>/<dataset>/<sequence>/`` (and the publishers' other
@@ -97,7 +104,7 @@ def find_or_generate(dataset: str, sequence: str | None = None,
     ``sequence`` None or a synthetic name ("synthetic", "synthetic-medium", "synthetic-hard",
     ...; ``generate.sequence_name``) uses the synthetic scene when no real scene of that name
     exists; a real sequence name that is missing is
-    an error listing where it looked.
+    an error listing where it looked. ``precompile``: as for ``ensure_synthetic``.
     """
     from benchmark.datasets import find_scene_dir, get_dataset
 
@@ -126,5 +133,6 @@ def find_or_generate(dataset: str, sequence: str | None = None,
         if _is_complete(d):
             return d, "synthetic"
     size, difficulty = synthetic
-    return ensure_synthetic(spec.key, size=size, cache_dir=cache_dir, difficulty=difficulty, create=create), \
+    return ensure_synthetic(spec.key, size=size, cache_dir=cache_dir, difficulty=difficulty, create=create,
+                            precompile=precompile), \
         "synthetic"
