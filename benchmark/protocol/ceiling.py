@@ -107,7 +107,36 @@ def label_ceiling(gaussians, deformation, scene, gts: Sequence[np.ndarray], rule
     names = [f"{i:05d}" for i in range(len(scene.test))]
     score = score_masks(dict(zip(names, preds)), dict(zip(names, gts)), "v1")
     return score, {"n_selected": int(sel.sum()), "n_views": len(views), "rule": rule,
-                   "object_alpha": object_alpha_stats(alphas, gts, threshold)}
+                   "object_alpha": object_alpha_stats(alphas, gts, threshold),
+                   "objects": per_object_stats(gaussians, votes, scene, alphas, threshold)}
+
+
+def per_object_stats(gaussians, votes: np.ndarray, scene, alphas: Sequence[np.ndarray], threshold: float = 0.5) -> dict:
+    """Per object of interest (by name): how solid it renders in the test views (``object_alpha_stats``
+    over its own instance-map pixels, from the alone render of every truth-labelled gaussian)
+    and how opaque the gaussians labelled with it are (median, share below 0.5). Why: a
+    geometry can look right in colour and still be a fog of faint gaussians that no labelling
+    turns into a mask; this says which object and how. Test views without an instance map
+    are left out (the counts say how many pixels were used)."""
+    truth = scene.truth
+    seen = votes.sum(1) > 0
+    label = votes.argmax(1) if votes.shape[0] else np.zeros(0, np.int64)
+    opacity = gaussians.opacities.detach().reshape(-1).cpu().numpy().astype(np.float64)
+    maps = [(a, read_instance_map(truth.instance_maps[v.name])) for a, v in zip(alphas, scene.test)
+            if v.name in truth.instance_maps]
+    out = {}
+    for obj in truth.objects:
+        if not obj.of_interest:
+            continue
+        mine = seen & (label == obj.id)
+        op = opacity[mine]
+        out[obj.name] = {
+            **object_alpha_stats([a for a, _ in maps], [ids == obj.id for _, ids in maps], threshold),
+            "gaussians": int(mine.sum()),
+            "opacity_median": round(float(np.median(op)), 4) if op.size else None,
+            "opacity_below_half": round(float((op < 0.5).mean()), 4) if op.size else None,
+        }
+    return out
 
 
 def object_alpha_stats(alphas: Sequence[np.ndarray], gts: Sequence[np.ndarray], threshold: float = 0.5) -> dict:
@@ -122,5 +151,5 @@ def object_alpha_stats(alphas: Sequence[np.ndarray], gts: Sequence[np.ndarray], 
             "gt_pixels": int(vals.size)}
 
 
-__all__ = ["CeilingError", "instance_votes", "label_ceiling", "object_alpha_stats", "synthetic_truth",
-           "truth_selection"]
+__all__ = ["CeilingError", "instance_votes", "label_ceiling", "object_alpha_stats", "per_object_stats",
+           "synthetic_truth", "truth_selection"]

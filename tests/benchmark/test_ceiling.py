@@ -71,3 +71,37 @@ def test_object_alpha_stats_measure_holes_inside_the_ground_truth():
     assert st["holes"] == 0.25 and st["gt_pixels"] == 8
     assert st["mean_in_gt"] == pytest.approx((3 * 0.9 + 0.2) / 4, abs=1e-4)
     assert object_alpha_stats([alpha], [np.zeros((4, 4), bool)])["holes"] is None  # nothing to measure
+
+
+def test_per_object_stats_name_each_object_its_holes_and_its_gaussians_opacity(tmp_path):
+    """Two objects of interest and a wall: holes are measured on each object's own pixels, the
+    opacity over the gaussians voted for it; a test view without an instance map is left out."""
+    from types import SimpleNamespace
+
+    from PIL import Image
+
+    from benchmark.datasets.truth import SceneObject
+    from benchmark.protocol.ceiling import per_object_stats
+
+    ids = np.zeros((4, 4), np.uint16)
+    ids[:2, :2] = 4  # ball: 4 pixels
+    ids[2:, 2:] = 5  # ring: 4 pixels
+    Image.fromarray(ids).save(tmp_path / "t0.png")
+    truth = SimpleNamespace(objects=(SceneObject(1, "wall", False), SceneObject(4, "ball", True),
+                                     SceneObject(5, "ring", True)),
+                            instance_maps={"t0": tmp_path / "t0.png"})
+    scene = SimpleNamespace(truth=truth, test=[SimpleNamespace(name="t0"), SimpleNamespace(name="t1")])
+    alpha = np.full((4, 4), 0.9, np.float32)
+    alpha[2, 2] = 0.1  # one hole in the ring
+    # gaussians: two ball (opacity 0.9, 0.8), three ring (0.05, 0.1, 0.95), one wall, one never seen
+    votes = np.zeros((7, 6))
+    votes[[0, 1], 4] = 1.0
+    votes[[2, 3, 4], 5] = 1.0
+    votes[5, 1] = 1.0
+    gaussians = SimpleNamespace(opacities=torch.tensor([0.9, 0.8, 0.05, 0.1, 0.95, 0.9, 0.01]))
+    out = per_object_stats(gaussians, votes, scene, [alpha, np.zeros((4, 4))])
+    assert set(out) == {"ball", "ring"}
+    assert out["ball"]["holes"] == 0.0 and out["ball"]["gt_pixels"] == 4 and out["ball"]["gaussians"] == 2
+    assert out["ring"]["holes"] == 0.25 and out["ring"]["gt_pixels"] == 4 and out["ring"]["gaussians"] == 3
+    assert out["ring"]["opacity_median"] == pytest.approx(0.1) and out["ring"]["opacity_below_half"] == pytest.approx(2 / 3, abs=1e-4)
+    assert out["ball"]["opacity_below_half"] == 0.0
