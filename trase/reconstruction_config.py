@@ -97,11 +97,20 @@ class ReconstructionConfig:
         return cls(**kw)
 
     @classmethod
-    def cpu(cls, monocular: bool = True, **overrides) -> ReconstructionConfig:
-        """The CPU preset: ``cpu_v2``, whose schedule runs over twice the iterations for a
+    def cpu_v3(cls, monocular: bool = True, **overrides) -> ReconstructionConfig:
+        """The third CPU preset: ``cpu_v2``, whose schedule runs over twice the iterations for a
         monocular capture (CPU_MONOCULAR_SCHEDULE; measured there). A multi-view rig keeps
         ``cpu_v2``'s schedule."""
         kw: dict[str, Any] = {**CPU_V1, **CPU_CHANGES, **(CPU_MONOCULAR_SCHEDULE if monocular else {})}
+        kw.update(overrides)
+        return cls(**kw)
+
+    @classmethod
+    def cpu(cls, monocular: bool = True, **overrides) -> ReconstructionConfig:
+        """The CPU preset: ``cpu_v3``, which on a monocular capture also prunes faint gaussians
+        (CPU_MONOCULAR_PRUNING; measured there). A multi-view rig keeps ``cpu_v2``'s settings."""
+        kw: dict[str, Any] = {**CPU_V1, **CPU_CHANGES,
+                              **({**CPU_MONOCULAR_SCHEDULE, **CPU_MONOCULAR_PRUNING} if monocular else {})}
         kw.update(overrides)
         return cls(**kw)
 
@@ -183,6 +192,28 @@ CPU_MONOCULAR_SCHEDULE: dict[str, Any] = {
     "sh_interval": 2000,
     "time_noise_steps": 4000,
     "checkpoint_interval": 2000,
+}
+
+
+# What the cpu preset changes against cpu_v3 for a monocular capture: at every densification
+# step (every 100 iterations up to 3000) gaussians fainter than 0.1 are pruned (3DGS: 0.005).
+# Why: on the seed-1 NeRF-DS-format scene the deforming blob was a fog of ~1100 faint gaussians
+# (median opacity 0.05) that looked right in colour but left 27% of its pixels below alpha 0.5
+# when rendered alone, in the training views as much as the test views (so not a parallax error)
+# and with its gaussians' labels pure (96% of its compositing weight on gaussians labelled with
+# it). With 0.1 the blob's gaussians are opaque (median 0.998) and its holes 1.4%; larger
+# thresholds were not tried (HyperNeRF's ceiling eased 0.844 -> 0.840 -> 0.836 while NeRF-DS's
+# rose). Chosen on the seed-1 scenes (never the benchmark's seed 0) by the mean geometry ceiling
+# over the two monocular formats, runs side by side on one thread each; test PSNR / ceiling /
+# holes, NeRF-DS then HyperNeRF format:
+#   cpu_v3 (min_opacity 0.005):  23.96 dB / 0.626 / 19.4%;  28.57 dB / 0.844 / 4.0%  (mean ceiling 0.735)
+#   min_opacity 0.05:             24.35 dB / 0.681 /  7.9%;  28.79 dB / 0.840 / 3.6%  (0.761)
+#   min_opacity 0.1 (taken):      24.37 dB / 0.693 /  3.2%;  28.69 dB / 0.836 / 3.4%  (0.765)
+#   one opacity reset at 2000:    24.02 dB / 0.648 / 14.0%;  28.40 dB / 0.853 / 2.7%  (0.750)
+#   resets at 1000 and 2000:      23.85 dB / 0.671 / 10.5%;  28.28 dB / 0.834 / 3.5%  (0.752)
+#   opacity entropy 0.05 (x5):    23.91 dB / 0.596 / 22.8%;  28.52 dB / 0.826 / 5.5%  (0.711)
+CPU_MONOCULAR_PRUNING: dict[str, Any] = {
+    "min_opacity": 0.1,
 }
 
 

@@ -1,8 +1,9 @@
 """Reconstruction quality against wall-clock time: the old and the new CPU presets side by side.
 
 Trains the runner's geometry settings for the synthetic HyperNeRF-format scene (the `make
-demo` scene) once per CPU preset (``cpu-v1``, the first one, ``cpu-v2``, the second, and
-``cpu``, the current one: cpu-v2's schedule over twice the iterations),
+demo` scene) once per CPU preset (``cpu-v1``, the first one, ``cpu-v2``, the second,
+``cpu-v3``, cpu-v2's schedule over twice the iterations, and ``cpu``, the current one: cpu-v3
+with faint gaussians pruned),
 one after the other in this process, saving a checkpoint every few hundred iterations; then
 renders every checkpoint at the test views and prints test PSNR against the time at which the
 checkpoint was written (setup and image loading included), and the median seconds per
@@ -20,7 +21,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-PRESETS = ("cpu-v1", "cpu-v2", "cpu")
+PRESETS = ("cpu-v1", "cpu-v2", "cpu-v3", "cpu")
 QUICK = {"size": "tiny", "budget_s": 20.0, "iterations": 60, "interval": 30}
 FULL = {"size": "small", "budget_s": 900.0, "iterations": None, "interval": 250}  # None: the preset's
 

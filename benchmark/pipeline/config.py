@@ -57,11 +57,12 @@ def without_seed(overrides: dict) -> dict:
     return {k: v for k, v in overrides.items() if k != "seed"}
 
 
-PRESETS = ("paper", "cpu", "cpu-v2", "cpu-v1")  # geometry presets; "auto": paper with a GPU, cpu without
-# the method's preset under each geometry preset (cpu-v2, cpu-v1: older CPU geometry, today's CPU features)
-METHOD_PRESET = {"paper": "paper", "cpu": "cpu", "cpu-v2": "cpu", "cpu-v1": "cpu"}
+PRESETS = ("paper", "cpu", "cpu-v3", "cpu-v2", "cpu-v1")  # geometry presets; "auto": paper with a GPU, cpu without
+# the method's preset under each geometry preset (cpu-v3, cpu-v2, cpu-v1: older CPU geometry, today's CPU features)
+METHOD_PRESET = {"paper": "paper", "cpu": "cpu", "cpu-v3": "cpu", "cpu-v2": "cpu", "cpu-v1": "cpu"}
 # the geometry's settings under each CPU preset (trase.reconstruction_config)
-CPU_GEOMETRY = {"cpu": "cpu", "cpu-v2": "cpu_v2", "cpu-v1": "cpu_v1"}
+CPU_GEOMETRY = {"cpu": "cpu", "cpu-v3": "cpu_v3", "cpu-v2": "cpu_v2", "cpu-v1": "cpu_v1"}
+RIG_PRESETS = ("cpu", "cpu-v3")  # CPU presets whose settings depend on the rig (monocular or not)
 
 
 def resolve_preset(overrides: dict) -> str:
@@ -121,10 +122,10 @@ def _sections(method, overrides: dict, dataset: str | None, monocular: bool, sch
     if preset == "paper":
         train = ReconstructionConfig.paper(**schedule)
     else:
-        # a few CPU minutes (ReconstructionConfig.cpu; cpu-v2, cpu-v1: the earlier CPU presets,
-        # kept for comparisons). Training resolution: see cpu_train_downscale.
+        # a few CPU minutes (ReconstructionConfig.cpu; cpu-v3, cpu-v2, cpu-v1: the earlier CPU
+        # presets, kept for comparisons). Training resolution: see cpu_train_downscale.
         make = getattr(ReconstructionConfig, CPU_GEOMETRY[preset])
-        rig = {"monocular": monocular} if preset == "cpu" else {}  # the cpu preset's schedule is per rig
+        rig = {"monocular": monocular} if preset in RIG_PRESETS else {}
         train = make(image_downscale=cpu_train_downscale(image_size), **rig)
     return {
         "masks": {

@@ -48,12 +48,12 @@ def test_registry_entries_resolve():
         assert callable(get_suite(name))
 
 
-def test_reconstruct_suite_reports_psnr_per_checkpoint_for_both_presets(monkeypatch, capsys):
+def test_reconstruct_suite_reports_psnr_per_checkpoint_for_every_preset(monkeypatch, capsys):
     from benchmark.perf import reconstruct
 
     monkeypatch.setattr(reconstruct, "QUICK", {"size": "tiny", "budget_s": 60.0, "iterations": 10, "interval": 5})
     out = reconstruct.run(quick=True, echo=print)
-    assert [r["preset"] for r in out["runs"]] == ["cpu-v1", "cpu-v2", "cpu"]
+    assert [r["preset"] for r in out["runs"]] == ["cpu-v1", "cpu-v2", "cpu-v3", "cpu"]
     for r in out["runs"]:
         assert [c["iteration"] for c in r["curve"]] == [5, 10]
         for c in r["curve"]:
@@ -62,9 +62,10 @@ def test_reconstruct_suite_reports_psnr_per_checkpoint_for_both_presets(monkeypa
         assert r["finished"] and r["iterations_planned"] == 10
         # the runner's settings for this scene (the tiny scene trains at full resolution)
         assert r["train_config"]["image_downscale"] == 1.0 and r["train_config"]["deform_preset"] == "small"
-    old, v2, new = (r["train_config"] for r in out["runs"])
-    assert old["torch_threads"] == 1 and v2["torch_threads"] == new["torch_threads"] == 2
-    assert (v2["warm_up"], new["warm_up"]) == (300, 600)  # the same schedule, stretched
+    old, v2, v3, new = (r["train_config"] for r in out["runs"])
+    assert old["torch_threads"] == 1 and v2["torch_threads"] == v3["torch_threads"] == new["torch_threads"] == 2
+    assert (v2["warm_up"], v3["warm_up"]) == (300, 600)  # the same schedule, stretched
+    assert (v3["min_opacity"], new["min_opacity"]) == (0.005, 0.1)  # faint gaussians pruned
     printed = capsys.readouterr().out
     assert "test PSNR" in printed and "s/it deforming" in printed
 

@@ -7,6 +7,7 @@ import pytest
 
 from trase.reconstruction_config import (
     CPU_CHANGES,
+    CPU_MONOCULAR_PRUNING,
     CPU_MONOCULAR_SCHEDULE,
     ReconstructionConfig,
     expon_lr,
@@ -33,14 +34,19 @@ def test_cpu_preset_keeps_the_long_lr_decay_for_any_run_length():
     v2 = ReconstructionConfig.cpu_v2()
     changed = {k for k, v in dataclasses.asdict(v2).items() if v != getattr(v1, k)}
     assert changed == set(CPU_CHANGES)
-    new = ReconstructionConfig.cpu()  # a monocular capture
-    changed = {k for k, v in dataclasses.asdict(new).items() if v != getattr(v2, k)}
+    v3 = ReconstructionConfig.cpu_v3()  # a monocular capture
+    changed = {k for k, v in dataclasses.asdict(v3).items() if v != getattr(v2, k)}
     assert changed == set(CPU_MONOCULAR_SCHEDULE)
     # the same schedule over twice the iterations: every step point doubled
     for k in CPU_MONOCULAR_SCHEDULE:
-        assert getattr(new, k) == 2 * getattr(v2, k), k
-    assert (new.iterations, new.position_lr_max_steps) == (4000, 20_000)
-    assert ReconstructionConfig.cpu(monocular=False) == v2  # a multi-view rig keeps cpu_v2's schedule
+        assert getattr(v3, k) == 2 * getattr(v2, k), k
+    assert (v3.iterations, v3.position_lr_max_steps) == (4000, 20_000)
+    new = ReconstructionConfig.cpu()
+    changed = {k for k, v in dataclasses.asdict(new).items() if v != getattr(v3, k)}
+    assert changed == set(CPU_MONOCULAR_PRUNING) == {"min_opacity"}
+    assert new.min_opacity == 0.1 and v3.min_opacity == 0.005
+    # a multi-view rig keeps cpu_v2's settings under both
+    assert ReconstructionConfig.cpu(monocular=False) == ReconstructionConfig.cpu_v3(monocular=False) == v2
     short = ReconstructionConfig.cpu_v2(iterations=2000)
     # the runner's 2000 steps: learning rates still decay over 20000 steps (annealing inside a
     # short run cost 1.2-1.7 dB), the densification/warm-up points are not rescaled
