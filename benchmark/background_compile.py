@@ -15,6 +15,7 @@ import contextlib
 import os
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Iterator
 
@@ -38,34 +39,39 @@ def kernels_compiled_meanwhile(echo=None) -> Iterator[None]:
         yield
         return
     t0 = time.perf_counter()
-    try:
-        proc = subprocess.Popen([sys.executable, "-m", "trase.precompile", "--quiet"],
-                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    except OSError as exc:
-        say(f"trase-bench: could not start the kernel compilation beside the scene's generation ({exc}); "
-            "kernels compile on first use")
-        yield
-        return
-    ok = False
-    try:
-        yield
-        ok = True
-    finally:
-        if not ok:
+    # its messages go to a file, not a pipe: nobody reads a pipe while the body runs, and a
+    # full one would stop the other process
+    with tempfile.TemporaryFile(mode="w+") as err_file:
+        try:
+            proc = subprocess.Popen([sys.executable, "-m", "trase.precompile", "--quiet"],
+                                    stdout=subprocess.DEVNULL, stderr=err_file, text=True)
+        except OSError as exc:
+            say(f"trase-bench: could not start the kernel compilation beside the scene's generation ({exc}); "
+                "kernels compile on first use")
+            yield
+            return
+        ok = False
+        try:
+            yield
+            ok = True
+        finally:
+            if not ok:
+                proc.kill()
+                proc.wait()
+        if proc.poll() is None:
+            say("trase-bench: waiting for the numba kernels compiling alongside "
+                f"({time.perf_counter() - t0:.0f} s so far)")
+        try:
+            proc.wait(timeout=WAIT_S)
+        except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()
-    if proc.poll() is None:
-        say("trase-bench: waiting for the numba kernels compiling alongside "
-            f"({time.perf_counter() - t0:.0f} s so far)")
-    try:
-        _, err = proc.communicate(timeout=WAIT_S)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.communicate()
-        say(f"trase-bench: the kernel compilation alongside took over {WAIT_S:.0f} s and was stopped; "
-            "kernels compile on first use")
-        return
+            say(f"trase-bench: the kernel compilation alongside took over {WAIT_S:.0f} s and was stopped; "
+                "kernels compile on first use")
+            return
+        err_file.seek(0)
+        err = err_file.read()
     if proc.returncode != 0:
-        last = (err or "").strip().splitlines()[-1:] or ["no message"]
+        last = err.strip().splitlines()[-1:] or ["no message"]
         say(f"trase-bench: the kernel compilation alongside failed (exit {proc.returncode}: {last[0]}); "
             "kernels compile on first use")

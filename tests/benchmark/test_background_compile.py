@@ -17,22 +17,21 @@ class _FakePopen:
 
     instances: typing.ClassVar[list] = []
 
-    def __init__(self, args, returncode=0, stderr="", running=False, **kwargs):
-        self.args, self.returncode, self._stderr, self._running = args, returncode, stderr, running
+    def __init__(self, args, returncode=0, message="", running=False, stderr=None, **kwargs):
+        self.args, self.returncode, self._running = args, returncode, running
         self.killed = False
+        if stderr is not None:
+            stderr.write(message)  # what the process would have written to its error file
         _FakePopen.instances.append(self)
 
     def poll(self):
         return None if self._running else self.returncode
 
-    def communicate(self, timeout=None):
-        self._running = False
-        return "", self._stderr
-
     def kill(self):
         self.killed = True
 
-    def wait(self):
+    def wait(self, timeout=None):
+        self._running = False
         return self.returncode
 
 
@@ -59,7 +58,7 @@ def test_it_starts_the_precompiler_and_waits_for_it(fake):
 
 
 def test_a_failing_precompiler_is_one_line_and_the_run_goes_on(fake):
-    fake(returncode=3, stderr="Traceback ...\nRuntimeError: boom\n")
+    fake(returncode=3, message="Traceback ...\nRuntimeError: boom\n")
     lines = []
     with bc.kernels_compiled_meanwhile(echo=lines.append):
         pass
