@@ -8,8 +8,8 @@ critical path. The miniature goes through the same functions as the real stages,
 kernels are compiled with the signatures those calls use; what it leaves behind is numba's
 cache and nothing else (its scene, checkpoints and features go to a temporary directory).
 
-``python -m trase.precompile`` runs it and prints how many kernels it compiled and how many
-it found cached.
+``python -m trase.precompile`` runs it and prints how many kernels it compiled (or that every
+one was cached).
 """
 
 from __future__ import annotations

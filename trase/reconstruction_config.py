@@ -109,10 +109,7 @@ class ReconstructionConfig:
     def cpu(cls, monocular: bool = True, **overrides) -> ReconstructionConfig:
         """The CPU preset: ``cpu_v3``, which on a monocular capture also prunes faint gaussians
         (CPU_MONOCULAR_PRUNING; measured there). A multi-view rig keeps ``cpu_v2``'s settings."""
-        kw: dict[str, Any] = {**CPU_V1, **CPU_CHANGES,
-                              **({**CPU_MONOCULAR_SCHEDULE, **CPU_MONOCULAR_PRUNING} if monocular else {})}
-        kw.update(overrides)
-        return cls(**kw)
+        return cls.cpu_v3(monocular=monocular, **{**(CPU_MONOCULAR_PRUNING if monocular else {}), **overrides})
 
     def __post_init__(self) -> None:
         if self.densify_statistic not in DENSIFY_STATISTICS:
