@@ -46,21 +46,24 @@ def _interest_clicks(maps: dict[str, np.ndarray], ids: list[int]) -> dict[int, t
 
 def training_view_ceiling(fit_dir: Path, maps: dict[str, np.ndarray], ids: list[int], n_ids: int) -> dict[str, float]:
     """Per object of interest (and all together): the mean training-view IoU of the gaussians
-    whose largest instance vote is that object, rendered alone (the label ceiling of
-    benchmark.protocol.ceiling, on the capture's own geometry and training views): what a
-    perfect clustering and click could reach on this geometry."""
+    whose largest instance vote is that object, rendered by the fit's render rule and threshold
+    (the label ceiling of benchmark.protocol.ceiling, on the capture's own geometry and
+    training views): what a perfect clustering and click could reach on this geometry."""
     from benchmark.capture_select import fitted_capture
     from benchmark.protocol.ceiling import instance_votes, truth_selection
-    from trase.segment import render_alpha
+    from trase.segment import render_masks
 
     _, _, fitted, cap = fitted_capture(fit_dir)
     views = [v for v in cap.train if _scene_name(v.name) in maps]
     g, deform = fitted.gaussians, fitted.deformation
+    rule = str(fitted.config.get("render_rule", "alone"))
+    threshold = float(fitted.config.get("alpha_threshold", 0.5))
     votes = instance_votes(g, deform, [v.camera for v in views], [maps[_scene_name(v.name)] for v in views], n_ids)
     out = {}
     for label, chosen in [*((str(i), [i]) for i in ids), ("all", ids)]:
         sel = truth_selection(votes, chosen)
-        preds = {_scene_name(v.name): render_alpha(g, deform, sel, v.camera) >= 0.5 for v in views}
+        masks = render_masks(g, deform, sel, [v.camera for v in views], threshold, rule)
+        preds = {_scene_name(v.name): m for v, m in zip(views, masks)}
         out[label] = float(np.mean(_ious(maps, preds, chosen)))
     return out
 

@@ -7,9 +7,9 @@ import pytest
 import masks as masklib
 from benchmark.methods import FittedModel, MethodError, get_method
 from benchmark.methods.trase_method import CPU_FILTER_THRESHOLD, CPU_MIN_CLUSTER_SIZE, TraseMethod
+from benchmark.protocol.prompts import make_benchmark_prompts
 from benchmark.scoring import score_masks
 from tests.trase.helpers import exact_masks, tiny_scene
-from benchmark.protocol.prompts import make_benchmark_prompts
 
 
 def _small_config(method):
@@ -93,6 +93,14 @@ def test_cpu_preset_clustering_and_steps():
     own = m.default_config(None, "paper", monocular=False)["features"]
     assert (own["n_pixels"], own["n_masks"]) == (10000, 50)
     assert paper["render_rule"] == "alone"  # the paper's rule
+
+
+def test_render_rule_visible_under_the_cpu_preset_on_a_monocular_rig_only():
+    m = TraseMethod()
+    rules = {(preset, mono): m.default_config("hypernerf", preset, monocular=mono)["render_rule"]
+             for preset in ("cpu", "paper") for mono in (True, False)}
+    assert rules == {("cpu", True): "visible", ("cpu", False): "alone",
+                     ("paper", True): "alone", ("paper", False): "alone"}
 
 
 def test_each_click_is_lifted_in_its_own_frame(monkeypatch):
