@@ -113,7 +113,8 @@ def label_ceiling(gaussians, deformation, scene, gts: Sequence[np.ndarray], rule
 
 def per_object_stats(gaussians, votes: np.ndarray, scene, alphas: Sequence[np.ndarray], threshold: float = 0.5) -> dict:
     """Per object of interest (by name): how solid it renders in the test views (``object_alpha_stats``
-    over its own instance-map pixels, from the alone render of every truth-labelled gaussian)
+    over its own instance-map pixels, from the render of every truth-labelled gaussian by the
+    run's rule; its ``spill`` counts the pixels of the other objects of interest too)
     and how opaque the gaussians labelled with it are (median, share below 0.5). Why: a
     geometry can look right in colour and still be a fog of faint gaussians that no labelling
     turns into a mask; this says which object and how. Test views without an instance map
@@ -140,15 +141,18 @@ def per_object_stats(gaussians, votes: np.ndarray, scene, alphas: Sequence[np.nd
 
 
 def object_alpha_stats(alphas: Sequence[np.ndarray], gts: Sequence[np.ndarray], threshold: float = 0.5) -> dict:
-    """How solid the objects of interest render: over the ground-truth pixels of every test
-    frame, the mean alpha and the share below ``threshold`` (holes: pixels of the object that
-    the segmentation rule cannot predict however well the gaussians are labelled)."""
+    """How solid and how tight the objects of interest render: over the ground-truth pixels of
+    every test frame, the mean alpha and the share below ``threshold`` (holes: pixels of the
+    object that the segmentation rule cannot predict however well the gaussians are labelled),
+    and the pixels predicted outside the ground truth per ground-truth pixel (spill: what the
+    objects' gaussians cover beyond their outlines; the false positives no labelling removes)."""
     inside = [np.asarray(a, np.float64)[np.asarray(g, bool)] for a, g in zip(alphas, gts)]
     vals = np.concatenate(inside) if inside else np.zeros(0)
     if vals.size == 0:
-        return {"mean_in_gt": None, "holes": None, "gt_pixels": 0}
+        return {"mean_in_gt": None, "holes": None, "spill": None, "gt_pixels": 0}
+    outside = sum(int((np.asarray(a) >= threshold)[~np.asarray(g, bool)].sum()) for a, g in zip(alphas, gts))
     return {"mean_in_gt": round(float(vals.mean()), 4), "holes": round(float((vals < threshold).mean()), 4),
-            "gt_pixels": int(vals.size)}
+            "spill": round(outside / vals.size, 4), "gt_pixels": int(vals.size)}
 
 
 __all__ = ["CeilingError", "instance_votes", "label_ceiling", "object_alpha_stats", "per_object_stats",

@@ -69,6 +69,9 @@ def test_object_alpha_stats_measure_holes_inside_the_ground_truth():
     alpha[1, 1] = 0.2  # ... but one see-through pixel inside the object
     st = object_alpha_stats([alpha, alpha], [gt, gt])
     assert st["holes"] == 0.25 and st["gt_pixels"] == 8
+    assert st["spill"] == 12 / 4  # the 12 solid pixels around the object, per object pixel
+    alpha[0, :] = 0.0  # a tighter render: 8 pixels outside remain
+    assert object_alpha_stats([alpha], [gt])["spill"] == 2.0
     assert st["mean_in_gt"] == pytest.approx((3 * 0.9 + 0.2) / 4, abs=1e-4)
     assert object_alpha_stats([alpha], [np.zeros((4, 4), bool)])["holes"] is None  # nothing to measure
 
