@@ -83,7 +83,8 @@ def test_filter_threshold_paper_values_one_value_on_cpu():
 def test_cpu_preset_clustering_and_steps():
     m = TraseMethod()
     cpu, paper = m.default_config("hypernerf", "cpu"), m.default_config("hypernerf", "paper")
-    assert cpu["clustering"]["params"]["min_cluster_size"] == CPU_MIN_CLUSTER_SIZE == 25
+    assert cpu["clustering"]["params"]["min_cluster_size"] == CPU_MIN_CLUSTER_SIZE == 50
+    assert (cpu["clustering"]["min_sample"], paper["clustering"]["min_sample"]) == (15000, 5000)  # cpu: all
     assert paper["clustering"]["params"] == {"min_cluster_size": 10, "cluster_selection_epsilon": 0.01}
     assert cpu["features"]["iterations"] == 3000 and paper["features"]["iterations"] == 10000
     assert (cpu["features"]["n_pixels"], paper["features"]["n_pixels"]) == (2000, 5000)  # Np capped on cpu
