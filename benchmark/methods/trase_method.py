@@ -15,6 +15,7 @@ import numpy as np
 import baselines  # noqa: F401 (registers the baseline objectives: TraseMethod(objective=...) takes any)
 from benchmark.methods import FittedModel, Method, MethodError, register_method
 from benchmark.methods.trase_settings import dataset_settings
+from trase.reconstruction_config import CPU_CHANGES
 
 # The cpu preset's constants: similarity filter, HDBSCAN min_cluster_size, and (in
 # trase.features) the feature learning rate. Chosen on scenes the benchmark never reports: the
@@ -53,7 +54,7 @@ def _filter_threshold(paper: float, preset: str) -> float:
 # on all gaussians split an object on the NeRF-DS ground truth (0.973 -> 0.960). Cost: 2 s ->
 # 6 s at 15k gaussians.
 CPU_MIN_CLUSTER_SIZE = 50
-CPU_CLUSTER_SAMPLE = 15_000
+CPU_CLUSTER_SAMPLE = CPU_CHANGES["max_gaussians"]  # 15000: every gaussian the cpu preset keeps
 
 
 def render_rule(preset: str, monocular: bool) -> str:
