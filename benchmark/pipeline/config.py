@@ -57,12 +57,12 @@ def without_seed(overrides: dict) -> dict:
     return {k: v for k, v in overrides.items() if k != "seed"}
 
 
-PRESETS = ("paper", "cpu", "cpu-v3", "cpu-v2", "cpu-v1")  # geometry presets; "auto": paper with a GPU, cpu without
-# the method's preset under each geometry preset (cpu-v3, cpu-v2, cpu-v1: older CPU geometry, today's CPU features)
-METHOD_PRESET = {"paper": "paper", "cpu": "cpu", "cpu-v3": "cpu", "cpu-v2": "cpu", "cpu-v1": "cpu"}
 # the geometry's settings under each CPU preset (trase.reconstruction_config)
 CPU_GEOMETRY = {"cpu": "cpu", "cpu-v3": "cpu_v3", "cpu-v2": "cpu_v2", "cpu-v1": "cpu_v1"}
 RIG_PRESETS = ("cpu", "cpu-v3")  # CPU presets whose settings depend on the rig (monocular or not)
+PRESETS = ("paper", *CPU_GEOMETRY)  # geometry presets; "auto": paper with a GPU, cpu without
+# the method's preset under each geometry preset (cpu-v3, cpu-v2, cpu-v1: older CPU geometry, today's CPU features)
+METHOD_PRESET = {"paper": "paper", **{p: "cpu" for p in CPU_GEOMETRY}}
 
 
 def resolve_preset(overrides: dict) -> str:

@@ -114,7 +114,7 @@ def label_ceiling(gaussians, deformation, scene, gts: Sequence[np.ndarray], rule
 def per_object_stats(gaussians, votes: np.ndarray, scene, alphas: Sequence[np.ndarray], threshold: float = 0.5) -> dict:
     """Per object of interest (by name): how solid it renders in the test views (``object_alpha_stats``
     over its own instance-map pixels, from the render of every truth-labelled gaussian by the
-    run's rule; its ``spill`` counts the pixels of the other objects of interest too)
+    run's rule; without ``spill``, which that render cannot tell apart from the other objects)
     and how opaque the gaussians labelled with it are (median, share below 0.5). Why: a
     geometry can look right in colour and still be a fog of faint gaussians that no labelling
     turns into a mask; this says which object and how. Test views without an instance map
@@ -131,8 +131,10 @@ def per_object_stats(gaussians, votes: np.ndarray, scene, alphas: Sequence[np.nd
             continue
         mine = seen & (label == obj.id)
         op = opacity[mine]
+        alpha = object_alpha_stats([a for a, _ in maps], [ids == obj.id for _, ids in maps], threshold)
+        alpha.pop("spill")
         out[obj.name] = {
-            **object_alpha_stats([a for a, _ in maps], [ids == obj.id for _, ids in maps], threshold),
+            **alpha,
             "gaussians": int(mine.sum()),
             "opacity_median": round(float(np.median(op)), 4) if op.size else None,
             "opacity_below_half": round(float((op < 0.5).mean()), 4) if op.size else None,

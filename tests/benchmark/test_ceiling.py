@@ -108,3 +108,4 @@ def test_per_object_stats_name_each_object_its_holes_and_its_gaussians_opacity(t
     assert out["ring"]["holes"] == 0.25 and out["ring"]["gt_pixels"] == 4 and out["ring"]["gaussians"] == 3
     assert out["ring"]["opacity_median"] == pytest.approx(0.1) and out["ring"]["opacity_below_half"] == pytest.approx(2 / 3, abs=1e-4)
     assert out["ball"]["opacity_below_half"] == 0.0
+    assert "spill" not in out["ball"]  # the merged render cannot tell one object's spill from another object
