@@ -24,6 +24,7 @@ class SceneObject:
     id: int  # instance id in the instance maps
     name: str
     of_interest: bool
+    motion: str = ""  # "static", "rigid" or "deforming" ("" where the manifest does not say)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -38,6 +39,12 @@ class SceneTruth:
     def interest_ids(self) -> list[int]:
         """Instance ids of the objects of interest (the ground-truth masks' objects)."""
         return [o.id for o in self.objects if o.of_interest]
+
+    @property
+    def mover_ids(self) -> list[int]:
+        """Instance ids of the moving objects that are not of interest (occluders that pass in
+        front of the objects the ground truth masks)."""
+        return [o.id for o in self.objects if not o.of_interest and o.motion not in ("", "static")]
 
     @property
     def n_ids(self) -> int:
@@ -61,7 +68,7 @@ def read_truth(path: str | Path) -> SceneTruth:
         raise _fail(path, "the synthetic manifest is not a JSON object")
     try:
         wanted = set(man.get("objects_of_interest", []))
-        objects = tuple(SceneObject(int(o["id"]), str(o["name"]), o["name"] in wanted)
+        objects = tuple(SceneObject(int(o["id"]), str(o["name"]), o["name"] in wanted, str(o.get("motion", "")))
                         for o in man.get("objects", []))
         maps = {str(k): path.parent / str(v) for k, v in dict(man.get("instances", {})).items()}
     except (KeyError, TypeError, ValueError) as exc:

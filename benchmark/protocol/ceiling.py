@@ -106,20 +106,31 @@ def label_ceiling(gaussians, deformation, scene, gts: Sequence[np.ndarray], rule
     preds = [a >= threshold for a in alphas]
     names = [f"{i:05d}" for i in range(len(scene.test))]
     score = score_masks(dict(zip(names, preds)), dict(zip(names, gts)), "v1")
-    return score, {"n_selected": int(sel.sum()), "n_views": len(views), "rule": rule,
-                   "object_alpha": object_alpha_stats(alphas, gts, threshold),
-                   "objects": per_object_stats(gaussians, votes, scene, alphas, threshold)}
+    info = {"n_selected": int(sel.sum()), "n_views": len(views), "rule": rule,
+            "object_alpha": object_alpha_stats(alphas, gts, threshold),
+            "objects": per_object_stats(gaussians, votes, scene, alphas, threshold)}
+    movers = scene.truth.mover_ids
+    if movers:
+        sel_m = truth_selection(votes, movers)
+        alphas_m = [render(gaussians, deformation, sel_m, v.camera) for v in scene.test]
+        info["movers"] = per_object_stats(gaussians, votes, scene, alphas_m, threshold, ids=movers)
+        per_frame = {f.frame: f.iou("v1") for f in score.frames}
+        info["mover_frames"] = mover_frame_split(scene, [per_frame.get(n) for n in names])
+    return score, info
 
 
-def per_object_stats(gaussians, votes: np.ndarray, scene, alphas: Sequence[np.ndarray], threshold: float = 0.5) -> dict:
-    """Per object of interest (by name): how solid it renders in the test views (``object_alpha_stats``
-    over its own instance-map pixels, from the render of every truth-labelled gaussian by the
-    run's rule; without ``spill``, which that render cannot tell apart from the other objects)
-    and how opaque the gaussians labelled with it are (median, share below 0.5). Why: a
-    geometry can look right in colour and still be a fog of faint gaussians that no labelling
-    turns into a mask; this says which object and how. Test views without an instance map
-    are left out (the counts say how many pixels were used)."""
+def per_object_stats(gaussians, votes: np.ndarray, scene, alphas: Sequence[np.ndarray], threshold: float = 0.5,
+                     ids: Sequence[int] | None = None) -> dict:
+    """Per object of interest (or per object of ``ids``; by name): how solid it renders in the
+    test views (``object_alpha_stats`` over its own instance-map pixels, from the render of
+    every truth-labelled gaussian of those objects by the run's rule; without ``spill``, which
+    that render cannot tell apart from the other objects) and how opaque the gaussians labelled
+    with it are (median, share below 0.5). Why: a geometry can look right in colour and still
+    be a fog of faint gaussians that no labelling turns into a mask, or miss an object that
+    passes in front of the objects of interest; this says which object and how. Test views
+    without an instance map are left out (the counts say how many pixels were used)."""
     truth = scene.truth
+    wanted = {o.id for o in truth.objects if o.of_interest} if ids is None else set(ids)
     seen = votes.sum(1) > 0
     label = votes.argmax(1) if votes.shape[0] else np.zeros(0, np.int64)
     opacity = gaussians.opacities.detach().reshape(-1).cpu().numpy().astype(np.float64)
@@ -127,7 +138,7 @@ def per_object_stats(gaussians, votes: np.ndarray, scene, alphas: Sequence[np.nd
             if v.name in truth.instance_maps]
     out = {}
     for obj in truth.objects:
-        if not obj.of_interest:
+        if obj.id not in wanted:
             continue
         mine = seen & (label == obj.id)
         op = opacity[mine]
@@ -140,6 +151,35 @@ def per_object_stats(gaussians, votes: np.ndarray, scene, alphas: Sequence[np.nd
             "opacity_below_half": round(float((op < 0.5).mean()), 4) if op.size else None,
         }
     return out
+
+
+# a mover "touches" an object of interest within this many pixels (the 5x5 neighbourhood)
+TOUCH_RADIUS = 2
+
+
+def mover_frame_split(scene, ious: Sequence[float]) -> dict:
+    """The ceiling's per-frame IoU (``ious``, one per test view) split by whether a mover (a
+    moving object not of interest, ``SceneTruth.mover_ids``) touches an object of interest in
+    the frame's instance map: passing in front of it or beside it. Why: an occluder that the
+    reconstruction misses leaves the object's gaussians showing where the ground truth has the
+    occluder, which the object's own statistics count as spill. Frames without an instance map
+    or without a score (both masks empty) are left out."""
+    import cv2
+
+    truth = scene.truth
+    kernel = np.ones((2 * TOUCH_RADIUS + 1,) * 2, np.uint8)
+    touched, other = [], []
+    for v, iou in zip(scene.test, ious):
+        if v.name not in truth.instance_maps or iou is None or not np.isfinite(iou):
+            continue
+        ids = read_instance_map(truth.instance_maps[v.name])
+        near = cv2.dilate(np.isin(ids, truth.mover_ids).astype(np.uint8), kernel) > 0
+        (touched if (near & np.isin(ids, truth.interest_ids)).any() else other).append(float(iou))
+
+    def mean(x):
+        return round(float(np.mean(x)), 4) if x else None
+
+    return {"frames": len(touched), "miou": mean(touched), "other_frames": len(other), "other_miou": mean(other)}
 
 
 def object_alpha_stats(alphas: Sequence[np.ndarray], gts: Sequence[np.ndarray], threshold: float = 0.5) -> dict:
@@ -157,5 +197,5 @@ def object_alpha_stats(alphas: Sequence[np.ndarray], gts: Sequence[np.ndarray], 
             "spill": round(outside / vals.size, 4), "gt_pixels": int(vals.size)}
 
 
-__all__ = ["CeilingError", "instance_votes", "label_ceiling", "object_alpha_stats", "per_object_stats",
-           "synthetic_truth", "truth_selection"]
+__all__ = ["CeilingError", "instance_votes", "label_ceiling", "mover_frame_split", "object_alpha_stats",
+           "per_object_stats", "synthetic_truth", "truth_selection"]

@@ -109,3 +109,56 @@ def test_per_object_stats_name_each_object_its_holes_and_its_gaussians_opacity(t
     assert out["ring"]["opacity_median"] == pytest.approx(0.1) and out["ring"]["opacity_below_half"] == pytest.approx(2 / 3, abs=1e-4)
     assert out["ball"]["opacity_below_half"] == 0.0
     assert "spill" not in out["ball"]  # the merged render cannot tell one object's spill from another object
+
+
+def test_mover_frame_split_separates_the_frames_a_mover_touches(tmp_path):
+    """A mover beside or in front of an object of interest (within 2 px) puts the frame in the
+    first group; frames without an instance map or a score are left out."""
+    from types import SimpleNamespace
+
+    from PIL import Image
+
+    from benchmark.datasets.truth import SceneObject
+    from benchmark.protocol.ceiling import mover_frame_split
+
+    far, near, alone = (np.zeros((8, 8), np.uint16) for _ in range(3))
+    for ids in (far, near, alone):
+        ids[:3, :3] = 4  # the ball, of interest
+    far[:, 6] = 7  # the pillar, 4 px away from the ball
+    near[:, 4] = 7  # 2 px away: touches
+    for name, ids in (("far", far), ("near", near), ("alone", alone), ("nan", near)):
+        Image.fromarray(ids).save(tmp_path / f"{name}.png")
+    objects = (SceneObject(1, "wall", False, "static"), SceneObject(4, "ball", True, "rigid"),
+               SceneObject(7, "pillar", False, "rigid"))
+    maps = {n: tmp_path / f"{n}.png" for n in ("far", "near", "alone", "nan")}
+    truth = SimpleNamespace(objects=objects, instance_maps=maps, interest_ids=[4], mover_ids=[7])
+    views = [SimpleNamespace(name=n) for n in ("far", "near", "alone", "nan", "no-map")]
+    out = mover_frame_split(SimpleNamespace(truth=truth, test=views), [0.9, 0.5, 0.8, float("nan"), 0.1])
+    assert out == {"frames": 1, "miou": 0.5, "other_frames": 2, "other_miou": 0.85}
+
+
+def test_per_object_stats_of_chosen_ids_report_a_mover(tmp_path):
+    """``ids`` picks the objects reported (the movers): a pillar the geometry does not show is
+    all holes, whatever the objects of interest do."""
+    from types import SimpleNamespace
+
+    from PIL import Image
+
+    from benchmark.datasets.truth import SceneObject
+    from benchmark.protocol.ceiling import per_object_stats
+
+    ids = np.zeros((4, 4), np.uint16)
+    ids[:2, :2] = 4
+    ids[:, 3] = 7
+    Image.fromarray(ids).save(tmp_path / "t0.png")
+    truth = SimpleNamespace(objects=(SceneObject(4, "ball", True, "rigid"), SceneObject(7, "pillar", False, "rigid")),
+                            instance_maps={"t0": tmp_path / "t0.png"}, interest_ids=[4])
+    scene = SimpleNamespace(truth=truth, test=[SimpleNamespace(name="t0")])
+    votes = np.zeros((2, 8))
+    votes[0, 4] = 1.0  # one ball gaussian; nothing voted for the pillar
+    gaussians = SimpleNamespace(opacities=torch.tensor([0.9, 0.9]))
+    alpha = np.zeros((4, 4), np.float32)  # the movers' render: nothing
+    out = per_object_stats(gaussians, votes, scene, [alpha], ids=[7])
+    assert set(out) == {"pillar"}
+    assert out["pillar"]["holes"] == 1.0 and out["pillar"]["gt_pixels"] == 4 and out["pillar"]["gaussians"] == 0
+    assert out["pillar"]["opacity_median"] is None
