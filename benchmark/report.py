@@ -81,6 +81,28 @@ def _iou_plot(record: dict) -> bytes:
     return buf.getvalue()
 
 
+def _ceiling_objects_notes(c: dict) -> list[str]:
+    """The ceiling's per-object holes, the movers' (occluders not of interest) and the
+    ceiling's IoU in the frames they touch an object, as sentences; [] where absent."""
+    def holes(objs: dict) -> str:
+        return ", ".join(f"{name} {100 * o['holes']:.0f}%" for name, o in objs.items() if o.get("holes") is not None)
+
+    def fmt(x) -> str:
+        return "n/a" if x is None else f"{x:.4f}"
+
+    out = []
+    if c.get("objects"):
+        out.append(f"Share of each object's pixels the geometry leaves out (holes): {holes(c['objects'])}.")
+    if c.get("movers"):
+        out.append(f"Moving objects not of interest, holes: {holes(c['movers'])}.")
+    mf = c.get("mover_frames") or {}
+    if mf.get("frames"):
+        out.append(f"In the {mf['frames']} test frames where one of them touches an object of interest the "
+                   f"ceiling's IoU is {fmt(mf.get('miou'))}; in the other {mf.get('other_frames')}, "
+                   f"{fmt(mf.get('other_miou'))}.")
+    return out
+
+
 def _click_tiles(record: dict, frames: list[dict]) -> list[str]:
     """One image per prompted frame: the run's clicks (white rings, labelled with the cluster
     each chose) and the other click sets' clicks (small dots, one colour per set)."""
@@ -217,7 +239,7 @@ def make_report(run_dir: str | Path) -> Path:
     clip, clip_note = _clip(run_dir)
 
     m = record["metrics"]
-    fmt = lambda x: "n/a" if x is None else f"{x:.4f}"  # noqa: E731
+    fmt = lambda x: "n/a" if x is None else f"{x:.4f}"
     stage_rows = "".join(
         f"<tr><td>{html.escape(name)}</td><td>{s.get('seconds', 0):.1f}</td>"
         f"<td>{s.get('peak_rss_mb', 0):.0f}</td><td>{'cached' if s.get('skipped') else 'run'}</td></tr>"
@@ -240,6 +262,7 @@ def make_report(run_dir: str | Path) -> Path:
         c = record["ceiling"]
         notes.append(f"Geometry ceiling (every gaussian labelled from the training views' instance maps, "
                      f"same rendering rule; what this geometry allows): mIoU {fmt(c.get('miou'))}.")
+        notes += _ceiling_objects_notes(c)
     page = f"""<!doctype html><html><head><meta charset="utf-8"><title>{html.escape(title)}</title>
 <style>body{{font-family:sans-serif;max-width:1100px;margin:auto}}figure{{display:inline-block;margin:4px}}
 figure img{{display:block;max-width:260px}}table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:2px 8px}}

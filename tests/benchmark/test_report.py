@@ -47,3 +47,17 @@ def test_report_from_run_dir(tmp_path, capsys):
     assert main(["report", "--method", "trase", "--dataset", "hypernerf", "--sequence", "synthetic",
                  "--name", "nope", "--out", str(tmp_path)]) == 1
     assert "not a run directory" in capsys.readouterr().err
+
+
+def test_ceiling_notes_name_holes_movers_and_the_frames_they_touch():
+    from benchmark.report import _ceiling_objects_notes
+
+    c = {"miou": 0.8, "objects": {"ball": {"holes": 0.1}, "ring": {"holes": None}},
+         "movers": {"pillar": {"holes": 0.98}},
+         "mover_frames": {"frames": 57, "miou": 0.705, "other_frames": 93, "other_miou": 0.855}}
+    notes = _ceiling_objects_notes(c)
+    assert notes[0] == "Share of each object's pixels the geometry leaves out (holes): ball 10%."
+    assert notes[1] == "Moving objects not of interest, holes: pillar 98%."
+    assert "57 test frames" in notes[2] and "0.7050" in notes[2] and "other 93, 0.8550" in notes[2]
+    assert _ceiling_objects_notes({"miou": 0.8}) == []  # an older ceiling record: nothing to say
+    assert len(_ceiling_objects_notes(c | {"mover_frames": {"frames": 0}})) == 2  # no frame touched
