@@ -43,6 +43,22 @@ def test_subsample_fractions_have_no_floor():
     assert sizes == {0.02: 200, 0.10: 1000, 0.25: 2500}  # with the 5000 floor: 5000, 5000, 5000
 
 
+def test_subsample_clusters_with_the_public_codes_min_cluster_size_under_every_preset():
+    """The cpu preset's min_cluster_size (50, set for every gaussian) would cap a 2% sample at a
+    few clusters: the study resolves to the public code's 10 whatever the preset."""
+    from benchmark.datasets.registry import get_dataset
+    from benchmark.methods import get_method
+    from benchmark.methods.trase_method import CPU_MIN_CLUSTER_SIZE
+    from benchmark.pipeline.config import default_config
+
+    method, spec = get_method("trase"), get_dataset("hypernerf")
+    plain = default_config(method, spec, "synthetic", {})
+    assert plain["method"]["clustering"]["params"]["min_cluster_size"] == CPU_MIN_CLUSTER_SIZE > 10
+    cfg = default_config(method, spec, "synthetic", parse_overrides(_overrides("subsample", "2%")))
+    assert cfg["method"]["clustering"]["params"]["min_cluster_size"] == 10
+    assert cfg["method"]["clustering"]["min_sample"] == 0 and cfg["method"]["clustering"]["fraction"] == 0.02
+
+
 def test_feature_dim_runs_each_dimension_with_and_without_filtering():
     labels = [v.label for v in STUDIES["feature-dim"].variants]
     assert labels == [f"{d}/{f}" for d in (16, 32, 64, 128) for f in ("no", "yes")]
