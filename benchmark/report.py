@@ -91,9 +91,9 @@ def _ceiling_objects_notes(c: dict) -> list[str]:
         return "n/a" if x is None else f"{x:.4f}"
 
     out = []
-    if c.get("objects"):
+    if holes(c.get("objects") or {}):
         out.append(f"Share of each object's pixels the geometry leaves out (holes): {holes(c['objects'])}.")
-    if c.get("movers"):
+    if holes(c.get("movers") or {}):
         out.append(f"Moving objects not of interest, holes: {holes(c['movers'])}.")
     mf = c.get("mover_frames") or {}
     if mf.get("frames"):

@@ -162,7 +162,7 @@ def mover_frame_split(scene, ious: Sequence[float]) -> dict:
     moving object not of interest, ``SceneTruth.mover_ids``) touches an object of interest in
     the frame's instance map: passing in front of it or beside it. Why: an occluder that the
     reconstruction misses leaves the object's gaussians showing where the ground truth has the
-    occluder, which the object's own statistics count as spill. Frames without an instance map
+    occluder, which ``object_alpha`` counts as spill. Frames without an instance map
     or without a score (both masks empty) are left out."""
     import cv2
 

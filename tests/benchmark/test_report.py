@@ -60,4 +60,5 @@ def test_ceiling_notes_name_holes_movers_and_the_frames_they_touch():
     assert notes[1] == "Moving objects not of interest, holes: pillar 98%."
     assert "57 test frames" in notes[2] and "0.7050" in notes[2] and "other 93, 0.8550" in notes[2]
     assert _ceiling_objects_notes({"miou": 0.8}) == []  # an older ceiling record: nothing to say
+    assert _ceiling_objects_notes({"objects": {"ring": {"holes": None}}}) == []  # no pixels measured
     assert len(_ceiling_objects_notes(c | {"mover_frames": {"frames": 0}})) == 2  # no frame touched
