@@ -106,43 +106,50 @@ def label_ceiling(gaussians, deformation, scene, gts: Sequence[np.ndarray], rule
     preds = [a >= threshold for a in alphas]
     names = [f"{i:05d}" for i in range(len(scene.test))]
     score = score_masks(dict(zip(names, preds)), dict(zip(names, gts)), "v1")
+    maps = instance_maps_of_test_views(scene)
     info = {"n_selected": int(sel.sum()), "n_views": len(views), "rule": rule,
             "object_alpha": object_alpha_stats(alphas, gts, threshold),
-            "objects": per_object_stats(gaussians, votes, scene, alphas, threshold)}
+            "objects": per_object_stats(gaussians, votes, scene.truth, maps, alphas, threshold)}
     movers = scene.truth.mover_ids
     if movers:
         sel_m = truth_selection(votes, movers)
         alphas_m = [render(gaussians, deformation, sel_m, v.camera) for v in scene.test]
-        info["movers"] = per_object_stats(gaussians, votes, scene, alphas_m, threshold, ids=movers)
+        info["movers"] = per_object_stats(gaussians, votes, scene.truth, maps, alphas_m, threshold, ids=movers)
         per_frame = {f.frame: f.iou("v1") for f in score.frames}
-        info["mover_frames"] = mover_frame_split(scene, [per_frame.get(n) for n in names])
+        info["mover_frames"] = mover_frame_split(scene.truth, maps, [per_frame.get(n) for n in names])
     return score, info
 
 
-def per_object_stats(gaussians, votes: np.ndarray, scene, alphas: Sequence[np.ndarray], threshold: float = 0.5,
-                     ids: Sequence[int] | None = None) -> dict:
+def instance_maps_of_test_views(scene) -> list[np.ndarray | None]:
+    """The instance maps [H, W] of the test views, in ``scene.test``'s order (None for a view
+    without one), read once for every statistic below."""
+    paths = scene.truth.instance_maps
+    return [read_instance_map(paths[v.name]) if v.name in paths else None for v in scene.test]
+
+
+def per_object_stats(gaussians, votes: np.ndarray, truth, maps: Sequence[np.ndarray | None],
+                     alphas: Sequence[np.ndarray], threshold: float = 0.5, ids: Sequence[int] | None = None) -> dict:
     """Per object of interest (or per object of ``ids``; by name): how solid it renders in the
     test views (``object_alpha_stats`` over its own instance-map pixels, from the render of
     every truth-labelled gaussian of those objects by the run's rule; without ``spill``, which
     that render cannot tell apart from the other objects) and how opaque the gaussians labelled
     with it are (median, share below 0.5). Why: a geometry can look right in colour and still
     be a fog of faint gaussians that no labelling turns into a mask, or miss an object that
-    passes in front of the objects of interest; this says which object and how. Test views
-    without an instance map are left out (the counts say how many pixels were used)."""
-    truth = scene.truth
-    wanted = {o.id for o in truth.objects if o.of_interest} if ids is None else set(ids)
+    passes in front of the objects of interest; this says which object and how. ``maps``: the
+    test views' instance maps (``instance_maps_of_test_views``); views without one are left out (the
+    counts say how many pixels were used)."""
+    wanted = set(truth.interest_ids if ids is None else ids)
     seen = votes.sum(1) > 0
     label = votes.argmax(1) if votes.shape[0] else np.zeros(0, np.int64)
     opacity = gaussians.opacities.detach().reshape(-1).cpu().numpy().astype(np.float64)
-    maps = [(a, read_instance_map(truth.instance_maps[v.name])) for a, v in zip(alphas, scene.test)
-            if v.name in truth.instance_maps]
+    pairs = [(a, m) for a, m in zip(alphas, maps) if m is not None]
     out = {}
     for obj in truth.objects:
         if obj.id not in wanted:
             continue
         mine = seen & (label == obj.id)
         op = opacity[mine]
-        alpha = object_alpha_stats([a for a, _ in maps], [ids == obj.id for _, ids in maps], threshold)
+        alpha = object_alpha_stats([a for a, _ in pairs], [m == obj.id for _, m in pairs], threshold)
         alpha.pop("spill")
         out[obj.name] = {
             **alpha,
@@ -157,22 +164,20 @@ def per_object_stats(gaussians, votes: np.ndarray, scene, alphas: Sequence[np.nd
 TOUCH_RADIUS = 2
 
 
-def mover_frame_split(scene, ious: Sequence[float]) -> dict:
+def mover_frame_split(truth, maps: Sequence[np.ndarray | None], ious: Sequence[float | None]) -> dict:
     """The ceiling's per-frame IoU (``ious``, one per test view) split by whether a mover (a
     moving object not of interest, ``SceneTruth.mover_ids``) touches an object of interest in
-    the frame's instance map: passing in front of it or beside it. Why: an occluder that the
-    reconstruction misses leaves the object's gaussians showing where the ground truth has the
-    occluder, which ``object_alpha`` counts as spill. Frames without an instance map
-    or without a score (both masks empty) are left out."""
+    the frame's instance map (``maps``, as ``instance_maps_of_test_views``): passing in front of it or
+    beside it. Why: an occluder that the reconstruction misses leaves the object's gaussians
+    showing where the ground truth has the occluder, which ``object_alpha`` counts as spill.
+    Frames without an instance map or without a score (both masks empty) are left out."""
     import cv2
 
-    truth = scene.truth
     kernel = np.ones((2 * TOUCH_RADIUS + 1,) * 2, np.uint8)
     touched, other = [], []
-    for v, iou in zip(scene.test, ious):
-        if v.name not in truth.instance_maps or iou is None or not np.isfinite(iou):
+    for ids, iou in zip(maps, ious):
+        if ids is None or iou is None or not np.isfinite(iou):
             continue
-        ids = read_instance_map(truth.instance_maps[v.name])
         near = cv2.dilate(np.isin(ids, truth.mover_ids).astype(np.uint8), kernel) > 0
         (touched if (near & np.isin(ids, truth.interest_ids)).any() else other).append(float(iou))
 
@@ -197,5 +202,5 @@ def object_alpha_stats(alphas: Sequence[np.ndarray], gts: Sequence[np.ndarray], 
             "spill": round(outside / vals.size, 4), "gt_pixels": int(vals.size)}
 
 
-__all__ = ["CeilingError", "instance_votes", "label_ceiling", "mover_frame_split", "object_alpha_stats",
-           "per_object_stats", "synthetic_truth", "truth_selection"]
+__all__ = ["CeilingError", "instance_maps_of_test_views", "instance_votes", "label_ceiling", "mover_frame_split",
+           "object_alpha_stats", "per_object_stats", "synthetic_truth", "truth_selection"]

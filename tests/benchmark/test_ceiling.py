@@ -84,7 +84,7 @@ def test_per_object_stats_name_each_object_its_holes_and_its_gaussians_opacity(t
     from PIL import Image
 
     from benchmark.datasets.truth import SceneObject
-    from benchmark.protocol.ceiling import per_object_stats
+    from benchmark.protocol.ceiling import instance_maps_of_test_views, per_object_stats
 
     ids = np.zeros((4, 4), np.uint16)
     ids[:2, :2] = 4  # ball: 4 pixels
@@ -92,7 +92,7 @@ def test_per_object_stats_name_each_object_its_holes_and_its_gaussians_opacity(t
     Image.fromarray(ids).save(tmp_path / "t0.png")
     truth = SimpleNamespace(objects=(SceneObject(1, "wall", False), SceneObject(4, "ball", True),
                                      SceneObject(5, "ring", True)),
-                            instance_maps={"t0": tmp_path / "t0.png"})
+                            instance_maps={"t0": tmp_path / "t0.png"}, interest_ids=[4, 5])
     scene = SimpleNamespace(truth=truth, test=[SimpleNamespace(name="t0"), SimpleNamespace(name="t1")])
     alpha = np.full((4, 4), 0.9, np.float32)
     alpha[2, 2] = 0.1  # one hole in the ring
@@ -102,7 +102,9 @@ def test_per_object_stats_name_each_object_its_holes_and_its_gaussians_opacity(t
     votes[[2, 3, 4], 5] = 1.0
     votes[5, 1] = 1.0
     gaussians = SimpleNamespace(opacities=torch.tensor([0.9, 0.8, 0.05, 0.1, 0.95, 0.9, 0.01]))
-    out = per_object_stats(gaussians, votes, scene, [alpha, np.zeros((4, 4))])
+    maps = instance_maps_of_test_views(scene)
+    assert maps[1] is None  # t1 has no instance map
+    out = per_object_stats(gaussians, votes, truth, maps, [alpha, np.zeros((4, 4))])
     assert set(out) == {"ball", "ring"}
     assert out["ball"]["holes"] == 0.0 and out["ball"]["gt_pixels"] == 4 and out["ball"]["gaussians"] == 2
     assert out["ring"]["holes"] == 0.25 and out["ring"]["gt_pixels"] == 4 and out["ring"]["gaussians"] == 3
@@ -119,7 +121,7 @@ def test_mover_frame_split_separates_the_frames_a_mover_touches(tmp_path):
     from PIL import Image
 
     from benchmark.datasets.truth import SceneObject
-    from benchmark.protocol.ceiling import mover_frame_split
+    from benchmark.protocol.ceiling import instance_maps_of_test_views, mover_frame_split
 
     far, near, alone = (np.zeros((8, 8), np.uint16) for _ in range(3))
     for ids in (far, near, alone):
@@ -133,7 +135,8 @@ def test_mover_frame_split_separates_the_frames_a_mover_touches(tmp_path):
     maps = {n: tmp_path / f"{n}.png" for n in ("far", "near", "alone", "nan")}
     truth = SimpleNamespace(objects=objects, instance_maps=maps, interest_ids=[4], mover_ids=[7])
     views = [SimpleNamespace(name=n) for n in ("far", "near", "alone", "nan", "no-map")]
-    out = mover_frame_split(SimpleNamespace(truth=truth, test=views), [0.9, 0.5, 0.8, float("nan"), 0.1])
+    maps = instance_maps_of_test_views(SimpleNamespace(truth=truth, test=views))
+    out = mover_frame_split(truth, maps, [0.9, 0.5, 0.8, float("nan"), 0.1])
     assert out == {"frames": 1, "miou": 0.5, "other_frames": 2, "other_miou": 0.85}
 
 
@@ -145,7 +148,7 @@ def test_per_object_stats_of_chosen_ids_report_a_mover(tmp_path):
     from PIL import Image
 
     from benchmark.datasets.truth import SceneObject
-    from benchmark.protocol.ceiling import per_object_stats
+    from benchmark.protocol.ceiling import instance_maps_of_test_views, per_object_stats
 
     ids = np.zeros((4, 4), np.uint16)
     ids[:2, :2] = 4
@@ -158,7 +161,7 @@ def test_per_object_stats_of_chosen_ids_report_a_mover(tmp_path):
     votes[0, 4] = 1.0  # one ball gaussian; nothing voted for the pillar
     gaussians = SimpleNamespace(opacities=torch.tensor([0.9, 0.9]))
     alpha = np.zeros((4, 4), np.float32)  # the movers' render: nothing
-    out = per_object_stats(gaussians, votes, scene, [alpha], ids=[7])
+    out = per_object_stats(gaussians, votes, truth, instance_maps_of_test_views(scene), [alpha], ids=[7])
     assert set(out) == {"pillar"}
     assert out["pillar"]["holes"] == 1.0 and out["pillar"]["gt_pixels"] == 4 and out["pillar"]["gaussians"] == 0
     assert out["pillar"]["opacity_median"] is None
