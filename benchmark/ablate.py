@@ -34,8 +34,9 @@ class Variant:
 
 
 UNFILTERED = "method.filter_threshold=-1.0"  # -1: every gaussian keeps its cluster
-# the public code's HDBSCAN settings (the paper preset's), for studies of small clustering samples
-PAPER_CLUSTER_SIZE = 'method.clustering.params={"min_cluster_size": 10, "cluster_selection_epsilon": 0.01}'
+# the public code's HDBSCAN min_cluster_size (benchmark.methods.trase_method.PAPER_MIN_CLUSTER_SIZE,
+# not imported: that module brings torch into every CLI start), for studies of small clustering samples
+PAPER_CLUSTER_SIZE = "method.clustering.params.min_cluster_size=10"
 
 
 @dataclasses.dataclass(frozen=True)

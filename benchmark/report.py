@@ -81,14 +81,16 @@ def _iou_plot(record: dict) -> bytes:
     return buf.getvalue()
 
 
+def _fmt(x) -> str:
+    """A score with four decimals on the report page; "n/a" where there is none."""
+    return "n/a" if x is None else f"{x:.4f}"
+
+
 def _ceiling_objects_notes(c: dict) -> list[str]:
     """The ceiling's per-object holes, the movers' (occluders not of interest) and the
     ceiling's IoU in the frames they touch an object, as sentences; [] where absent."""
     def holes(objs: dict) -> str:
         return ", ".join(f"{name} {100 * o['holes']:.0f}%" for name, o in objs.items() if o.get("holes") is not None)
-
-    def fmt(x) -> str:
-        return "n/a" if x is None else f"{x:.4f}"
 
     out = []
     if holes(c.get("objects") or {}):
@@ -98,8 +100,8 @@ def _ceiling_objects_notes(c: dict) -> list[str]:
     mf = c.get("mover_frames") or {}
     if mf.get("frames"):
         out.append(f"In the {mf['frames']} test frames where one of them touches an object of interest the "
-                   f"ceiling's IoU is {fmt(mf.get('miou'))}; in the other {mf.get('other_frames')}, "
-                   f"{fmt(mf.get('other_miou'))}.")
+                   f"ceiling's IoU is {_fmt(mf.get('miou'))}; in the other {mf.get('other_frames')}, "
+                   f"{_fmt(mf.get('other_miou'))}.")
     return out
 
 
@@ -239,7 +241,6 @@ def make_report(run_dir: str | Path) -> Path:
     clip, clip_note = _clip(run_dir)
 
     m = record["metrics"]
-    fmt = lambda x: "n/a" if x is None else f"{x:.4f}"
     stage_rows = "".join(
         f"<tr><td>{html.escape(name)}</td><td>{s.get('seconds', 0):.1f}</td>"
         f"<td>{s.get('peak_rss_mb', 0):.0f}</td><td>{'cached' if s.get('skipped') else 'run'}</td></tr>"
@@ -257,20 +258,20 @@ def make_report(run_dir: str | Path) -> Path:
     if record.get("oracle"):
         o = record["oracle"]
         notes.append(f"Oracle cluster selection (upper bound, not the method's score): "
-                     f"mIoU {fmt(o.get('miou'))}, mAcc {fmt(o.get('macc'))}.")
+                     f"mIoU {_fmt(o.get('miou'))}, mAcc {_fmt(o.get('macc'))}.")
     if record.get("ceiling"):
         c = record["ceiling"]
         notes.append(f"Geometry ceiling (every gaussian labelled from the training views' instance maps, "
-                     f"same rendering rule; what this geometry allows): mIoU {fmt(c.get('miou'))}.")
+                     f"same rendering rule; what this geometry allows): mIoU {_fmt(c.get('miou'))}.")
         notes += _ceiling_objects_notes(c)
     page = f"""<!doctype html><html><head><meta charset="utf-8"><title>{html.escape(title)}</title>
 <style>body{{font-family:sans-serif;max-width:1100px;margin:auto}}figure{{display:inline-block;margin:4px}}
 figure img{{display:block;max-width:260px}}table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:2px 8px}}
 pre{{background:#f6f6f6;padding:8px;overflow:auto;font-size:12px}}</style></head><body>
 <h1>{html.escape(title)}</h1>
-<p><b>mIoU {fmt(official.get('miou', m['miou']))}</b> &middot; mAcc {fmt(official.get('macc', m['macc']))}
+<p><b>mIoU {_fmt(official.get('miou', m['miou']))}</b> &middot; mAcc {_fmt(official.get('macc', m['macc']))}
 (metric {html.escape(official.get('metric_version', m['metric_version']))}, the public script's rules)
-&middot; v1: mIoU {fmt(m['miou'])}, mAcc {fmt(m['macc'])}, pooled IoU {fmt(m['pooled_iou'])}
+&middot; v1: mIoU {_fmt(m['miou'])}, mAcc {_fmt(m['macc'])}, pooled IoU {_fmt(m['pooled_iou'])}
 &middot; {m['n_frames']} test frames</p>
 <p>{html.escape(run_line)}</p>
 <p>{' '.join(html.escape(n) for n in notes)}</p>

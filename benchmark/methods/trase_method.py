@@ -54,6 +54,7 @@ def _filter_threshold(paper: float, preset: str) -> float:
 # on all gaussians split an object on the NeRF-DS ground truth (0.973 -> 0.960). Cost: 2 s ->
 # 6 s at 15k gaussians.
 CPU_MIN_CLUSTER_SIZE = 50
+PAPER_MIN_CLUSTER_SIZE = 10  # the public code's HDBSCAN min_cluster_size
 CPU_CLUSTER_SAMPLE = CPU_CHANGES["max_gaussians"]  # 15000: every gaussian the cpu preset keeps
 
 
@@ -111,7 +112,7 @@ class TraseMethod(Method):
             # The cpu preset clusters every gaussian (CPU_CLUSTER_SAMPLE, see above).
             "clustering": {"method": "hdbscan", "fraction": 0.02,
                            "min_sample": CPU_CLUSTER_SAMPLE if preset == "cpu" else 5000, "seed": 0,
-                           "params": {"min_cluster_size": CPU_MIN_CLUSTER_SIZE if preset == "cpu" else 10,
+                           "params": {"min_cluster_size": CPU_MIN_CLUSTER_SIZE if preset == "cpu" else PAPER_MIN_CLUSTER_SIZE,
                                       "cluster_selection_epsilon": 0.01}},
             "filter_threshold": _filter_threshold(settings.filter_threshold, preset),
             # click rule: "weight" = the cluster rendered most under the cursor (3x3 window);
