@@ -56,7 +56,7 @@ def collect(out_dir: Path, formats=FORMATS, geometries=GEOMETRIES) -> dict:
     from benchmark.stability import seed_summary
 
     records = find_runs(Path(out_dir))
-    rows = []
+    rows, used = [], []
     for geo in geometries:
         for ds in formats:
             mine = [r for r in records if r["method"] == "trase" and r["dataset"] == ds
@@ -69,6 +69,7 @@ def collect(out_dir: Path, formats=FORMATS, geometries=GEOMETRIES) -> dict:
                                 "use a fresh --out for the figures")
             sibs = seed_siblings(mine[0], mine)
             summary = seed_summary(sibs)
+            used += sibs
             psnr = [(r["stages"]["geometry"].get("info") or {}).get("test_psnr") for r in sibs]
             seconds = [sum(s.get("seconds", 0.0) for k, s in r["stages"].items() if k in ("geometry", "features"))
                        for r in sibs]
@@ -79,9 +80,25 @@ def collect(out_dir: Path, formats=FORMATS, geometries=GEOMETRIES) -> dict:
     if not rows:
         raise UserError(f"{out_dir}: no trase runs on the synthetic formats; run `trase-bench figures` first")
     machine = {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
-               "cpus": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()}
+               "cpus": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
+               "instruction_sets": run_instruction_sets(used)}
     return {"schema": SCHEMA, "commit": _git_commit(Path(__file__).resolve().parent.parent),
             "date": datetime.date.today().isoformat(), "machine": machine, "rows": rows}
+
+
+def run_instruction_sets(records: list[dict]) -> list[str]:
+    """The distinct instruction sets the runs were computed with ("torch AVX512, numba znver5"),
+    from each results file's ``machine``: they change a reconstruction's bits, and through it
+    the figures (docs/determinism.md), so the page names them. Runs without the record count
+    as "unrecorded"."""
+    seen = []
+    for r in records:
+        m = r.get("machine") or {}
+        cap, cpu = m.get("torch_cpu_capability"), m.get("numba_cpu")
+        name = f"torch {cap}, numba {cpu}" if cap and cpu else "unrecorded"
+        if name not in seen:
+            seen.append(name)
+    return sorted(seen)
 
 
 def _ms(st: dict | None, digits: int = 3) -> str:
@@ -109,10 +126,16 @@ def render_block(data: dict) -> str:
     names = {"nerfds": "NeRF-DS", "hypernerf": "HyperNeRF", "neu3d": "Neu3D", "immersive": "Immersive",
              "technicolor": "Technicolor"}
     m = data["machine"]
+    isa = m.get("instruction_sets") or []
+    where = f"{m.get('cpus', '?')} CPU cores, {m.get('processor', '?')}"
+    if len(isa) == 1:
+        where += f"; {isa[0]}"
+    elif isa:
+        where += f"; runs from {len(isa)} instruction sets: " + " / ".join(isa)
     lines = [
-        (f"Measured at commit `{data['commit']}` on {data['date']} ({m.get('cpus', '?')} CPU cores, "
-         f"{m.get('processor', '?')}), `trase-bench figures` (the main protocol of each format, official "
-         "metric; mean ± standard deviation over the run seeds, seeds counted in the last column):"),
+        (f"Measured at commit `{data['commit']}` on {data['date']} ({where}), `trase-bench figures` (the "
+         "main protocol of each format, official metric; mean ± standard deviation over the run seeds, "
+         "seeds counted in the last column):"),
         "",
         ("| format | geometry | test PSNR (dB) | geometry ceiling | oracle | mIoU | click sets: median / worst "
          "| clusters agree (pixel ARI) | seeds |"),

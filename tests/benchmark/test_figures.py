@@ -9,10 +9,11 @@ from benchmark.figures import (
     BEGIN,
     END,
     SCHEMA,
-    read_figures,
     page_block,
+    read_figures,
     render_block,
     replace_block,
+    run_instruction_sets,
 )
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -39,6 +40,22 @@ def test_block_renders_mean_and_spread_and_replaces_only_itself():
         replace_block("no markers", block)
     with pytest.raises(UserError, match="schema"):
         render_block({"schema": "x"})
+
+
+def test_block_names_the_instruction_sets_its_runs_were_computed_with():
+    # they change a reconstruction's bits and so the figures (docs/determinism.md)
+    avx512 = {"machine": {"torch_cpu_capability": "AVX512", "numba_cpu": "znver5"}}
+    avx2 = {"machine": {"torch_cpu_capability": "AVX2", "numba_cpu": "znver3"}}
+    assert run_instruction_sets([avx512, avx512]) == ["torch AVX512, numba znver5"]
+    assert run_instruction_sets([avx512, avx2, {}]) == ["torch AVX2, numba znver3", "torch AVX512, numba znver5",
+                                                         "unrecorded"]
+    data = _data()
+    data["machine"]["instruction_sets"] = ["torch AVX512, numba znver5"]
+    assert "(2 CPU cores, x86_64; torch AVX512, numba znver5)" in render_block(data)
+    data["machine"]["instruction_sets"] = run_instruction_sets([avx512, avx2])
+    assert "runs from 2 instruction sets: torch AVX2, numba znver3 / torch AVX512, numba znver5)" in render_block(data)
+    del data["machine"]["instruction_sets"]  # a data file written before the field: as before
+    assert "(2 CPU cores, x86_64), `trase-bench figures`" in render_block(data)
 
 
 def test_figures_page_is_the_rendering_of_its_data_file():
