@@ -22,6 +22,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from trase.reconstruction_config import deform_shape
+
 # Smallest scale handed to the rasterizer: exp(log_s) + d_scale may go negative.
 MIN_SCALE = 1e-7
 
@@ -102,12 +104,10 @@ class DeformMLP(nn.Module):
 
     @classmethod
     def preset(cls, name: str) -> DeformMLP:
-        """``paper``: D=8, W=256 (Deformable-3DGS); ``small``: D=4, W=64 for CPU training."""
-        if name == "paper":
-            return cls(D=8, W=256)
-        if name == "small":
-            return cls(D=4, W=64)
-        raise ValueError(f"unknown deformation preset {name!r} (use 'paper' or 'small')")
+        """A network by name: ``paper`` (D=8, W=256, Deformable-3DGS), ``small`` (D=4, W=64, for
+        CPU training), or any depth and width written ``<D>x<W>`` (e.g. ``8x128``)."""
+        D, W = deform_shape(name)
+        return cls(D=D, W=W)
 
     def config(self) -> dict:
         """Constructor arguments, enough to rebuild the module before loading a state dict."""

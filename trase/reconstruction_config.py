@@ -6,9 +6,22 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 from typing import Any
 
 DENSIFY_STATISTICS = ("means2d", "lstsq")
+DEFORM_PRESETS = {"paper": (8, 256), "small": (4, 64)}  # name -> (depth D, width W)
+
+
+def deform_shape(name: str) -> tuple[int, int]:
+    """(D, W) of a deformation preset name: one of DEFORM_PRESETS or ``<D>x<W>``."""
+    if name in DEFORM_PRESETS:
+        return DEFORM_PRESETS[name]
+    m = re.fullmatch(r"(\d+)x(\d+)", str(name))
+    if m is None or int(m.group(1)) < 2 or int(m.group(2)) < 1:
+        raise ValueError(f"unknown deformation preset {name!r} (use {', '.join(map(repr, DEFORM_PRESETS))} "
+                         "or '<depth>x<width>' with depth >= 2, e.g. '8x128')")
+    return int(m.group(1)), int(m.group(2))
 
 
 @dataclasses.dataclass
@@ -50,7 +63,7 @@ class ReconstructionConfig:
     opacity_entropy_weight: float = 0.0
     opacity_entropy_from: int = 0
     # deformation
-    deform_preset: str = "paper"  # "paper" (D=8, W=256) or "small" (D=4, W=64)
+    deform_preset: str = "paper"  # "paper" (D=8, W=256), "small" (D=4, W=64) or "<D>x<W>"
     deform_zero_init: bool = False  # start as the identity (see DeformMLP.zero_heads)
     # the network's gradients only for gaussians in view (deformation.deformed_visible): the
     # same images and gradients up to rounding; no effect on a GPU. Off by default: it pays
@@ -112,6 +125,7 @@ class ReconstructionConfig:
         return cls.cpu_v3(monocular=monocular, **{**(CPU_MONOCULAR_PRUNING if monocular else {}), **overrides})
 
     def __post_init__(self) -> None:
+        deform_shape(self.deform_preset)  # a bad name fails here, not after the warm-up
         if self.densify_statistic not in DENSIFY_STATISTICS:
             raise ValueError(f"densify_statistic must be one of {', '.join(DENSIFY_STATISTICS)}, "
                              f"got {self.densify_statistic!r}")

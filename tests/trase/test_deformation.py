@@ -47,7 +47,7 @@ def test_blender_variant_has_timenet():
     assert infer_mlp_config(sd) == net.config()
 
 
-@pytest.mark.parametrize("preset", ["paper", "small"])
+@pytest.mark.parametrize("preset", ["paper", "small", "6x96"])
 def test_forward_shapes_and_config_roundtrip(preset):
     net = DeformMLP.preset(preset)
     x = torch.randn(11, 3)
@@ -141,3 +141,13 @@ def test_deformed_semantics_and_scale_clamp():
     assert (s > 0).all() and torch.isfinite(s).all()
     _, _, s0 = deformed(g, None, 0.0)
     assert torch.allclose(s0, torch.ones(n, 3))
+
+
+def test_a_preset_is_a_name_or_depth_x_width_and_a_bad_one_fails_when_the_config_is_made():
+    from trase.reconstruction_config import ReconstructionConfig
+
+    assert (DeformMLP.preset("6x96").D, DeformMLP.preset("6x96").W) == (6, 96)
+    assert (DeformMLP.preset("paper").D, DeformMLP.preset("paper").W) == (8, 256)
+    for bad in ("big", "1x64", "8x", "8x0"):
+        with pytest.raises(ValueError, match="unknown deformation preset"):
+            ReconstructionConfig(deform_preset=bad)
