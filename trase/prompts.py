@@ -4,7 +4,8 @@
   camera and time, unproject the pixel with K^-1 and c2w, take the nearest *deformed*
   gaussian at that time (KD-tree), return its cluster. A click on a pixel with rendered alpha
   below ``min_alpha`` hits nothing (-1): there is no surface to lift it to. The "weight" rule
-  instead takes the cluster rendered most under the cursor (a 3x3 window); see
+  instead takes the cluster rendered most under the cursor (a 3x3 window), the "feature" rule
+  the cluster whose mean feature is nearest the feature rendered there; see
   ``click_to_cluster``.
 * 2D mask prompt (the public code's text-prompt path): every mask pixel with a rendered surface
   is lifted the same way; a cluster is chosen when at least ``min_share`` of the lifted pixels
@@ -25,7 +26,7 @@ from trase.camera import Camera
 from trase.deformation import deformed
 from trase.render import pixel_weights, rasterize
 
-CLICK_RULES = ("depth", "weight")
+CLICK_RULES = ("depth", "weight", "feature")
 
 
 class PromptError(ValueError):
@@ -85,7 +86,8 @@ def lift_pixels(
 
 
 def click_to_cluster(gaussians, deformation, camera: Camera, click: Click, labels: np.ndarray,
-                     min_alpha: float = 0.5, rule: str = "depth", radius: int = 1) -> int:
+                     min_alpha: float = 0.5, rule: str = "depth", radius: int = 1,
+                     features: np.ndarray | None = None) -> int:
     """One click -> cluster id (-1 when the click hits no surface).
 
     ``rule="depth"`` (the paper's): rendered depth -> 3D point -> nearest deformed gaussian.
@@ -94,27 +96,43 @@ def click_to_cluster(gaussians, deformation, camera: Camera, click: Click, label
     semi-transparent reconstructed surfaces the rendered (expected) depth falls between the
     object and what lies behind it, and the nearest gaussian there can be the background's
     (synthetic Immersive, CPU geometry: a click with alpha 1.0, weights 0.76 object / 0.22
-    background chose the background cluster: mIoU 0.10, oracle 0.77)."""
+    background chose the background cluster: mIoU 0.10, oracle 0.77).
+    ``rule="feature"`` (needs ``features`` [N, D], else ``gaussians.features``): the feature rendered in that window (the
+    compositing-weighted sum, what the contrastive loss trains to match the 2D masks) is
+    compared by cosine with each cluster's mean feature; the nearest cluster wins. Why: where
+    an object's gaussians are semi-transparent the weight under the cursor can be mostly the
+    background's, while the rendered feature is the object's (``click_rule_feature`` in
+    docs/library.md has the measurement)."""
     if rule not in CLICK_RULES:
         raise PromptError(f"unknown click rule {rule!r}; choose one of {', '.join(CLICK_RULES)}")
+    if rule == "feature" and features is None:
+        if getattr(gaussians, "features", None) is None:
+            raise PromptError("click rule 'feature' needs the gaussians' features")
+        features = gaussians.features.detach().cpu().numpy()  # the editor's models carry them
     cam = camera if click.time is None else camera.with_time(click.time)
-    if rule == "weight":
-        return _cluster_under_cursor(gaussians, deformation, cam, click.u, click.v, labels, min_alpha, radius)
+    if rule in ("weight", "feature"):
+        window = _window_weights(gaussians, deformation, cam, click.u, click.v, min_alpha, radius)
+        if window is None:
+            return -1
+        idx, w = window
+        if rule == "weight":
+            return _heaviest_cluster(idx, w, labels)
+        return _nearest_cluster_feature(idx, w, labels, features)
     gid = int(lift_pixels(gaussians, deformation, cam, np.array([[click.u, click.v]]), min_alpha)[0])
     return -1 if gid < 0 else int(labels[gid])
 
 
 @torch.no_grad()
-def _cluster_under_cursor(gaussians, deformation, camera: Camera, u: float, v: float, labels: np.ndarray,
-                          min_alpha: float, radius: int) -> int:
-    """The cluster with the largest summed compositing weight over the window of pixels
-    around (u, v); -1 off the image, on an empty scene, or where the click pixel's alpha is
-    below min_alpha. Ties: the lowest cluster id."""
+def _window_weights(gaussians, deformation, camera: Camera, u: float, v: float, min_alpha: float,
+                    radius: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """(gaussian ids [K], compositing weights [K] float64) of every (gaussian, pixel) pair in
+    the (2 radius + 1)^2 window of pixels around (u, v); None off the image, on an empty
+    scene, or where the click pixel's alpha is below min_alpha."""
     if radius < 0:
         raise PromptError(f"click window radius must be >= 0, got {radius}")
     W, H = camera.width, camera.height
     if not (0 <= u < W and 0 <= v < H) or gaussians.num_gaussians == 0:
-        return -1
+        return None
     col, row = int(np.floor(u)), int(np.floor(v))
     rows = np.arange(max(row - radius, 0), min(row + radius, H - 1) + 1)
     cols = np.arange(max(col - radius, 0), min(col + radius, W - 1) + 1)
@@ -123,16 +141,45 @@ def _cluster_under_cursor(gaussians, deformation, camera: Camera, u: float, v: f
     m, q, s, o = geometry_at(gaussians, deformation, camera.time)
     pw = pixel_weights(m, q, s, o, camera, torch.from_numpy(window))
     indptr = pw.indptr.cpu().numpy()
-    idx = pw.indices.cpu().numpy()
     w = pw.weights.cpu().numpy().astype(np.float64)
     if w[indptr[centre]:indptr[centre + 1]].sum() < min_alpha:
-        return -1
+        return None
+    return pw.indices.cpu().numpy(), w
+
+
+def _heaviest_cluster(idx: np.ndarray, w: np.ndarray, labels: np.ndarray) -> int:
+    """The cluster with the largest summed weight (-1 when no weight is on a cluster).
+    Ties: the lowest cluster id."""
     lab = np.asarray(labels, dtype=np.int64)[idx]
     ok = lab >= 0
     if not ok.any():
         return -1
-    per_cluster = np.bincount(lab[ok], weights=w[ok])
-    return int(np.argmax(per_cluster))
+    return int(np.argmax(np.bincount(lab[ok], weights=w[ok])))
+
+
+def _nearest_cluster_feature(idx: np.ndarray, w: np.ndarray, labels: np.ndarray, features: np.ndarray) -> int:
+    """The cluster whose mean (unit) feature has the largest cosine with the rendered feature
+    sum_k w_k f_k of the window; -1 when there is no cluster or the rendered feature is zero.
+    Ties: the lowest cluster id."""
+    lab = np.asarray(labels, dtype=np.int64)
+    feats = np.asarray(features, dtype=np.float64)  # [N, D]
+    if feats.shape[0] != lab.shape[0]:
+        raise PromptError(f"features have {feats.shape[0]} rows for {lab.shape[0]} labels")
+    if not (lab >= 0).any():
+        return -1
+    rendered = (w[:, None] * feats[idx]).sum(axis=0)  # [D]
+    norm = np.linalg.norm(rendered)
+    if not np.isfinite(norm) or norm == 0.0:
+        return -1
+    unit = feats / np.maximum(np.linalg.norm(feats, axis=1, keepdims=True), 1e-12)
+    k = lab.max() + 1
+    sums = np.zeros((k, feats.shape[1]))
+    np.add.at(sums, lab[lab >= 0], unit[lab >= 0])  # [K, D]
+    counts = np.bincount(lab[lab >= 0], minlength=k)
+    means = sums / np.maximum(np.linalg.norm(sums, axis=1, keepdims=True), 1e-12)
+    cos = means @ (rendered / norm)
+    cos[counts == 0] = -np.inf  # ids without gaussians choose nothing
+    return int(np.argmax(cos))
 
 
 def mask_to_clusters(gaussians, deformation, camera: Camera, mask: np.ndarray, labels: np.ndarray,

@@ -136,6 +136,10 @@ def test_paper_preset_takes_the_registry_schedule():
     cfg = default_config(get_method("trase"), spec, "real", {"geometry": {"preset": "paper"}})
     train = cfg["geometry"]["train"]
     assert (train["warm_up"], train["densify_until"]) == (spec.warm_up, spec.densify_until) == (1500, 9000)
+    # one click rule under every preset: the rendered feature's nearest cluster
+    assert cfg["method"]["prompts"]["click_rule"] == "feature"
+    assert default_config(get_method("trase"), spec, "real", {"geometry": {"preset": "cpu"}})["method"]["prompts"][
+        "click_rule"] == "feature"
     assert train["iterations"] == 20_000 and train["image_downscale"] == 1.0
     # one preset for the whole run: the paper's geometry comes with the paper's method settings
     assert cfg["method"]["preset"] == "paper" and cfg["method"]["features"]["iterations"] == 10_000

@@ -223,3 +223,53 @@ def test_weight_click_picks_what_is_rendered_under_the_cursor():
         click_to_cluster(gm, None, cam, click, labels, rule="x")
     with pytest.raises(PromptError, match="radius must be >= 0"):
         click_to_cluster(gm, None, cam, click, labels, rule="weight", radius=-1)
+
+
+def test_feature_click_picks_the_cluster_whose_feature_is_rendered_under_the_cursor():
+    """A fainter front sheet: most of the weight under the cursor is the back sheet's, so the
+    weight rule chooses it; the back gaussians behind the front one carry features pulled to
+    the front's (as contrastive training leaves them where the masks say "front"), so the
+    feature rendered there is the front cluster's, and the feature rule chooses it."""
+    import torch
+
+    gm, labels, cam = _semi_transparent_front()
+    n_front = int((labels == 0).sum())
+    with torch.no_grad():
+        gm.opacity_logits[:n_front] = -3.0  # opacity ~0.05
+    click = Click(16.0, 12.0)
+    assert click_to_cluster(gm, None, cam, click, labels, rule="weight") == 1
+    feats = np.zeros((len(labels), 4), np.float32)
+    feats[labels == 0, 0] = 1.0
+    feats[labels == 1, 1] = 1.0
+    # one-hot features: the rendered feature points where the weight is
+    assert click_to_cluster(gm, None, cam, click, labels, rule="feature", features=feats) == 1
+    xyz = gm.means.detach().numpy()
+    behind = (labels == 1) & (np.abs(xyz[:, 0]) < 1.0) & (np.abs(xyz[:, 2]) < 1.0)
+    assert 0 < behind.sum() < (labels == 1).sum() / 2
+    feats[behind] = [0.9, 0.1, 0.0, 0.0]
+    assert click_to_cluster(gm, None, cam, click, labels, rule="feature", features=feats) == 0
+    assert click_to_cluster(gm, None, cam, click, labels, rule="feature", features=feats, radius=0) == 0
+    # no surface, no feature, no cluster: nothing; missing or mismatched features: a clear error
+    assert click_to_cluster(gm, None, cam, Click(1.0, 1.0), labels, rule="feature", features=feats,
+                            min_alpha=1.01) == -1
+    assert click_to_cluster(gm, None, cam, click, labels, rule="feature", features=np.zeros_like(feats)) == -1
+    assert click_to_cluster(gm, None, cam, click, np.full_like(labels, -1), rule="feature", features=feats) == -1
+    with pytest.raises(PromptError, match="needs the gaussians' features"):
+        click_to_cluster(gm, None, cam, click, labels, rule="feature")
+    with pytest.raises(PromptError, match="features have 3 rows for"):
+        click_to_cluster(gm, None, cam, click, labels, rule="feature", features=feats[:3])
+
+
+def test_feature_click_reads_the_models_own_features():
+    """The editor's models carry their features on the gaussians: no argument needed."""
+    import torch
+
+    from trase.gaussians import GaussianModel
+
+    gm, labels, cam = _semi_transparent_front()
+    feats = np.zeros((len(labels), 2), np.float32)
+    feats[np.arange(len(labels)), labels] = 1.0
+    g = GaussianModel(gm.means, gm.log_scales, gm.quats, gm.opacity_logits, gm.sh, torch.from_numpy(feats))
+    click = Click(16.0, 12.0)
+    assert click_to_cluster(g, None, cam, click, labels, rule="feature") == \
+        click_to_cluster(gm, None, cam, click, labels, rule="feature", features=feats) == 0

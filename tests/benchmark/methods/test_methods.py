@@ -115,11 +115,11 @@ def test_each_click_is_lifted_in_its_own_frame(monkeypatch):
 
     _, _, _, views = tiny_scene(n_per=2)
     seen = []
-    monkeypatch.setattr(tp, "click_to_cluster", lambda g, d, camera, click, *a: seen.append(camera.name) or 0)
+    monkeypatch.setattr(tp, "click_to_cluster", lambda g, d, camera, click, *a, **k: seen.append(camera.name) or 0)
     clicks = [Click(1.0, 1.0, views[0].name, views[0].camera.time, 0),
               Click(2.0, 2.0, views[2].name, views[2].camera.time, 2)]
     prompts = BenchmarkPrompts(0, views[0].name, views[0].camera.time, clicks)
-    fitted = types.SimpleNamespace(gaussians=None, deformation=None, labels=np.zeros(4, int), config={})
+    fitted = types.SimpleNamespace(gaussians=None, deformation=None, labels=np.zeros(4, int), features=None, config={})
     assert TraseMethod().select(fitted, _Scene(train=views, test=views), prompts) == [0]
     assert seen == [views[0].camera.name, views[2].camera.name]
 
