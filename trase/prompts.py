@@ -97,12 +97,12 @@ def click_to_cluster(gaussians, deformation, camera: Camera, click: Click, label
     object and what lies behind it, and the nearest gaussian there can be the background's
     (synthetic Immersive, CPU geometry: a click with alpha 1.0, weights 0.76 object / 0.22
     background chose the background cluster: mIoU 0.10, oracle 0.77).
-    ``rule="feature"`` (needs ``features`` [N, D], else ``gaussians.features``): the feature rendered in that window (the
-    compositing-weighted sum, what the contrastive loss trains to match the 2D masks) is
-    compared by cosine with each cluster's mean feature; the nearest cluster wins. Why: where
-    an object's gaussians are semi-transparent the weight under the cursor can be mostly the
-    background's, while the rendered feature is the object's (``click_rule_feature`` in
-    docs/library.md has the measurement)."""
+    ``rule="feature"`` (needs ``features`` [N, D], else ``gaussians.features``): the feature
+    rendered in that window (the compositing-weighted sum, what the contrastive loss fits to
+    the 2D masks) is compared by cosine with each cluster's mean feature; the nearest cluster
+    wins. Why: where an object's gaussians are semi-transparent the weight under the cursor
+    can be mostly the background's, while the rendered feature is the object's
+    (docs/cpu-constants.md, "The click rule", has the measurements)."""
     if rule not in CLICK_RULES:
         raise PromptError(f"unknown click rule {rule!r}; choose one of {', '.join(CLICK_RULES)}")
     if rule == "feature" and features is None:

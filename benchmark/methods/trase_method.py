@@ -131,7 +131,7 @@ class TraseMethod(Method):
             # background for an object click (synthetic NeRF-DS / Immersive: mIoU 0.10 with
             # oracles 0.56 / 0.77), and "weight" did where an object's gaussians stay
             # semi-transparent (a spinning ring: seed-2 HyperNeRF scene, 8x64 network, 0.116
-            # with oracle 0.898; "feature" 0.898). CLICK_RULE below has the measurements.
+            # with oracle 0.898; "feature" 0.898). CLICK_RULE (above) says how it was chosen.
             "prompts": {"min_alpha": 0.5, "click_rule": CLICK_RULE, "click_radius": 1},
             "alpha_threshold": 0.5,
             # "alone": the paper's rule (selected gaussians rendered without the rest);
