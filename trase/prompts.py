@@ -23,6 +23,7 @@ import torch
 from scipy.spatial import cKDTree
 
 from trase.camera import Camera
+from trase.clustering import _centres, normalise
 from trase.deformation import deformed
 from trase.render import pixel_weights, rasterize
 
@@ -158,28 +159,20 @@ def _heaviest_cluster(idx: np.ndarray, w: np.ndarray, labels: np.ndarray) -> int
 
 
 def _nearest_cluster_feature(idx: np.ndarray, w: np.ndarray, labels: np.ndarray, features: np.ndarray) -> int:
-    """The cluster whose mean (unit) feature has the largest cosine with the rendered feature
-    sum_k w_k f_k of the window; -1 when there is no cluster or the rendered feature is zero.
-    Ties: the lowest cluster id."""
+    """The cluster whose centre (the normalised mean of its unit features, as the similarity
+    filter's) has the largest cosine with the rendered feature sum_k w_k f_k of the window;
+    -1 when there is no cluster or the rendered feature is zero. Ties: the lowest cluster id."""
     lab = np.asarray(labels, dtype=np.int64)
     feats = np.asarray(features, dtype=np.float64)  # [N, D]
     if feats.shape[0] != lab.shape[0]:
         raise PromptError(f"features have {feats.shape[0]} rows for {lab.shape[0]} labels")
-    if not (lab >= 0).any():
-        return -1
     rendered = (w[:, None] * feats[idx]).sum(axis=0)  # [D]
     norm = np.linalg.norm(rendered)
-    if not np.isfinite(norm) or norm == 0.0:
+    clustered = lab >= 0
+    if not clustered.any() or not np.isfinite(norm) or norm == 0.0:
         return -1
-    unit = feats / np.maximum(np.linalg.norm(feats, axis=1, keepdims=True), 1e-12)
-    k = lab.max() + 1
-    sums = np.zeros((k, feats.shape[1]))
-    np.add.at(sums, lab[lab >= 0], unit[lab >= 0])  # [K, D]
-    counts = np.bincount(lab[lab >= 0], minlength=k)
-    means = sums / np.maximum(np.linalg.norm(sums, axis=1, keepdims=True), 1e-12)
-    cos = means @ (rendered / norm)
-    cos[counts == 0] = -np.inf  # ids without gaussians choose nothing
-    return int(np.argmax(cos))
+    ids, centres = _centres(normalise(feats[clustered]), lab[clustered])  # [C], [C, D]
+    return int(ids[np.argmax(centres @ (rendered / norm))])
 
 
 def mask_to_clusters(gaussians, deformation, camera: Camera, mask: np.ndarray, labels: np.ndarray,
