@@ -251,7 +251,7 @@ class TabulatedDeformation(nn.Module):
             return 0, 0, 0.0
         if t >= float(times[-1]):
             return T - 1, T - 1, 0.0
-        i1 = int(torch.searchsorted(times, torch.tensor([t], dtype=torch.float64), right=False)[0])
+        i1 = int(torch.searchsorted(times, torch.tensor([t], dtype=torch.float64, device=times.device), right=False)[0])
         if float(times[i1]) == t:
             return i1, i1, 0.0
         i0 = i1 - 1

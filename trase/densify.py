@@ -34,8 +34,8 @@ def lstsq_screen_grad_norm(grad_means: torch.Tensor, means: torch.Tensor, camera
     projection Jacobian J = [[a, 0, -a u], [0, b, -b v]] (a = fx/z, b = fy/z, u = x/z, v = y/z):
     g2 = (J J^T)^-1 J g3, in closed form (det = a^2 b^2 (1 + u^2 + v^2) never vanishes).
     Gaussians at or behind the camera plane get 0."""
-    R = torch.as_tensor(camera.w2c[:3, :3], dtype=torch.float64)
-    t = torch.as_tensor(camera.w2c[:3, 3], dtype=torch.float64)
+    R = torch.as_tensor(camera.w2c[:3, :3], dtype=torch.float64, device=means.device)
+    t = torch.as_tensor(camera.w2c[:3, 3], dtype=torch.float64, device=means.device)
     p = means.detach().double() @ R.T + t
     g = grad_means.double() @ R.T  # camera-space gradient
     z = p[:, 2]
@@ -74,7 +74,7 @@ def densify_and_prune(g: GaussianModel, opt, cfg: ReconstructionConfig, grad_acc
     split = cand & big
     n0 = g.num_gaussians
     g.clone_gaussians(clone, opt)
-    split = torch.cat([split, torch.zeros(g.num_gaussians - n0, dtype=torch.bool)])
+    split = torch.cat([split, torch.zeros(g.num_gaussians - n0, dtype=torch.bool, device=split.device)])
     g.split_gaussians(split, opt, n=2, generator=gen)
     prune = g.opacities < cfg.min_opacity
     if prune_large:

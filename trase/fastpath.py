@@ -82,6 +82,14 @@ def render_rows_reference(pw: PixelWeights, rows: torch.Tensor, features: torch.
                            per_sample_weights=pw.weights[pos].to(features.dtype))
 
 
+def _to_device(pw: PixelWeights, device: torch.device) -> PixelWeights:
+    """``pw`` on ``device`` (weights are computed on the CPU and cached on disk)."""
+    if pw.indptr.device == device:
+        return pw
+    return PixelWeights(pixels=pw.pixels.to(device), indptr=pw.indptr.to(device),
+                        indices=pw.indices.to(device), weights=pw.weights.to(device))
+
+
 def _fingerprint(means, quats, scales, opacities, camera: Camera, pixels: np.ndarray, min_weight: float) -> str:
     h = hashlib.sha1()
     for t in (means, quats, scales, opacities):
@@ -195,7 +203,7 @@ class ViewWeights:
             return self._ram[key]
         if key not in self._views:
             raise FastPathError(f"view {key} was not registered with the fast path")
-        pw = self._compute_or_load(key)
+        pw = _to_device(self._compute_or_load(key), self.gaussians.means.device)
         nb = pw_nbytes(pw)
         self.nbytes[self._views[key].name] = nb
         self._ram[key] = pw
@@ -217,7 +225,7 @@ class ViewWeights:
 
         Every pixel must lie inside the registered valid region."""
         pw = self.get(key)
-        pix = torch.as_tensor(pixels, dtype=torch.int64).reshape(-1).contiguous()
+        pix = torch.as_tensor(pixels, dtype=torch.int64).reshape(-1).to(pw.pixels.device).contiguous()
         rows = torch.searchsorted(pw.pixels, pix)
         rows_c = rows.clamp_max(max(len(pw.pixels) - 1, 0))
         if len(pix) and (len(pw.pixels) == 0 or not torch.equal(pw.pixels[rows_c], pix)):
@@ -256,7 +264,7 @@ class RasterizerPath:
         means, quats, scales, opac = frozen_geometry(self.gaussians, self.deformation, info.camera.time)
         out = rasterize(means, quats, scales, opac, info.camera, features=features, backend=self.backend)
         D = features.shape[1]
-        return out.features.reshape(-1, D)[torch.as_tensor(pixels, dtype=torch.int64)]
+        return out.features.reshape(-1, D)[torch.as_tensor(pixels, dtype=torch.int64).to(features.device)]
 
     def stats(self) -> dict:
         return {"path": "rasterizer", "views": len(self._views), "backend": self.backend}

@@ -24,6 +24,7 @@ import torch
 
 from masks.sampling import sample_masks, sample_pixels
 from trase.camera import Camera
+from trase.devices import resolve_device
 from trase.fastpath import RasterizerPath, ViewWeights
 from trase.gaussians import rgb_to_sh_dc
 from trase.objectives import PixelSample, get_objective
@@ -89,6 +90,9 @@ class FeatureConfig:
     render_backend: str = "auto"  # rasterizer backend when fastpath=False
     mask_cache: int = 8  # MaskSets kept in RAM
     torch_threads: int = 0  # intra-op threads while training; 0 = leave torch's setting
+    # where training runs: "cpu", "cuda" (gsplat rasterizer, torch objective) or "auto" (cuda
+    # when torch sees a GPU); the benchmark resolves it before a run. Results come back on the CPU.
+    device: str = "auto"
 
     @classmethod
     def preset(cls, name: str, **overrides) -> FeatureConfig:
@@ -225,12 +229,14 @@ def _train(gaussians, deformation, views, load_masks, config, cache_dir, progres
     if config.norm_reg_pixels not in NORM_REG_PIXELS:
         raise FeatureTrainingError(f"norm_reg_pixels must be one of {', '.join(NORM_REG_PIXELS)}, "
                                    f"got {config.norm_reg_pixels!r}")
+    dev = resolve_device(config.device)
+    gaussians, deformation = _on_device(gaussians, deformation, dev)
     rng = np.random.default_rng(config.seed)
-    gen = torch.Generator().manual_seed(config.seed)
-    feats = torch.nn.Parameter(init_features(n, config.dim, gen))
+    gen = torch.Generator().manual_seed(config.seed)  # CPU draws, moved: alike on every device
+    feats = torch.nn.Parameter(init_features(n, config.dim, gen).to(dev))
     objective = get_objective(config.objective, **config.objective_params)
     whole_view = config.norm_reg_pixels == "image" and objective.uses_norm_regulariser
-    knn = knn_indices(gaussians.means.detach(), config.knn)
+    knn = knn_indices(gaussians.means.detach(), config.knn).to(dev)
     xyz = gaussians.means.detach()
     masks_of = _MaskCache(load_masks, views, config.mask_cache)
 
@@ -257,8 +263,8 @@ def _train(gaussians, deformation, views, load_masks, config, cache_dir, progres
     history: list[dict] = []
     if not usable or config.iterations <= 0 or n == 0:
         with torch.no_grad():
-            saved = smooth_features(feats.detach(), knn, None)
-        return TrainResult(saved, feats.detach().clone(), history,
+            saved = smooth_features(feats.detach(), knn, None).cpu()
+        return TrainResult(saved, feats.detach().cpu().clone(), history,
                            {"prepare": t_prepare, "train": 0.0, "per_step": 0.0, "n_usable_views": len(usable)},
                            path.stats())
 
@@ -269,7 +275,7 @@ def _train(gaussians, deformation, views, load_masks, config, cache_dir, progres
         for step in range(config.iterations):
             vi = usable[int(rng.integers(len(usable)))]
             ms = masks_of(vi)
-            sample = build_sample(ms, config.mask_rule, config.n_masks, config.n_pixels, rng, view=vi)
+            sample = build_sample(ms, config.mask_rule, config.n_masks, config.n_pixels, rng, view=vi).to(dev)
             if getattr(objective, "needs_alpha", False):
                 # rendering is linear in the features, so rendering ones gives alpha = sum of weights
                 with torch.no_grad():
@@ -277,7 +283,7 @@ def _train(gaussians, deformation, views, load_masks, config, cache_dir, progres
             f = render_ready(feats, knn, config, gen)  # [N, D]
             if whole_view:
                 H, W = ms.height, ms.width
-                sample.image_features = path.render(vi, f, torch.arange(H * W))  # [H*W, D]
+                sample.image_features = path.render(vi, f, torch.arange(H * W, device=dev))  # [H*W, D]
                 rendered = sample.image_features[sample.pixels]  # [P, D]
             else:
                 rendered = path.render(vi, f, sample.pixels)  # [P, D]
@@ -301,10 +307,20 @@ def _train(gaussians, deformation, views, load_masks, config, cache_dir, progres
             bar.close()
     t_train = time.perf_counter() - t1
     with torch.no_grad():
-        saved = smooth_features(feats.detach(), knn, None)
+        saved = smooth_features(feats.detach(), knn, None).cpu()
     timings = {"prepare": t_prepare, "train": t_train, "per_step": t_train / config.iterations,
                "n_usable_views": len(usable)}
-    return TrainResult(saved, feats.detach().clone(), history, timings, path.stats())
+    return TrainResult(saved, feats.detach().cpu().clone(), history, timings, path.stats())
+
+
+def _on_device(gaussians, deformation, dev: torch.device):
+    """The frozen geometry on ``dev``: the caller's own objects when already there, else copies
+    (the caller's stay where they are)."""
+    if gaussians.means.device == dev:
+        return gaussians, deformation
+    import copy
+
+    return gaussians.copy().to(dev), (None if deformation is None else copy.deepcopy(deformation).to(dev))
 
 
 class _progress:

@@ -360,13 +360,14 @@ class GaussianModel(nn.Module):
             return
         scales = self.scales[mask].repeat(n, 1)  # [n*m, 3]
         rot = quat_to_rotmat(self.rotations[mask]).repeat(n, 1, 1)  # [n*m, 3, 3]
-        samples = torch.randn(scales.shape, generator=generator, dtype=scales.dtype) * scales
+        # drawn on the CPU generator, then moved: the same samples on every device
+        samples = torch.randn(scales.shape, generator=generator, dtype=scales.dtype).to(scales.device) * scales
         new = {name: p.data[mask].repeat((n,) + (1,) * (p.dim() - 1)) for name, p in self.param_tensors().items()}
         new["means"] = (rot @ samples[:, :, None])[:, :, 0] + self.means.data[mask].repeat(n, 1)
         new["log_scales"] = torch.log(scales / (0.8 * n))
         old_n = self.num_gaussians
         self.append(new, optimizer)
-        keep = torch.ones(self.num_gaussians, dtype=torch.bool)
+        keep = torch.ones(self.num_gaussians, dtype=torch.bool, device=self.means.device)
         keep[:old_n][mask] = False
         self.prune(keep, optimizer)
 

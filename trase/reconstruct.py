@@ -40,6 +40,7 @@ from trase.checkpoint import (
 )
 from trase.deformation import DeformMLP, deformed, deformed_visible
 from trase.densify import densify_and_prune, lstsq_screen_grad_norm, scene_extent, screen_grad_norm
+from trase.devices import resolve_device
 from trase.gaussians import GaussianModel
 from trase.io import read_torch
 from trase.losses import l1_loss, opacity_entropy, psnr, ssim
@@ -88,12 +89,13 @@ def evaluate_psnr(gaussians: GaussianModel, deformation, views: Sequence, backgr
     """Mean over views of the PSNR (dB) of the clamped render against the view's image."""
     if not views:
         raise ValueError("evaluate_psnr: no views")
-    bg = torch.zeros(3) if background is None else torch.as_tensor(background, dtype=torch.float32)
+    bg = torch.zeros(3) if background is None else torch.as_tensor(background, dtype=torch.float32).cpu()
+    dev = gaussians.means.device
     vals = []
     for v in views:
         cam = v.camera if downscale == 1 else v.camera.scaled(downscale)
-        gt = torch.from_numpy(load_image(Path(v.image_path), cam, bg.numpy()))
-        out, _ = render_view(gaussians, deformation, cam, bg, backend)
+        gt = torch.from_numpy(load_image(Path(v.image_path), cam, bg.numpy())).to(dev)
+        out, _ = render_view(gaussians, deformation, cam, bg.to(dev), backend)
         vals.append(psnr(out.color.clamp(0, 1), gt))
     return float(np.mean(vals))
 
@@ -213,9 +215,10 @@ def _reconstruct(views, points, point_colors, config, out_dir, resume, progress,
     cfg = config
     if not views:
         raise ValueError("reconstruct: no training views")
+    dev = resolve_device(cfg.device)
     bg_np = np.ones(3, np.float32) if cfg.white_background else np.zeros(3, np.float32)
-    bg = torch.from_numpy(bg_np)
-    data = ImageCache(views, cfg.image_downscale, bg_np)
+    bg = torch.from_numpy(bg_np).to(dev)
+    data = ImageCache(views, cfg.image_downscale, bg_np, dev)
     extent = scene_extent(data.cameras)
     n_views = len(data)
 
@@ -228,6 +231,7 @@ def _reconstruct(views, points, point_colors, config, out_dir, resume, progress,
         gaussians, deform = load_model(out_dir, start)
         if deform is None:
             raise CheckpointError(f"{out_dir}: checkpoint {start} has no deformation network to resume")
+        gaussians, deform = gaussians.to(dev), deform.to(dev)
         sp = _state_path(out_dir, start)
         if not sp.is_file():
             raise CheckpointError(f"{sp}: trainer state for iteration {start} is missing; cannot resume")
@@ -246,7 +250,7 @@ def _reconstruct(views, points, point_colors, config, out_dir, resume, progress,
         opt_g, opt_d = _make_optimizers(gaussians, deform, cfg)
         opt_g.load_state_dict(state["opt_g"])
         opt_d.load_state_dict(state["opt_d"])
-        grad_accum, denom = state["grad_accum"], state["denom"]
+        grad_accum, denom = state["grad_accum"].to(dev), state["denom"].to(dev)
         gen.set_state(state["rng"])
         view_stack = [int(i) for i in state["view_stack"]]
         ema_loss, ema_psnr = float(state["ema_loss"]), float(state["ema_psnr"])
@@ -255,9 +259,10 @@ def _reconstruct(views, points, point_colors, config, out_dir, resume, progress,
         deform = DeformMLP.preset(cfg.deform_preset)
         if cfg.deform_zero_init:
             deform.zero_heads()
+        gaussians, deform = gaussians.to(dev), deform.to(dev)  # initialised on the CPU: alike everywhere
         opt_g, opt_d = _make_optimizers(gaussians, deform, cfg)
         n = gaussians.num_gaussians
-        grad_accum, denom = torch.zeros(n), torch.zeros(n)
+        grad_accum, denom = torch.zeros(n, device=dev), torch.zeros(n, device=dev)
         view_stack = []
         ema_loss, ema_psnr = 0.0, 0.0
 
@@ -267,7 +272,7 @@ def _reconstruct(views, points, point_colors, config, out_dir, resume, progress,
             "active_sh_degree": gaussians.active_sh_degree,
             "opt_g": opt_g.state_dict(),
             "opt_d": opt_d.state_dict(),
-            "grad_accum": grad_accum, "denom": denom,
+            "grad_accum": grad_accum.cpu(), "denom": denom.cpu(),
             "rng": gen.get_state(),
             "view_stack": torch.tensor(view_stack, dtype=torch.int64),
             "ema_loss": ema_loss, "ema_psnr": ema_psnr,
@@ -343,7 +348,7 @@ def _reconstruct(views, points, point_colors, config, out_dir, resume, progress,
                         prune_large = it > cfg.opacity_reset_interval
                         densify_and_prune(gaussians, opt_g, cfg, grad_accum, denom, extent, prune_large, gen)
                         n = gaussians.num_gaussians
-                        grad_accum, denom = torch.zeros(n), torch.zeros(n)
+                        grad_accum, denom = torch.zeros(n, device=dev), torch.zeros(n, device=dev)
                     if it % cfg.opacity_reset_interval == 0 or (cfg.white_background and it == cfg.densify_from):
                         gaussians.reset_opacity(opt_g)
 

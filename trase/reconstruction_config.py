@@ -73,6 +73,9 @@ class ReconstructionConfig:
     # torch intra-op threads while training (the deformation network; the rasterizer runs on
     # numba's own threads)
     torch_threads: int = 1
+    # where training runs: "cpu" (numba rasterizer), "cuda" (torch on the GPU, gsplat
+    # rasterizer) or "auto" (cuda when torch sees a GPU); the benchmark resolves it before a run
+    device: str = "auto"
     time_noise: float = 0.1
     time_noise_steps: int = 20_000
     # data and bookkeeping

@@ -41,9 +41,10 @@ def load_image(path: Path, camera: Camera, background: np.ndarray) -> np.ndarray
 
 
 class ImageCache:
-    """Images loaded once, as torch tensors [H, W, 3]."""
+    """Images loaded once, as torch tensors [H, W, 3] on ``device``."""
 
-    def __init__(self, views: Sequence, downscale: float, background: np.ndarray) -> None:
+    def __init__(self, views: Sequence, downscale: float, background: np.ndarray,
+                 device: torch.device | str = "cpu") -> None:
         self.cameras: list[Camera] = []
         self.images: list[torch.Tensor] = []
         for v in views:
@@ -51,7 +52,7 @@ class ImageCache:
             if not cam.is_pinhole:
                 raise ImageLoadError(f"{v.image_path}: reconstruction needs undistorted pinhole cameras")
             self.cameras.append(cam)
-            self.images.append(torch.from_numpy(load_image(Path(v.image_path), cam, background)))
+            self.images.append(torch.from_numpy(load_image(Path(v.image_path), cam, background)).to(device))
 
     def __len__(self) -> int:
         return len(self.cameras)

@@ -107,14 +107,14 @@ class Painter:
 
 
 def resolve_device(device: str) -> torch.device:
-    """"auto" (a GPU when torch sees one), "cpu" or "cuda"; a clear error for a GPU that is not there."""
-    if device == "auto":
-        device = "cuda" if torch.cuda.is_available() else "cpu"
-    if device not in ("cpu", "cuda"):
-        raise VisualizeError(f"unknown device {device!r}; choose auto, cpu or cuda")
-    if device == "cuda" and not torch.cuda.is_available():
-        raise VisualizeError("device cuda: torch sees no GPU here (this torch build or machine has none)")
-    return torch.device(device)
+    """trase.devices.resolve_device, its errors as VisualizeError."""
+    from trase.devices import DeviceError
+    from trase.devices import resolve_device as resolve
+
+    try:
+        return resolve(device)
+    except DeviceError as exc:
+        raise VisualizeError(str(exc)) from None
 
 
 def depth_colors(depth: np.ndarray, alpha: np.ndarray) -> np.ndarray:

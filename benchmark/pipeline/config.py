@@ -149,5 +149,19 @@ def _resolve(method, base: dict, overrides: dict) -> dict:
     cfg = merge(apply_seed(base, run_seed(overrides)), overrides)
     # typed once, here: a wrong value stops the run before any stage, naming the setting
     typed(ReconstructionConfig, cfg["geometry"]["train"], "geometry.train")
+    _resolve_device(cfg["geometry"]["train"], "geometry.train.device")
+    if isinstance(cfg["method"].get("features"), dict):
+        _resolve_device(cfg["method"]["features"], "method.features.device")
     method.check_config(cfg["method"])
     return cfg
+
+
+def _resolve_device(section: dict, name: str) -> None:
+    """``section["device"]`` "auto" -> "cuda" or "cpu", written into the config (so a run's
+    record and cache keys say where it computed)."""
+    from trase.devices import DeviceError, resolve_device
+
+    try:
+        section["device"] = resolve_device(section.get("device", "auto")).type
+    except DeviceError as exc:
+        raise ConfigError(f"--set {name}: {exc}") from None

@@ -73,6 +73,16 @@ class PixelSample:
     def n_pixels(self) -> int:
         return int(self.pixels.shape[0])
 
+    def to(self, device: torch.device | str) -> PixelSample:
+        """This sample with every tensor on ``device`` (itself when they are there already)."""
+        if self.pixels.device == torch.device(device):
+            return self
+        move = lambda t: None if t is None else t.to(device)
+        return dataclasses.replace(
+            self, pixels=move(self.pixels), membership=move(self.membership), mask_area=move(self.mask_area),
+            pixel_mean_area=move(self.pixel_mean_area), alpha=move(self.alpha),
+            image_features=move(self.image_features))
+
     @property
     def n_masks(self) -> int:
         return int(self.membership.shape[1])

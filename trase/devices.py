@@ -1,0 +1,23 @@
+"""Where trase computes: "cpu" (the numba kernels) or "cuda" (torch on the GPU, the gsplat
+rasterizer). One resolver, so "auto" means the same in training, rendering and viewing."""
+
+from __future__ import annotations
+
+import torch
+
+DEVICES = ("auto", "cpu", "cuda")
+
+
+class DeviceError(ValueError):
+    """A device name that is unknown, or a GPU asked for where torch sees none."""
+
+
+def resolve_device(device: str) -> torch.device:
+    """"auto" (a GPU when torch sees one), "cpu" or "cuda" -> torch.device; one-line errors."""
+    if device == "auto":
+        device = "cuda" if torch.cuda.is_available() else "cpu"
+    if device not in DEVICES:
+        raise DeviceError(f"unknown device {device!r}; choose {', '.join(DEVICES)}")
+    if device == "cuda" and not torch.cuda.is_available():
+        raise DeviceError("device cuda: torch sees no GPU here (this torch build or machine has none)")
+    return torch.device(device)
