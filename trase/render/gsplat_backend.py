@@ -1,6 +1,8 @@
-"""gsplat backend (CUDA only). UNTESTED HERE: this project's CI and development machines have
-no GPU, so this thin adapter has never been run; it is imported lazily and only for CUDA
-tensors. Check it against the numba backend (same scene, ``.cpu()``) before trusting it.
+"""gsplat backend (CUDA only), imported lazily and only for CUDA tensors. Checked on a GPU
+(tests/trase/render/test_cuda_backends.py: gsplat 1.5.3 on an H200 against the torch backend
+on CUDA, outputs to ~1e-6 and every gradient), and on the CPU against a stand-in for gsplat
+built on the torch reference (tests/trase/render/test_gsplat_adapter.py: conventions, the
+screen-space gradient).
 
 Known differences from the CPU backends, all from gsplat's own kernels: alpha is clamped at
 0.999 (not 0.99), the screen extent differs slightly, and ties in depth may order differently.
@@ -45,9 +47,23 @@ def rasterize_gsplat(means, quats, scales, opacities, camera, colors, sh_degree,
     if features is not None:
         feats = img[..., c : c + features.shape[1]]
     depth = torch.where(alpha > ALPHA_EPS, img[..., -1], torch.zeros_like(alpha))
-    means2d = meta["means2d"][0]  # [N, 2] pixels; retain_grad() gives the screen-space gradient
     radii = meta["radii"][0]  # [N] or [N, 2] (per axis in newer gsplat)
     if radii.ndim == 2:
         radii = radii.max(dim=-1).values
-    return RenderOutput(color=color, features=feats, depth=depth, alpha=alpha, means2d=means2d,
-                        radii=radii.long())
+    return RenderOutput(color=color, features=feats, depth=depth, alpha=alpha,
+                        means2d=_screen_positions(meta["means2d"]), radii=radii.long())
+
+
+def _screen_positions(means2d: torch.Tensor) -> torch.Tensor:
+    """gsplat's [1, N, 2] pixel centres -> [N, 2] whose ``.grad`` after backward is the
+    screen-space gradient (RenderOutput's contract). A slice taken after the render is not in
+    the graph the image came from, so its .grad would stay None (and 3DGS's densification would
+    never fire): the gradient of gsplat's own tensor is handed over by a hook."""
+    screen = means2d.detach()[0].requires_grad_(means2d.requires_grad)
+    if means2d.requires_grad:
+        def hand_over(grad: torch.Tensor) -> None:
+            g = grad[0].detach()
+            screen.grad = g if screen.grad is None else screen.grad + g
+
+        means2d.register_hook(hand_over)
+    return screen
