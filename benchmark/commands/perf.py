@@ -26,7 +26,7 @@ from benchmark.perf import SUITES, get_suite, machine_info
                    "machine --threads 1 gives the steadiest side-by-side ratios.")
 def perf(suites: tuple[str, ...], quick: bool, json_out: str | None, out_dir: str | None,
          dataset: str | None, threads: int | None) -> None:
-    """Run performance SUITES (default: all) and print their figures."""
+    """Run performance SUITES (default: all that this machine can run) and print their figures."""
     names = suites or tuple(SUITES.names())
     if dataset is not None:
         from benchmark.datasets import get_dataset
@@ -47,6 +47,11 @@ def perf(suites: tuple[str, ...], quick: bool, json_out: str | None, out_dir: st
     for name in names:
         click.echo(f"== {name} ==")
         fn = get_suite(name)
+        why = getattr(inspect.getmodule(fn), "unavailable", lambda: None)()  # e.g. no GPU here
+        if why and not suites:  # "all": what this machine can run; a suite named is run (and fails)
+            click.echo(f"skipped: {why}")
+            result["suites"][name] = {"skipped": why}
+            continue
         extra = {}
         if "out_dir" in inspect.signature(fn).parameters:  # suites that write files (pareto)
             extra["out_dir"] = Path(out_dir) if out_dir else (Path(json_out).parent if json_out else Path("perf-out"))

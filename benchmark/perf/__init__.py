@@ -22,6 +22,8 @@ SUITES.add("features", "benchmark.perf.features:run",
            "Feature step: whole step on the synthetic scene (rasterizer vs fast path, R/F/X/O), fused vs dense objective, render grid.")
 SUITES.add("reconstruct", "benchmark.perf.reconstruct:run",
            "Test PSNR vs wall-clock time of the CPU reconstruction (synthetic HyperNeRF), old and new CPU preset.")
+SUITES.add("gpu", "benchmark.perf.gpu:run",
+           "One reconstruction iteration and one feature step at the paper's settings on a CUDA GPU; fast path vs rasterizing.")
 SUITES.add("pipeline", "benchmark.perf.pipeline:run",
            "Per-stage time and peak memory of the runner per synthetic dataset, 2 sizes; exponents.")
 SUITES.add("determinism", "benchmark.perf.determinism:run",

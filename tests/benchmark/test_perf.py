@@ -113,3 +113,13 @@ def test_dataset_option_reaches_suites_that_take_one_and_is_refused_elsewhere(mo
     assert main(["perf", "reconstruct", "--dataset", "nope"]) == 1
     assert "unknown dataset 'nope'" in capsys.readouterr().err
     assert seen == ["technicolor"]
+
+
+def test_gpu_suite_without_a_gpu_is_a_one_line_error(capsys):
+    import torch
+
+    if torch.cuda.is_available():
+        pytest.skip("this machine has a GPU: the suite runs (tests/trase/render/test_cuda_backends.py)")
+    assert main(["perf", "gpu", "--quick"]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err and "torch sees no CUDA GPU" in err[-1]
