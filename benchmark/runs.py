@@ -102,9 +102,17 @@ def protocol(record: dict) -> dict:
     if syn:  # which generated scene: another seed or difficulty is another scene under one name
         scene["scene"] = (f"synthetic v{syn.get('generator_version')} {syn.get('size')} seed {syn.get('seed')} "
                           f"{syn.get('difficulty')}")
+
+    def on(section: dict) -> str:
+        """Where it trained, named when not the CPU (gsplat's kernels give other bits than the
+        numba ones; records from before the device setting trained on the CPU)."""
+        device = section.get("device", "cpu")
+        return "" if device == "cpu" else f", on {device}"
+
     return scene | {
-        "geometry": f"{src} ({geo.get('preset')} preset)" if src == "reconstruct" else src,
-        "features": mcfg.get("preset", "?"),
+        "geometry": (f"{src} ({geo.get('preset')} preset{on(geo.get('train') or {})})" if src == "reconstruct"
+                     else src),
+        "features": mcfg.get("preset", "?") + on(mcfg.get("features") or {}),
         "masks": (cfg.get("masks") or {}).get("generator", "?"),
         "prompts": prompts,
         "render": mcfg.get("render_rule", "alone"),

@@ -184,3 +184,19 @@ def test_cli_leaderboard_and_runs(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "ablation smoothing/v" in out and "main" in out and "[a] geometry reconstruct" in out
     assert main(["leaderboard", "--results", str(tmp_path / "none")]) == 1
+
+
+def test_a_gpu_run_names_its_device_in_the_protocol(tmp_path):
+    from benchmark.runs import protocol, protocol_label
+
+    cpu = config()
+    gpu = config(preset="paper", features={"device": "cuda"})
+    gpu["geometry"]["train"] = {"device": "cuda"}
+    assert "on cuda" not in protocol_label(protocol({"config": cpu}))
+    cpu["geometry"]["train"] = {"device": "cpu"}
+    assert "on cpu" not in protocol_label(protocol({"config": cpu}))  # the CPU is the default, unnamed
+    label = protocol_label(protocol({"config": gpu}))
+    assert "geometry reconstruct (paper preset, on cuda); features paper, on cuda" in label
+    write(tmp_path, record("trase", "hypernerf", "synthetic", 0.8, 0.9, cfg=gpu))
+    md = render(build_tables(_main_runs(tmp_path), "synthetic")[0], "markdown")
+    assert "(paper preset, on cuda)" in md
