@@ -48,3 +48,20 @@ def test_merge_rejects_a_misspelt_key_and_opens_params_sections():
     assert merge(base, {"a": {"params": {"free": 2}}}) == {"a": {"b": 1, "params": {"free": 2}}}
     with pytest.raises(ConfigError, match=r"--set a.c: unknown setting \(known here: b, params\)"):
         merge(base, {"a": {"c": 1}})
+
+
+def test_devices_are_resolved_once_into_the_config():
+    import torch
+
+    spec, method = get_dataset("hypernerf"), get_method("trase")
+    cfg = default_config(method, spec, "synthetic", {})
+    here = "cuda" if torch.cuda.is_available() else "cpu"
+    assert cfg["geometry"]["train"]["device"] == here and cfg["method"]["features"]["device"] == here
+    pinned = default_config(method, spec, "synthetic", parse_overrides(["geometry.train.device=cpu",
+                                                                        "method.features.device=cpu"]))
+    assert pinned["geometry"]["train"]["device"] == "cpu" and pinned["method"]["features"]["device"] == "cpu"
+    with pytest.raises(ConfigError, match=r"^--set geometry.train.device: unknown device 'gpu'; choose auto, cpu, cuda$"):
+        default_config(method, spec, "synthetic", parse_overrides(["geometry.train.device=gpu"]))
+    if not torch.cuda.is_available():
+        with pytest.raises(ConfigError, match="method.features.device: device cuda: torch sees no GPU"):
+            default_config(method, spec, "synthetic", parse_overrides(["method.features.device=cuda"]))
