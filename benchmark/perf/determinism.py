@@ -78,7 +78,7 @@ def child(out: str, size: str, iterations: int, feature_steps: int) -> None:
 
     settings = PAPER_SETTINGS[spec.key]
     fcfg = FeatureConfig.preset("cpu", n_pixels=min(settings.n_pixels, 2000), n_masks=float(settings.n_masks))
-    fcfg = FeatureConfig(**(fcfg.to_dict() | {"iterations": feature_steps}
+    fcfg = FeatureConfig(**(fcfg.to_dict() | {"iterations": feature_steps, "device": "cpu"}
                             | ({"torch_threads": int(threads)} if threads else {})))
     res = train_features(gt_g, gt_deform, scene.train, lambda v: masklib.load(masklib.mask_path(mask_dir, v.name)),
                          fcfg, cache_dir=work / "pixel_weights", progress=False)

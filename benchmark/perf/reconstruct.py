@@ -27,13 +27,14 @@ FULL = {"size": "small", "budget_s": 900.0, "iterations": None, "interval": 250}
 
 
 def runner_train_config(dataset: str, image_size: tuple[int, int], preset: str = "cpu") -> dict:
-    """The geometry training settings `trase-bench run` picks for this scene and preset."""
+    """The geometry training settings `trase-bench run` picks for this scene and preset, on the
+    CPU (these suites measure the CPU reconstruction, also on a machine with a GPU)."""
     from benchmark.datasets import get_dataset
     from benchmark.methods import get_method
     from benchmark.pipeline.config import default_config
 
-    cfg = default_config(get_method("trase"), get_dataset(dataset), "synthetic", {"geometry": {"preset": preset}},
-                         image_size)
+    cfg = default_config(get_method("trase"), get_dataset(dataset), "synthetic",
+                         {"geometry": {"preset": preset, "train": {"device": "cpu"}}}, image_size)
     return dict(cfg["geometry"]["train"])
 
 

@@ -65,3 +65,20 @@ def test_devices_are_resolved_once_into_the_config():
     if not torch.cuda.is_available():
         with pytest.raises(ConfigError, match="method.features.device: device cuda: torch sees no GPU"):
             default_config(method, spec, "synthetic", parse_overrides(["method.features.device=cuda"]))
+
+
+def test_a_gpu_without_gsplat_stops_the_run_before_any_stage(monkeypatch):
+    import importlib.util
+
+    import torch
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda n, *a: None if n == "gsplat" else real(n, *a))
+    spec, method = get_dataset("hypernerf"), get_method("trase")
+    with pytest.raises(ConfigError, match=r"geometry.train.device=cuda .* pip install -e '.\[gpu\]', or --set "
+                                          r"geometry.train.device=cpu"):
+        default_config(method, spec, "synthetic", {})
+    cpu = default_config(method, spec, "synthetic", parse_overrides(["geometry.train.device=cpu",
+                                                                     "method.features.device=cpu"]))
+    assert cpu["geometry"]["preset"] == "paper"  # auto preset: paper where torch sees a GPU
