@@ -14,6 +14,8 @@ plus depth. Modes:
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 import torch
 
@@ -57,11 +59,18 @@ class Painter:
         """``device``: where the scene is drawn: "cpu" (numba kernels) or "cuda" (the
         rasterizer's gsplat backend, which needs gsplat and a GPU)."""
         self.device = resolve_device(device)
+        if self.device.type == "cuda":
+            import importlib.util
+
+            if importlib.util.find_spec("gsplat") is None:
+                raise VisualizeError("device cuda draws with gsplat, which is not installed: "
+                                     "pip install -e '.[gpu]', or draw on the cpu")
         self.model = model
         g = model.gaussians
         self._gaussians = g if self.device.type == "cpu" else g.copy().to(self.device)
         d = model.deformation
-        self._deformation = d if d is None or self.device.type == "cpu" else d.to(self.device)
+        # copies on the GPU: the model's own stay on the CPU for clicks and edits
+        self._deformation = d if d is None or self.device.type == "cpu" else copy.deepcopy(d).to(self.device)
         self._clusters = torch.from_numpy(cluster_colours(model.labels)).to(self.device)  # [N, 3]
         self._pca: torch.Tensor | None = None  # [N, 3], computed on the first pca picture
         self.set_selection(selection)

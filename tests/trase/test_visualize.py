@@ -54,6 +54,17 @@ def test_pca_needs_features_and_devices_are_checked(model):
         assert Painter(m, device="auto").device.type == "cpu"
 
 
+def test_a_gpu_without_gsplat_is_refused_before_drawing(model, monkeypatch):
+    import importlib.util
+
+    m, _ = model
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda n, *a: None if n == "gsplat" else real(n, *a))
+    with pytest.raises(VisualizeError, match=r"draws with gsplat, which is not installed"):
+        Painter(m, device="auto")
+
+
 def test_colourings():
     c = cluster_colours(np.array([0, 1, 0, -1]))
     assert np.array_equal(c[0], c[2]) and not np.array_equal(c[0], c[1]) and np.allclose(c[3], 0.3)
