@@ -1,6 +1,7 @@
 """Reconstruction and feature training on a GPU (``device="cuda"``), with the torch and the
-gsplat rasterizers: they run, learn, write checkpoints the CPU reads, and the feature fast path
-agrees with rasterizing. Skipped without CUDA (gsplat cases without gsplat)."""
+gsplat rasterizers: they run, learn, write checkpoints the CPU reads, resume, and the feature
+fast path on the GPU starts where the CPU's does. Skipped without CUDA (gsplat cases without
+gsplat)."""
 
 import dataclasses
 
