@@ -21,3 +21,13 @@ def resolve_device(device: str) -> torch.device:
     if device == "cuda" and not torch.cuda.is_available():
         raise DeviceError("device cuda: torch sees no GPU here (this torch build or machine has none)")
     return torch.device(device)
+
+
+def gsplat_missing(device: torch.device | str) -> str | None:
+    """Why ``device`` cannot rasterize, or None: CUDA draws with gsplat, an optional package
+    (the CPU needs nothing more). Callers add their own way out (another device setting)."""
+    import importlib.util
+
+    if torch.device(device).type == "cuda" and importlib.util.find_spec("gsplat") is None:
+        return "device cuda draws with gsplat, which is not installed (pip install -e '.[gpu]')"
+    return None

@@ -58,13 +58,12 @@ class Painter:
     def __init__(self, model, selection: np.ndarray | None = None, device: str = "cpu") -> None:
         """``device``: where the scene is drawn: "cpu" (numba kernels) or "cuda" (the
         rasterizer's gsplat backend, which needs gsplat and a GPU)."""
-        self.device = resolve_device(device)
-        if self.device.type == "cuda":
-            import importlib.util
+        from trase.devices import gsplat_missing
 
-            if importlib.util.find_spec("gsplat") is None:
-                raise VisualizeError("device cuda draws with gsplat, which is not installed: "
-                                     "pip install -e '.[gpu]', or draw on the cpu")
+        self.device = resolve_device(device)
+        why = gsplat_missing(self.device)
+        if why:
+            raise VisualizeError(f"{why}; or draw on the cpu")
         self.model = model
         g = model.gaussians
         self._gaussians = g if self.device.type == "cpu" else g.copy().to(self.device)

@@ -1,6 +1,8 @@
 """Performance suites for ``trase-bench perf SUITE``. A suite is a module with
 ``run(quick: bool, echo) -> dict`` (JSON-ready, figures measured in this run); register it with
-one line in ``SUITES``: name, "module:function", one-line description."""
+one line in ``SUITES``: name, "module:function", one-line description. A suite that needs what a
+machine may lack (a GPU) also has ``unavailable() -> str | None``: ``trase-bench perf`` with no
+suite named skips it with that reason."""
 
 from __future__ import annotations
 

@@ -50,7 +50,6 @@ def reconstruction_step(n: int, width: int, height: int, repeats: int) -> dict:
     from trase.render import rasterize
 
     sc, cam = make_scene(n, width, height, 0)
-    cam = cam.with_time(0.5)
     g = GaussianModel.from_points(sc["means"].numpy(), sc["colors"].numpy(), sh_degree=3).cuda()
     g.active_sh_degree = 3  # every SH band, as late in training
     deform = DeformMLP.preset("paper").cuda()
@@ -132,13 +131,11 @@ def feature_steps(n: int, width: int, height: int, repeats: int) -> dict:
 def unavailable() -> str | None:
     """Why this suite cannot run on this machine, or None (``trase-bench perf`` with no suite
     named skips it then; named, it is an error)."""
+    from trase.devices import gsplat_missing
+
     if not torch.cuda.is_available():
         return "torch sees no CUDA GPU here"
-    try:
-        import gsplat  # noqa: F401
-    except ImportError:
-        return "needs gsplat (pip install -e '.[gpu]') for the CUDA rasterizer"
-    return None
+    return gsplat_missing("cuda")
 
 
 def run(quick: bool = False, echo: Callable[[str], None] = print) -> dict:

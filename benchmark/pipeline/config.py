@@ -160,14 +160,12 @@ def _resolve_device(section: dict, name: str) -> None:
     """``section["device"]`` "auto" -> "cuda" or "cpu", written into the config (so a run's
     record and cache keys say where it computed). CUDA rasterizes with gsplat: without it the
     run stops here, before any stage, rather than at its first render."""
-    import importlib.util
-
-    from trase.devices import DeviceError, resolve_device
+    from trase.devices import DeviceError, gsplat_missing, resolve_device
 
     try:
         section["device"] = resolve_device(section.get("device", "auto")).type
     except DeviceError as exc:
         raise ConfigError(f"--set {name}: {exc}") from None
-    if section["device"] == "cuda" and importlib.util.find_spec("gsplat") is None:
-        raise ConfigError(f"{name}=cuda (auto: torch sees a GPU) rasterizes with gsplat, which is not "
-                          f"installed: pip install -e '.[gpu]', or --set {name}=cpu")
+    why = gsplat_missing(section["device"])
+    if why:
+        raise ConfigError(f"{name}: {why}; or --set {name}=cpu")

@@ -76,8 +76,8 @@ def test_a_gpu_without_gsplat_stops_the_run_before_any_stage(monkeypatch):
     real = importlib.util.find_spec
     monkeypatch.setattr(importlib.util, "find_spec", lambda n, *a: None if n == "gsplat" else real(n, *a))
     spec, method = get_dataset("hypernerf"), get_method("trase")
-    with pytest.raises(ConfigError, match=r"geometry.train.device=cuda .* pip install -e '.\[gpu\]', or --set "
-                                          r"geometry.train.device=cpu"):
+    with pytest.raises(ConfigError, match=r"^geometry.train.device: device cuda draws with gsplat, which is not "
+                                          r"installed \(pip install -e '.\[gpu\]'\); or --set geometry.train.device=cpu$"):
         default_config(method, spec, "synthetic", {})
     cpu = default_config(method, spec, "synthetic", parse_overrides(["geometry.train.device=cpu",
                                                                      "method.features.device=cpu"]))
