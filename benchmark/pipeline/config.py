@@ -58,10 +58,10 @@ def without_seed(overrides: dict) -> dict:
 
 
 # the geometry's settings under each CPU preset (trase.reconstruction_config)
-CPU_GEOMETRY = {"cpu": "cpu", "cpu-v3": "cpu_v3", "cpu-v2": "cpu_v2", "cpu-v1": "cpu_v1"}
-RIG_PRESETS = ("cpu", "cpu-v3")  # CPU presets whose settings depend on the rig (monocular or not)
+CPU_GEOMETRY = {"cpu": "cpu", "cpu-v4": "cpu_v4", "cpu-v3": "cpu_v3", "cpu-v2": "cpu_v2", "cpu-v1": "cpu_v1"}
+RIG_PRESETS = ("cpu", "cpu-v4", "cpu-v3")  # CPU presets whose settings depend on the rig (monocular or not)
 PRESETS = ("paper", *CPU_GEOMETRY)  # geometry presets; "auto": paper with a GPU, cpu without
-# the method's preset under each geometry preset (cpu-v3, cpu-v2, cpu-v1: older CPU geometry, today's CPU features)
+# the method's preset under each geometry preset (cpu-v4 to cpu-v1: older CPU geometry, today's CPU features)
 METHOD_PRESET = {"paper": "paper", **{p: "cpu" for p in CPU_GEOMETRY}}
 
 
@@ -122,7 +122,7 @@ def _sections(method, overrides: dict, dataset: str | None, monocular: bool, sch
     if preset == "paper":
         train = ReconstructionConfig.paper(**schedule)
     else:
-        # a few CPU minutes (ReconstructionConfig.cpu; cpu-v3, cpu-v2, cpu-v1: the earlier CPU
+        # a few CPU minutes (ReconstructionConfig.cpu; cpu-v4 to cpu-v1: the earlier CPU
         # presets, kept for comparisons). Training resolution: see cpu_train_downscale.
         make = getattr(ReconstructionConfig, CPU_GEOMETRY[preset])
         rig = {"monocular": monocular} if preset in RIG_PRESETS else {}

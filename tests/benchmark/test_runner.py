@@ -145,7 +145,8 @@ def test_paper_preset_takes_the_registry_schedule():
     assert cfg["method"]["preset"] == "paper" and cfg["method"]["features"]["iterations"] == 10_000
     assert default_config(get_method("trase"), spec, "real", {"geometry": {"preset": "cpu-v1"}})["method"]["preset"] == "cpu"
     multi = get_dataset("technicolor")
-    for preset, mono_its, multi_its, mono_prune in (("cpu", 4000, 2000, 0.1), ("cpu-v3", 4000, 2000, 0.005),
+    for preset, mono_its, multi_its, mono_prune in (("cpu", 4000, 4000, 0.1), ("cpu-v4", 4000, 2000, 0.1),
+                                                    ("cpu-v3", 4000, 2000, 0.005),
                                                     ("cpu-v2", 2000, 2000, 0.005), ("cpu-v1", 2000, 2000, 0.005)):
         cfg = default_config(get_method("trase"), spec, "real", {"geometry": {"preset": preset}})
         assert cfg["geometry"]["train"]["iterations"] == mono_its and cfg["method"]["preset"] == "cpu"
@@ -155,7 +156,7 @@ def test_paper_preset_takes_the_registry_schedule():
         assert cfg["geometry"]["train"]["min_opacity"] == 0.005  # multi-view rigs: no change since cpu-v2
     with pytest.raises(ConfigError, match="method.preset=paper: the method's preset follows the run's"):
         default_config(get_method("trase"), spec, "real", {"geometry": {"preset": "cpu"}, "method": {"preset": "paper"}})
-    with pytest.raises(ConfigError, match="geometry.preset=gpu: choose auto, paper, cpu, cpu-v3, cpu-v2, cpu-v1"):
+    with pytest.raises(ConfigError, match="geometry.preset=gpu: choose auto, paper, cpu, cpu-v4, cpu-v3, cpu-v2, cpu-v1"):
         default_config(get_method("trase"), spec, "real", {"geometry": {"preset": "gpu"}})
 
 

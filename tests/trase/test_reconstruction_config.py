@@ -9,6 +9,7 @@ from trase.reconstruction_config import (
     CPU_CHANGES,
     CPU_MONOCULAR_PRUNING,
     CPU_MONOCULAR_SCHEDULE,
+    CPU_MULTIVIEW_SCHEDULE,
     ReconstructionConfig,
     expon_lr,
 )
@@ -41,12 +42,20 @@ def test_cpu_preset_keeps_the_long_lr_decay_for_any_run_length():
     for k in CPU_MONOCULAR_SCHEDULE:
         assert getattr(v3, k) == 2 * getattr(v2, k), k
     assert (v3.iterations, v3.position_lr_max_steps) == (4000, 20_000)
-    new = ReconstructionConfig.cpu()
-    changed = {k for k, v in dataclasses.asdict(new).items() if v != getattr(v3, k)}
+    v4 = ReconstructionConfig.cpu_v4()
+    changed = {k for k, v in dataclasses.asdict(v4).items() if v != getattr(v3, k)}
     assert changed == set(CPU_MONOCULAR_PRUNING) == {"min_opacity"}
-    assert new.min_opacity == 0.1 and v3.min_opacity == 0.005
-    # a multi-view rig keeps cpu_v2's settings under both
-    assert ReconstructionConfig.cpu(monocular=False) == ReconstructionConfig.cpu_v3(monocular=False) == v2
+    assert v4.min_opacity == 0.1 and v3.min_opacity == 0.005
+    # a multi-view rig kept cpu_v2's settings under cpu_v3 and cpu_v4
+    assert ReconstructionConfig.cpu_v4(monocular=False) == ReconstructionConfig.cpu_v3(monocular=False) == v2
+    # the cpu preset: cpu_v4 on a monocular capture; a multi-view rig gets the monocular
+    # schedule (4000 iterations), not its pruning
+    assert ReconstructionConfig.cpu() == v4
+    multi = ReconstructionConfig.cpu(monocular=False)
+    changed = {k for k, v in dataclasses.asdict(multi).items() if v != getattr(v2, k)}
+    assert changed == set(CPU_MULTIVIEW_SCHEDULE) == set(CPU_MONOCULAR_SCHEDULE)
+    assert multi == dataclasses.replace(v3, min_opacity=v2.min_opacity) and multi.min_opacity == 0.005
+    assert multi.iterations == 4000
     short = ReconstructionConfig.cpu_v2(iterations=2000)
     # the runner's 2000 steps: learning rates still decay over 20000 steps (annealing inside a
     # short run cost 1.2-1.7 dB), the densification/warm-up points are not rescaled
