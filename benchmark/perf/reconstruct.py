@@ -3,7 +3,8 @@
 Trains the runner's geometry settings for the synthetic HyperNeRF-format scene (the `make
 demo` scene) once per CPU preset (``cpu-v1``, the first one, ``cpu-v2``, the second,
 ``cpu-v3``, cpu-v2's schedule over twice the iterations, and ``cpu``, the current one: cpu-v3
-with faint gaussians pruned),
+with faint gaussians pruned; ``cpu-v4`` is the same there. With ``--dataset`` a multi-view
+format: cpu-v2 and cpu-v3 are the same, and ``cpu`` trains the monocular schedule's 4000 iterations),
 one after the other in this process, saving a checkpoint every few hundred iterations; then
 renders every checkpoint at the test views and prints test PSNR against the time at which the
 checkpoint was written (setup and image loading included), and the median seconds per
