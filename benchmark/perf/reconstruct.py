@@ -5,7 +5,8 @@ demo` scene) once per CPU preset (``cpu-v1``, the first one, ``cpu-v2``, the sec
 ``cpu-v3``, cpu-v2's schedule over twice the iterations, and ``cpu``, the current one: cpu-v3
 with faint gaussians pruned; ``cpu-v4`` is the same there. With ``--dataset`` a multi-view
 format: cpu-v2 and cpu-v3 are the same, and ``cpu`` trains the monocular schedule's 4000 iterations),
-one after the other in this process, saving a checkpoint every few hundred iterations; then
+one after the other in this process (a preset whose settings equal an earlier one's on the scene
+is reported as that one, not trained again), saving a checkpoint every few hundred iterations; then
 renders every checkpoint at the test views and prints test PSNR against the time at which the
 checkpoint was written (setup and image loading included), and the median seconds per
 iteration before and after the deformation switches on. Threads as in the runner: torch as the
@@ -102,9 +103,18 @@ def run(quick: bool = False, echo: Callable[[str], None] = print, dataset: str =
     with tempfile.TemporaryDirectory(prefix="perf-recon-") as tmp:
         for preset in PRESETS:
             train = runner_train_config(dataset, (w, h), preset)
-            runs.append(_train_and_score(scene, preset, train, budget, iterations, interval, Path(tmp) / preset, echo))
+            twin = next((r["preset"] for r in runs if r["runner_config"] == train), None)
+            if twin is not None:  # e.g. cpu-v3 on a multi-view rig: cpu-v2's settings, trained once
+                echo(f"  {preset:<7} the same settings as {twin} on this scene: not trained again")
+                runs.append({"preset": preset, "same_as": twin, "runner_config": train})
+                continue
+            run_ = _train_and_score(scene, preset, train, budget, iterations, interval, Path(tmp) / preset, echo)
+            runs.append({**run_, "runner_config": train})
     echo(f"{'preset':<8} {'iterations':>10} {'seconds':>8} {'test PSNR':>10} {'s/it static':>12} {'s/it deforming':>15}")
     for r in runs:
+        if "same_as" in r:
+            echo(f"{r['preset']:<8} = {r['same_as']}")
+            continue
         f, spi = r["final"], r["seconds_per_iteration"]
         if f:
             def fmt(x):

@@ -70,6 +70,21 @@ def test_reconstruct_suite_reports_psnr_per_checkpoint_for_every_preset(monkeypa
     assert "test PSNR" in printed and "s/it deforming" in printed
 
 
+def test_reconstruct_suite_trains_equal_settings_once(monkeypatch, capsys):
+    """On a multi-view rig cpu-v2 and cpu-v3 are the same settings: reported, trained once."""
+    from benchmark.perf import reconstruct
+
+    monkeypatch.setattr(reconstruct, "QUICK", {"size": "tiny", "budget_s": 60.0, "iterations": 4, "interval": 4})
+    out = reconstruct.run(quick=True, echo=print, dataset="technicolor")
+    by = {r["preset"]: r for r in out["runs"]}
+    assert list(by) == ["cpu-v1", "cpu-v2", "cpu-v3", "cpu"]
+    assert by["cpu-v3"]["same_as"] == "cpu-v2" and "curve" not in by["cpu-v3"]
+    assert by["cpu-v3"]["runner_config"] == by["cpu-v2"]["runner_config"]
+    assert all("curve" in by[p] for p in ("cpu-v1", "cpu-v2", "cpu"))
+    assert by["cpu"]["iterations_planned"] == 4 and by["cpu"]["runner_config"]["iterations"] == 4000
+    assert "cpu-v3   = cpu-v2" in capsys.readouterr().out
+
+
 @pytest.mark.slow
 def test_captures_suite_fits_every_layout_with_both_mask_sources(tmp_path):
     from benchmark.perf import captures
