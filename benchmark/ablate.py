@@ -178,10 +178,10 @@ def paper_config(method_name: str, dataset: str, variant: str, overrides: list[s
     from benchmark.config import merge, parse_overrides
     from benchmark.datasets import get_dataset
     from benchmark.methods import get_method
-    from benchmark.pipeline.config import default_config
+    from benchmark.pipeline.settings import run_settings
 
     spec, method = get_dataset(dataset), get_method(method_name)
-    cfg = default_config(method, spec, variant, {"geometry": {"preset": "paper"}})  # the method's paper preset too
+    cfg = run_settings(method, spec, variant, {"preset": "paper"}).to_dict()  # the method's paper preset too
     cfg["masks"]["generator"] = "sam"  # the paper's masks: SAM ViT-H automatic
     return merge(cfg, parse_overrides(overrides))
 

@@ -26,7 +26,7 @@ from benchmark.cache import StageCache, config_hash
 from benchmark.config import merge, parse_overrides, typed
 from benchmark.io import atomic_directory, atomic_write_bytes, atomic_write_json
 from benchmark.pipeline import fit, geometry, masks
-from benchmark.pipeline.config import capture_config
+from benchmark.pipeline.settings import capture_settings
 from benchmark.pipeline.context import SequenceRun, scene_fingerprint
 
 FIT_STAGES = (masks.run, geometry.run, fit.run)
@@ -68,9 +68,9 @@ def fit_capture(opts: FitOptions) -> Path:
         say(f"  note: {note}")
     method = get_method(opts.method)
     first = scene.train[0].camera
-    cfg = capture_config(method, monocular(scene), capture, overrides, (first.width, first.height))
+    settings = capture_settings(method, monocular(scene), capture, overrides, (first.width, first.height))
     out = Path(opts.out_dir) if opts.out_dir else Path("fits") / scene.sequence
-    ctx = SequenceRun(StageCache(Path(opts.cache_dir) if opts.cache_dir else out / ".cache"), scene, cfg,
+    ctx = SequenceRun(StageCache(Path(opts.cache_dir) if opts.cache_dir else out / ".cache"), scene, settings,
                       method, opts.progress, scene_fingerprint(scene), gt_key="")
     for stage in FIT_STAGES:
         for rec in stage(ctx):
@@ -95,7 +95,7 @@ def export(ctx: SequenceRun, out: Path, opts: FitOptions) -> Path:
             if f.is_file():
                 shutil.copy2(f, d / f.name)
     gaussians, deformation = ctx.geometry
-    fitted = FittedModel.load(out / "segmentation", gaussians, deformation)
+    fitted = FittedModel.load(out / "segmentation", gaussians, deformation, ctx.method.settings_class())
     scene = ctx.scene
     shown = [scene.train[i] for i in np.unique(np.linspace(0, len(scene.train) - 1, N_PREVIEWS).round().astype(int))]
     with atomic_directory(out / "previews") as d:
@@ -112,8 +112,8 @@ def export(ctx: SequenceRun, out: Path, opts: FitOptions) -> Path:
         "notices": scene.extras["notices"],
         "normalization": scene.extras.get("normalization"),
         "method": ctx.method.name,
-        "config": ctx.cfg,
-        "config_hash": config_hash(ctx.cfg),
+        "config": ctx.settings.to_dict(),
+        "config_hash": config_hash(ctx.settings.to_dict()),
         "overrides": list(opts.overrides),
         "stages": {name: rec.to_dict() for name, rec in ctx.records.items()},
         "views": {"train": len(scene.train), "test": len(scene.test)},

@@ -42,12 +42,13 @@ def fitted_capture(fit_dir: Path | str):
     record = read_json(fit_dir / FIT_FILE, FIT_FILE)
     views_doc = read_json(fit_dir / VIEWS_FILE, VIEWS_FILE)
     gaussians, deformation = load_model(fit_dir / "model")
-    fitted = FittedModel.load(fit_dir / "segmentation", gaussians, deformation)
+    method = get_method(record["method"])
+    fitted = FittedModel.load(fit_dir / "segmentation", gaussians, deformation, method.settings_class())
     views = [View(name=v["name"], camera=Camera.from_dict(v["camera"]), image_path=Path(v["image"]), frame=int(v["frame"]))
              for split in ("train", "test") for v in views_doc[split]]
     scene = Scene(dataset="capture", sequence=fit_dir.name, root=fit_dir, train=views, test=views,
                   points=np.zeros((0, 3)))
-    return record, get_method(record["method"]), fitted, scene
+    return record, method, fitted, scene
 
 
 def select_clicks(fit_dir: Path | str, clicks: list[str], out_dir: Path | str | None = None) -> dict:

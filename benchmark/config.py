@@ -9,6 +9,7 @@ changing a clustering setting reuses the masks and the reconstruction.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import json
 import types
 import typing
@@ -74,10 +75,15 @@ def typed(cls, data: dict, where: str):
     annotation first, so a wrong type stops the run at resolution with the setting's name
     rather than deep inside a stage (``--set geometry.train.iterations=many``)."""
     hints = typing.get_type_hints(cls)
+    data = dict(data)
     for k, v in data.items():
         if k not in hints:
             raise ConfigError(f"--set {where}.{k}: unknown setting (known here: {', '.join(sorted(hints))})")
-        if not _matches(v, hints[k]):
+        if dataclasses.is_dataclass(hints[k]):  # a section of its own: typed in turn
+            if not isinstance(v, dict):
+                raise ConfigError(f"--set {where}.{k}: is a section, give {where}.{k}.<key>=value")
+            data[k] = typed(hints[k], v, f"{where}.{k}")
+        elif not _matches(v, hints[k]):
             raise ConfigError(f"--set {where}.{k}={json.dumps(v)}: expected {_type_name(hints[k])}")
     try:
         return cls(**data)

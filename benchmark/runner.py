@@ -20,8 +20,8 @@ from benchmark.config import ConfigError, parse_overrides
 from benchmark.errors import UserError
 from benchmark.io import sha256_files
 from benchmark.pipeline import ceiling, evaluate, fit, geometry, masks, prompts
-from benchmark.pipeline.config import default_config, without_seed
 from benchmark.pipeline.context import SequenceRun, scene_fingerprint
+from benchmark.pipeline.settings import RunSettings, run_settings
 from benchmark.pipeline.record import build_record
 from benchmark.results import write_results
 from benchmark.runs import check_free, run_dir, run_info, run_name
@@ -93,14 +93,14 @@ class Reporter:
 
 @dataclasses.dataclass
 class Prepared:
-    """One sequence of a run, resolved: its scene, config, name and directory."""
+    """One sequence of a run, resolved: its scene, settings, name and directory."""
 
     spec: object
     scene: object
     scene_dir: Path
     variant: str
     method: object
-    cfg: dict
+    settings: RunSettings
     chash: str
     group: str
     is_default: bool
@@ -109,12 +109,13 @@ class Prepared:
 
     def context(self, cache: StageCache, progress: bool) -> SequenceRun:
         """What the stages read, on ``cache``."""
-        return SequenceRun(cache, self.scene, self.cfg, self.method, progress, scene_fingerprint(self.scene),
+        return SequenceRun(cache, self.scene, self.settings, self.method, progress, scene_fingerprint(self.scene),
                            sha256_files(list(self.scene.gt_masks))[:16])
 
 
 def prepare_sequence(opts: RunOptions, sequence: str | None, create: bool = True) -> Prepared:
-    """Find (or generate) the scene and resolve the run's config, name and directory; no stage runs."""
+    """Find (or generate) the scene and resolve the run's settings (once), name and directory;
+    no stage runs."""
     from benchmark.datasets import get_dataset, load_scene
     from benchmark.datasets.synthetic import find_or_generate
     from benchmark.methods import get_method
@@ -130,14 +131,13 @@ def prepare_sequence(opts: RunOptions, sequence: str | None, create: bool = True
     overrides = parse_overrides(opts.overrides)
     views = scene.test or scene.train
     size = (views[0].camera.width, views[0].camera.height) if views else None
-    cfg = default_config(method, spec, variant, overrides, size)
-    chash = config_hash(cfg)
-    # runs that differ only in their seed share this hash: one row of a table, over seeds
-    group = config_hash(default_config(method, spec, variant, without_seed(overrides), size))
-    is_default = group == config_hash(default_config(method, spec, variant, {}, size))
-    name = run_name(group, opts.name, with_hash=bool(opts.study), seed=cfg["seed"])
+    settings = run_settings(method, spec, variant, overrides, size)
+    chash = config_hash(settings.to_dict())
+    # runs that differ only in their seed share settings.group_hash: one row of a table, over seeds
+    group = settings.group_hash
+    name = run_name(group, opts.name, with_hash=bool(opts.study), seed=settings.seed)
     out_dir = run_dir(opts.out_dir, opts.method, spec.key, scene.sequence, name)
-    return Prepared(spec, scene, scene_dir, variant, method, cfg, chash, group, is_default, name, out_dir)
+    return Prepared(spec, scene, scene_dir, variant, method, settings, chash, group, settings.is_default, name, out_dir)
 
 
 def plan_sequence(opts: RunOptions, sequence: str | None) -> list[tuple[str, str, bool]]:
@@ -174,7 +174,7 @@ def run_sequence(opts: RunOptions, sequence: str | None, reporter: Reporter, ind
     p.out_dir.mkdir(parents=True, exist_ok=True)
     evaluate.copy_outputs(ctx.records["evaluate"], p.out_dir)
     _, prompts_dict = prompts.load_prompts(ctx.records["prompts"])
-    info = run_info(p.name, opts.overrides, p.is_default, opts.study, opts.study_variant, seed=p.cfg["seed"],
+    info = run_info(p.name, opts.overrides, p.is_default, opts.study, opts.study_variant, seed=p.settings.seed,
                     group=p.group)
     write_results(path, build_record(ctx, info, p.spec.key, p.variant, p.scene_dir, p.chash, prompts_dict, p.out_dir))
     reporter.finish()

@@ -7,7 +7,7 @@ import json
 import click
 
 from benchmark.datasets.registry import DATASETS
-from benchmark.methods.trase_settings import PAPER_SETTINGS
+from benchmark.methods.trase_presets import trase_settings
 
 
 @click.command()
@@ -42,8 +42,8 @@ def datasets(as_json: bool) -> None:
                 frames = f"frames {a}-{b}"
         else:
             frames = "dataset.json items"
-        trase = PAPER_SETTINGS[s.key]  # the reference method's settings for this benchmark
-        defaults = (f"Np {trase.n_pixels}\nM' {trase.n_masks}\nfilter {trase.filter_threshold}\n"
+        trase = trase_settings("paper", s.key)  # the reference method's settings for this benchmark
+        defaults = (f"Np {trase.features.n_pixels}\nM' {trase.features.n_masks:g}\nfilter {trase.filter_threshold}\n"
                     f"warm-up {s.warm_up}\ndensify {s.densify_until}")
         kind = "monocular" if s.monocular else "multi-view"
         table.add_row(f"{s.key}\n{s.display_name}\n{s.format}, {kind}", "\n".join(s.sequences),

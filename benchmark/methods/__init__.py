@@ -6,12 +6,13 @@ as two stages so a clustering change reuses the features; and prompts into predi
 the scene's test views (``segment``)::
 
     method = get_method("trase")              # or get_method("trase", objective="trase-hard")
-    cfg = method.default_config("hypernerf", "cpu")   # plain JSON-able dict; --set merges into it
-    fitted = method.fit(scene, gaussians, deformation, masks_dir, cfg, work_dir)  # learn + group
+    settings = method.resolve_settings("cpu", Context(dataset="hypernerf")).config  # typed
+    fitted = method.fit(scene, gaussians, deformation, masks_dir, settings, work_dir)  # learn + group
     preds = method.segment(fitted, scene, prompts)   # list of bool [H, W], one per scene.test
 
-Method modules are imported lazily: ``METHODS`` names each method's class by its import path
-(lazyspecs), so listing methods stays cheap.
+A method declares its settings as presets (``presets``, a lazyspecs.presets.PresetTable of its
+typed settings class), beside the method. Method modules are imported lazily: ``METHODS`` names
+each method's class by its import path (lazyspecs), so listing methods stays cheap.
 """
 
 from __future__ import annotations
@@ -20,11 +21,13 @@ import dataclasses
 import json
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from benchmark.errors import UserError
 from lazyspecs import Registry
+from lazyspecs.presets import Context, PresetTable, Resolved, build
 
 
 class MethodError(UserError):
@@ -37,6 +40,13 @@ METHODS.add("trase-hard", "benchmark.methods.baselines:TraseHardMethod", "hard m
 METHODS.add("trase-all", "benchmark.methods.baselines:TraseAllMethod", "all mining (the paper's ablation)")
 METHODS.add("cgc", "benchmark.methods.baselines:CGCMethod", "Contrastive Gaussian Clustering objective and inference")
 METHODS.add("opengaussian", "benchmark.methods.baselines:OpenGaussianMethod", "OpenGaussian-style intra/inter-mask objective")
+
+
+def _tier(preset: str) -> str:
+    """paper or cpu: what a method that does not declare ``preset`` resolves instead."""
+    from trase.reconstruction_presets import RECONSTRUCTION_PRESETS
+
+    return RECONSTRUCTION_PRESETS.preset(preset).tier if preset in RECONSTRUCTION_PRESETS else preset
 
 
 def register_method(name: str) -> Callable:
@@ -64,7 +74,7 @@ class FittedModel:
     keep: np.ndarray  # [N] bool: passes the similarity filter
     timings: dict  # seconds per phase
     stats: dict  # n_clusters, feature-space stats, fast-path bytes, loss history tail...
-    config: dict
+    config: Any  # the method's typed settings (a dict where loaded without its settings class)
     gaussians: object = None
     deformation: object = None
 
@@ -77,49 +87,71 @@ class FittedModel:
         np.save(out / "keep.npy", np.asarray(self.keep, bool))
         if self.gaussians is not None:
             export_ply(self.gaussians, self.features, out / "point_cloud.ply", labels=self.labels)
+        config = dataclasses.asdict(self.config) if dataclasses.is_dataclass(self.config) else self.config
         (out / "fitted.json").write_text(json.dumps(
-            {"timings": self.timings, "stats": self.stats, "config": self.config}, indent=1, default=float))
+            {"timings": self.timings, "stats": self.stats, "config": config}, indent=1, default=float))
 
     @classmethod
-    def load(cls, out_dir: str | Path, gaussians=None, deformation=None) -> FittedModel:
+    def load(cls, out_dir: str | Path, gaussians=None, deformation=None, config_cls: type | None = None) -> FittedModel:
+        """A saved model; its settings typed as ``config_cls`` (the method's settings class) if given."""
         out = Path(out_dir)
         need = ["features.npy", "clusters.npy", "keep.npy", "fitted.json"]
         missing = [n for n in need if not (out / n).is_file()]
         if missing:
             raise MethodError(f"{out}: not a fitted model directory (missing {', '.join(missing)})")
         meta = json.loads((out / "fitted.json").read_text())
+        config = meta.get("config", {})
+        if config_cls is not None:
+            config = build(config_cls, config)
         return cls(np.load(out / "features.npy"), np.load(out / "clusters.npy"), np.load(out / "keep.npy"),
-                   meta.get("timings", {}), meta.get("stats", {}), meta.get("config", {}), gaussians, deformation)
+                   meta.get("timings", {}), meta.get("stats", {}), config, gaussians, deformation)
 
 
 class Method:
-    """Base class. Subclasses set ``name`` via ``register_method`` and implement
-    ``default_config``, ``learn``, ``group`` and ``segment``; ``segment`` returns one bool
-    [H, W] mask per ``scene.test`` view, in order."""
+    """Base class. Subclasses set ``name`` via ``register_method``, declare ``presets`` (their
+    typed settings per preset, benchmark and rig) and implement ``learn``, ``group`` and
+    ``segment``; ``segment`` returns one bool [H, W] mask per ``scene.test`` view, in order."""
 
     name: str = ""
-    FEATURE_KEYS: tuple[str, ...] = ()  # config entries that change what ``learn`` produces
+    presets: PresetTable | None = None  # the method's settings, declared as data
+    FEATURE_FIELDS: tuple[str, ...] = ()  # settings that change what ``learn`` produces (its cache key)
 
-    def default_config(self, dataset: str | None, preset: str, monocular: bool = True) -> dict:
-        """Plain JSON-able settings for benchmark ``dataset`` (None: a capture of one's own,
-        described by its rig) under ``preset`` (paper or cpu, resolved once by the benchmark)."""
-        raise NotImplementedError
+    def settings_class(self) -> type:
+        if self.presets is None:
+            raise MethodError(f"method {self.name!r} declares no presets")
+        return self.presets.config_cls
 
-    def check_config(self, config: dict) -> None:
-        """Raise ConfigError for a setting of the wrong type (the run config checks it once,
+    def resolve_settings(self, preset: str, ctx: Context, tier: str | None = None) -> Resolved:
+        """The method's settings under the run's ``preset`` (a preset the method does not
+        declare resolves its ``tier``, paper or cpu) in ``ctx``, with where each was declared."""
+        if self.presets is None:
+            raise MethodError(f"method {self.name!r} declares no presets")
+        return self.presets.resolve(preset, ctx, tier)
+
+    def settings(self, preset: str, dataset: str | None = None, monocular: bool | None = None):
+        """The typed settings under ``preset`` for benchmark ``dataset`` (None: a capture of
+        one's own, monocular unless told), as a run resolves them before its --set values."""
+        from benchmark.datasets.registry import get_dataset
+
+        if monocular is None:
+            monocular = get_dataset(dataset).monocular if dataset is not None else True
+        return self.resolve_settings(preset, Context(dataset=dataset, monocular=monocular), _tier(preset)).config
+
+    def check_settings(self, settings) -> None:
+        """Raise ConfigError for settings that cannot work together (the run checks them once,
         before any stage runs); the base class checks nothing."""
 
-    def learn(self, scene, gaussians, deformation, masks_dir: Path, config: dict, work_dir: Path,
+    def learn(self, scene, gaussians, deformation, masks_dir: Path, config, work_dir: Path,
               progress: bool = True) -> tuple[np.ndarray, dict]:
         """Per-gaussian features [N, D] float32 and a JSON-able info dict for ``group``."""
         raise NotImplementedError
 
-    def group(self, feats: np.ndarray, config: dict, gaussians=None, deformation=None,
+    def group(self, feats: np.ndarray, config, gaussians=None, deformation=None,
               learn_info: dict | None = None) -> FittedModel:
         """Features -> clusters, filter and stats."""
         raise NotImplementedError
 
-    def fit(self, scene, gaussians, deformation, masks_dir: Path, config: dict, work_dir: Path,
+    def fit(self, scene, gaussians, deformation, masks_dir: Path, config, work_dir: Path,
             progress: bool = True) -> FittedModel:
         """``learn`` then ``group`` in one call (the benchmark runs them as two cached stages)."""
         feats, info = self.learn(scene, gaussians, deformation, masks_dir, config, work_dir, progress)

@@ -24,12 +24,15 @@ path and the click prompts with ``trase``; only what the baseline's paper change
 from __future__ import annotations
 
 import copy
+import dataclasses
 from pathlib import Path
 
 import numpy as np
 
+from baselines.cgc_inference import PATCH, THRESHOLD
 from benchmark.methods import FittedModel, MethodError, register_method
 from benchmark.methods.trase_method import TraseMethod, click_view
+from benchmark.methods.trase_presets import TRASE_PRESETS, TraseSettings
 
 BASELINE_METHODS = ("trase-hard", "trase-all", "cgc", "opengaussian")
 
@@ -48,41 +51,57 @@ class TraseAllMethod(TraseMethod):
     objective = "trase-all"
 
 
+@dataclasses.dataclass
+class CGCInference:
+    """CGC's selection: a click's PATCHxPATCH rendered-feature patch is the query, every
+    gaussian with cosine >= threshold to it is selected (baselines.cgc_inference)."""
+
+    threshold: float = THRESHOLD
+    patch: int = PATCH
+
+
+@dataclasses.dataclass
+class CGCSettings(TraseSettings):
+    cgc: CGCInference = dataclasses.field(default_factory=CGCInference)
+
+
+CGC_PRESETS = TRASE_PRESETS.extended("cgc", CGCSettings)
+# CGC's own threshold replaces TRASE's filter; "auto": the public 100-pixel small-segment
+# threshold rescaled to the mask resolution (baselines/cgc.py)
+CGC_PRESETS.declare("paper", {"features.objective_params": {"min_mask_pixels": "auto"}}, filter_threshold=None)
+CGC_PRESETS.declare("cpu", filter_threshold=None)
+
+OPENGAUSSIAN_PRESETS = TRASE_PRESETS.extended("opengaussian")
+# every gaussian keeps its class (codebook semantics): no filter
+OPENGAUSSIAN_PRESETS.declare("paper", filter_threshold=None)
+OPENGAUSSIAN_PRESETS.declare("cpu", filter_threshold=None)
+
+
 @register_method("cgc")
 class CGCMethod(TraseMethod):
     """Contrastive Gaussian Clustering: CGC objective and CGC's similarity-threshold selection."""
 
     objective = "cgc"
+    presets = CGC_PRESETS
 
-    def default_config(self, dataset: str | None, preset: str, monocular: bool = True) -> dict:
-        from baselines.cgc_inference import PATCH, THRESHOLD
-
-        cfg = super().default_config(dataset, preset, monocular)
-        params = cfg["features"]["objective_params"]
-        # "auto": the public 100-pixel threshold rescaled to the mask resolution (see baselines/cgc.py)
-        params.setdefault("min_mask_pixels", "auto")
-        cfg["cgc"] = {"threshold": THRESHOLD, "patch": PATCH}
-        cfg["filter_threshold"] = None  # CGC's own threshold replaces TRASE's filter
-        return cfg
-
-    def learn(self, scene, gaussians, deformation, masks_dir: Path, config: dict, work_dir: Path,
+    def learn(self, scene, gaussians, deformation, masks_dir: Path, config: CGCSettings, work_dir: Path,
               progress: bool = True):
         cfg = copy.deepcopy(config)
-        params = cfg["features"].setdefault("objective_params", {})
+        params = cfg.features.objective_params
         if params.get("min_mask_pixels", "auto") == "auto":
             params["min_mask_pixels"] = _auto_min_mask_pixels(scene, masks_dir)
         feats, info = super().learn(scene, gaussians, deformation, masks_dir, cfg, work_dir, progress)
         info["min_mask_pixels"] = params["min_mask_pixels"]
         return feats, info
 
-    def group(self, feats, config: dict, gaussians=None, deformation=None, learn_info=None) -> FittedModel:
-        shared = copy.deepcopy(config)
-        shared["filter_threshold"] = -1.0  # the shared grouping needs a number; keep is replaced
-        fitted = super().group(feats, shared, gaussians, deformation, learn_info)
+    def group(self, feats, config: CGCSettings, gaussians=None, deformation=None, learn_info=None) -> FittedModel:
+        # the shared grouping needs a number; keep is replaced
+        fitted = super().group(feats, dataclasses.replace(config, filter_threshold=-1.0), gaussians, deformation,
+                               learn_info)
         fitted.config = copy.deepcopy(config)
         resolved = (learn_info or {}).get("min_mask_pixels")
         if resolved is not None:  # record the threshold "auto" resolved to
-            fitted.config["features"].setdefault("objective_params", {})["min_mask_pixels"] = resolved
+            fitted.config.features.objective_params["min_mask_pixels"] = resolved
         fitted.keep = np.ones(fitted.labels.shape, bool)  # CGC's own threshold replaces the filter
         fitted.stats["kept_fraction"] = 1.0
         fitted.stats["min_mask_pixels"] = resolved
@@ -93,14 +112,14 @@ class CGCMethod(TraseMethod):
     def segment(self, fitted: FittedModel, scene, prompts) -> list[np.ndarray]:
         import torch
 
-        from baselines.cgc_inference import PATCH, THRESHOLD, select_by_clicks
+        from baselines.cgc_inference import select_by_clicks
         from trase.segment import render_masks
 
         if fitted.gaussians is None:
             raise MethodError(
                 "segment needs the fitted model's geometry (FittedModel.gaussians is None)"
             )
-        ccfg = fitted.config.get("cgc", {})
+        ccfg = fitted.config.cgc
         by_view: dict[str, tuple] = {}  # clicks grouped by the frame they were made in
         for c in prompts.clicks:
             view = click_view(scene, prompts, c)
@@ -113,12 +132,12 @@ class CGCMethod(TraseMethod):
                 torch.from_numpy(fitted.features),
                 view.camera,
                 clicks,
-                float(ccfg.get("threshold", THRESHOLD)),
-                int(ccfg.get("patch", PATCH)),
+                float(ccfg.threshold),
+                int(ccfg.patch),
             )
         fitted.stats["selected_gaussians"] = int(sel.sum())
-        thr = float(fitted.config.get("alpha_threshold", 0.5))
-        rule = str(fitted.config.get("render_rule", "alone"))  # as its oracle and the ceiling
+        # as its oracle and the ceiling
+        thr, rule = float(fitted.config.alpha_threshold), str(fitted.config.render_rule)
         return render_masks(
             fitted.gaussians, fitted.deformation, sel, [v.camera for v in scene.test], thr, rule
         )
@@ -129,22 +148,17 @@ class OpenGaussianMethod(TraseMethod):
     """OpenGaussian's stage-1 objective; shared clustering in place of its codebook, no filter."""
 
     objective = "opengaussian"
+    presets = OPENGAUSSIAN_PRESETS
 
-    def default_config(self, dataset: str | None, preset: str, monocular: bool = True) -> dict:
-        cfg = super().default_config(dataset, preset, monocular)
-        cfg["filter_threshold"] = None  # every gaussian keeps its class (codebook semantics)
-        return cfg
-
-    def group(self, feats, config: dict, gaussians=None, deformation=None, learn_info=None) -> FittedModel:
-        shared = copy.deepcopy(config)
-        if shared.get("filter_threshold") is None:
-            shared["filter_threshold"] = -1.0
+    def group(self, feats, config: TraseSettings, gaussians=None, deformation=None, learn_info=None) -> FittedModel:
+        shared = config if config.filter_threshold is not None else dataclasses.replace(config, filter_threshold=-1.0)
         fitted = super().group(feats, shared, gaussians, deformation, learn_info)
         fitted.config = copy.deepcopy(config)
-        if config.get("filter_threshold") is None:
+        if config.filter_threshold is None:
             fitted.keep = np.ones(fitted.labels.shape, bool)
             fitted.stats["kept_fraction"] = 1.0
         return fitted
+
 
 def _auto_min_mask_pixels(scene, masks_dir: Path) -> int:
     """CGC's 100-pixel small-segment threshold at the resolution of this scene's masks."""
@@ -161,7 +175,9 @@ def _auto_min_mask_pixels(scene, masks_dir: Path) -> int:
 
 __all__ = [
     "BASELINE_METHODS",
+    "CGCInference",
     "CGCMethod",
+    "CGCSettings",
     "OpenGaussianMethod",
     "TraseAllMethod",
     "TraseHardMethod",

@@ -56,8 +56,7 @@ def training_view_ceiling(fit_dir: Path, maps: dict[str, np.ndarray], ids: list[
     _, _, fitted, cap = fitted_capture(fit_dir)
     views = [v for v in cap.train if _scene_name(v.name) in maps]
     g, deform = fitted.gaussians, fitted.deformation
-    rule = str(fitted.config.get("render_rule", "alone"))
-    threshold = float(fitted.config.get("alpha_threshold", 0.5))
+    rule, threshold = str(fitted.config.render_rule), float(fitted.config.alpha_threshold)
     votes = instance_votes(g, deform, [v.camera for v in views], [maps[_scene_name(v.name)] for v in views], n_ids)
     out = {}
     for label, chosen in [*((str(i), [i]) for i in ids), ("all", ids)]:

@@ -74,10 +74,9 @@ def child(out: str, size: str, iterations: int, feature_steps: int) -> None:
     mask_dir = work / "masks"
     masklib.generate_scene_masks(scene.train, gen, mask_dir, progress=False,
                                  instance_maps=scene.truth.instance_maps)
-    from benchmark.methods.trase_settings import PAPER_SETTINGS
+    from benchmark.methods.trase_presets import trase_settings
 
-    settings = PAPER_SETTINGS[spec.key]
-    fcfg = FeatureConfig.preset("cpu", n_pixels=min(settings.n_pixels, 2000), n_masks=float(settings.n_masks))
+    fcfg = trase_settings("cpu", spec.key).features  # the features `run` trains under the cpu preset
     fcfg = FeatureConfig(**(fcfg.to_dict() | {"iterations": feature_steps, "device": "cpu"}
                             | ({"torch_threads": int(threads)} if threads else {})))
     res = train_features(gt_g, gt_deform, scene.train, lambda v: masklib.load(masklib.mask_path(mask_dir, v.name)),

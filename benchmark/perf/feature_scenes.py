@@ -44,7 +44,7 @@ def synthetic_view(dataset: str, size: str) -> dict:
     import masks as masklib
     from benchmark.datasets import get_dataset, load_scene
     from benchmark.datasets.synthetic.cache import ensure_synthetic
-    from benchmark.methods.trase_settings import PAPER_SETTINGS
+    from benchmark.methods.trase_presets import trase_settings
     from masks.generators import make_generator
     from trase.checkpoint import load_tabulated_geometry
 
@@ -58,4 +58,4 @@ def synthetic_view(dataset: str, size: str) -> dict:
     ms = masklib.load(masklib.mask_path(work / "masks", view.name))
     return {"name": f"synthetic {dataset} ({size}), view {view.name}, ground-truth geometry",
             "gaussians": g, "deformation": deform, "camera": view.camera, "masks": ms,
-            "m_prime": PAPER_SETTINGS[get_dataset(dataset).key].n_masks}
+            "m_prime": trase_settings("paper", get_dataset(dataset).key).features.n_masks}

@@ -17,6 +17,7 @@ preset says (``torch_threads``), numba compositing on all cores (or ``trase-benc
 from __future__ import annotations
 
 import csv
+import dataclasses
 import os
 import tempfile
 import time
@@ -33,11 +34,11 @@ def runner_train_config(dataset: str, image_size: tuple[int, int], preset: str =
     CPU (these suites measure the CPU reconstruction, also on a machine with a GPU)."""
     from benchmark.datasets import get_dataset
     from benchmark.methods import get_method
-    from benchmark.pipeline.config import default_config
+    from benchmark.pipeline.settings import run_settings
 
-    cfg = default_config(get_method("trase"), get_dataset(dataset), "synthetic",
-                         {"geometry": {"preset": preset, "train": {"device": "cpu"}}}, image_size)
-    return dict(cfg["geometry"]["train"])
+    settings = run_settings(get_method("trase"), get_dataset(dataset), "synthetic",
+                            {"preset": preset, "geometry": {"train": {"device": "cpu"}}}, image_size)
+    return dataclasses.asdict(settings.geometry.train)
 
 
 def _seconds_per_iteration(log: Path, warm_up: int) -> dict:

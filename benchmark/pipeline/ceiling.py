@@ -18,8 +18,8 @@ def run(ctx: SequenceRun) -> list[StageRecord]:
     """[] on real data."""
     if ctx.scene.truth is None:
         return []
-    mcfg = ctx.cfg["method"]  # the config the fit was made with
-    ccfg = {"rule": str(mcfg.get("render_rule", "alone")), "threshold": float(mcfg.get("alpha_threshold", 0.5))}
+    method = ctx.settings.method  # the settings the fit was made with
+    ccfg = {"rule": str(getattr(method, "render_rule", "alone")), "threshold": float(getattr(method, "alpha_threshold", 0.5))}
     key = ctx.cache.key("ceiling", ccfg, {"geometry": ctx.records["geometry"].key, "gt": ctx.gt_key})
 
     def work(d: Path) -> dict:

@@ -1,4 +1,4 @@
-"""What every stage of one sequence reads: the scene, the resolved config, the method, the
+"""What every stage of one sequence reads: the scene, the resolved settings, the method, the
 stage cache and the records of the stages before it."""
 
 from __future__ import annotations
@@ -14,13 +14,14 @@ import numpy as np
 
 from benchmark.cache import StageCache, StageRecord
 from benchmark.config import ConfigError
+from benchmark.pipeline.settings import RunSettings
 
 
 @dataclasses.dataclass
 class SequenceRun:
     cache: StageCache
     scene: object  # benchmark.datasets.Scene
-    cfg: dict  # the resolved run config (benchmark.pipeline.config)
+    settings: RunSettings  # resolved once per sequence (benchmark.pipeline.settings)
     method: object  # benchmark.methods.Method
     progress: bool
     scene_key: str  # scene_fingerprint(scene)

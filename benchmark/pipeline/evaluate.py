@@ -124,7 +124,7 @@ def run(ctx: SequenceRun) -> list[StageRecord]:
 
     def work(d: Path) -> dict:
         gaussians, deformation = ctx.geometry
-        fitted = FittedModel.load(fit_rec.path, gaussians, deformation)
+        fitted = FittedModel.load(fit_rec.path, gaussians, deformation, ctx.method.settings_class())
         prompts, _ = load_prompts(prompts_rec)
         return evaluate(ctx.method, fitted, ctx.scene, prompts, d)
 

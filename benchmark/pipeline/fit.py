@@ -4,6 +4,7 @@ the trained features."""
 
 from __future__ import annotations
 
+import dataclasses
 import shutil
 from pathlib import Path
 
@@ -13,16 +14,21 @@ from benchmark.cache import StageRecord
 from benchmark.pipeline.context import SequenceRun, jsonable
 
 
+def _plain(value):
+    """A settings object as the JSON-able dict a cache key hashes."""
+    return dataclasses.asdict(value) if dataclasses.is_dataclass(value) else value
+
+
 def _features(ctx: SequenceRun) -> StageRecord:
     """Learned per-gaussian features: keyed only on the settings that change them."""
-    method, mcfg = ctx.method, ctx.cfg["method"]
+    method, settings = ctx.method, ctx.settings.method
     masks_rec, geo_rec = ctx.records["masks"], ctx.records["geometry"]
-    fcfg = {"method": method.name, **{k: mcfg[k] for k in method.FEATURE_KEYS if k in mcfg}}
+    fcfg = {"method": method.name, **{k: _plain(getattr(settings, k)) for k in method.FEATURE_FIELDS}}
     key = ctx.cache.key("features", fcfg, {"masks": masks_rec.key, "geometry": geo_rec.key})
 
     def work(d: Path) -> dict:
         gaussians, deformation = ctx.geometry
-        feats, info = method.learn(ctx.scene, gaussians, deformation, masks_rec.path, mcfg, d / "work",
+        feats, info = method.learn(ctx.scene, gaussians, deformation, masks_rec.path, settings, d / "work",
                                    progress=ctx.progress)
         np.save(d / "features.npy", feats)
         shutil.rmtree(d / "work", ignore_errors=True)  # pixel-weight cache, not a result
@@ -32,16 +38,17 @@ def _features(ctx: SequenceRun) -> StageRecord:
 
 
 def run(ctx: SequenceRun) -> list[StageRecord]:
-    method, mcfg = ctx.method, ctx.cfg["method"]
+    method, settings = ctx.method, ctx.settings.method
     geo_rec = ctx.records["geometry"]
-    fit_cfg = {"method": method.name, **mcfg}
+    fit_cfg = {"method": method.name, **_plain(settings)}
+    fit_cfg.pop("preset", None)  # the key hashes resolved values, not the preset's name
     feat_rec = _features(ctx)
     key = ctx.cache.key("fit", fit_cfg, {"features": feat_rec.key, "geometry": geo_rec.key})
 
     def work(d: Path) -> dict:
         gaussians, deformation = ctx.geometry
         feats = np.load(feat_rec.path / "features.npy")
-        fitted = method.group(feats, mcfg, gaussians, deformation, feat_rec.info)
+        fitted = method.group(feats, settings, gaussians, deformation, feat_rec.info)
         fitted.save(d)
         return {"timings": fitted.timings, "stats": jsonable(fitted.stats)}
 

@@ -7,29 +7,29 @@ import shutil
 from pathlib import Path
 
 from benchmark.cache import StageRecord
-from benchmark.config import ConfigError, typed
+from benchmark.config import ConfigError
 from benchmark.pipeline.context import SequenceRun, load_geometry, synthetic_truth
 
 SOURCES = ("reconstruct", "ground-truth", "import")
 
 
 def run(ctx: SequenceRun) -> list[StageRecord]:
-    gcfg, scene = ctx.cfg["geometry"], ctx.scene
-    key = ctx.cache.key("geometry", gcfg, {"scene": ctx.scene_key})
+    geometry, scene = ctx.settings.geometry, ctx.scene
+    keyed = geometry.cache_config()  # resolved values, not the preset's name
+    key = ctx.cache.key("geometry", keyed, {"scene": ctx.scene_key})
 
     def work(d: Path) -> dict:
-        from trase.reconstruct import ReconstructionConfig, evaluate_psnr, reconstruct
+        from trase.reconstruct import evaluate_psnr, reconstruct
 
-        src = gcfg["source"]
+        src = geometry.source
         if src == "ground-truth":
             shutil.copyfile(synthetic_truth(scene).geometry_path, d / "geometry.npz")
         elif src == "import":
-            if not gcfg.get("model_dir"):
+            if not geometry.model_dir:
                 raise ConfigError("geometry.source=import needs --set geometry.model_dir=PATH")
-            shutil.copytree(gcfg["model_dir"], d / "model", dirs_exist_ok=True)
+            shutil.copytree(geometry.model_dir, d / "model", dirs_exist_ok=True)
         elif src == "reconstruct":
-            rcfg = typed(ReconstructionConfig, gcfg["train"], "geometry.train")
-            reconstruct(scene.train, scene.points, scene.point_colors, rcfg, d / "model",
+            reconstruct(scene.train, scene.points, scene.point_colors, geometry.train, d / "model",
                         resume=True, progress=ctx.progress)
         else:
             raise ConfigError(f"--set geometry.source={src}: choose {', '.join(SOURCES)}")
@@ -38,4 +38,4 @@ def run(ctx: SequenceRun) -> list[StageRecord]:
         return {"source": src, "n_gaussians": int(gaussians.num_gaussians),
                 "test_psnr": None if psnr is None else round(float(psnr), 3)}
 
-    return [ctx.cache.run("geometry", key, work, gcfg)]
+    return [ctx.cache.run("geometry", key, work, keyed)]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -9,19 +10,20 @@ import numpy as np
 from benchmark.cache import StageRecord
 from benchmark.config import ConfigError
 from benchmark.pipeline.context import SequenceRun, synthetic_truth
+from benchmark.pipeline.settings import MaskSettings
 
 
-def make_mask_generator(mcfg: dict):
-    """The generator of the ``masks`` config section."""
+def make_mask_generator(settings: MaskSettings):
+    """The generator of the ``masks`` settings."""
     from masks.generators import make_generator
 
-    g = mcfg["generator"]
+    g = settings.generator
     if g == "sam":
-        if not mcfg.get("checkpoint"):
+        if not settings.checkpoint:
             raise ConfigError("masks.generator=sam needs --set masks.checkpoint=PATH (a SAM .pth file)")
-        return make_generator("sam", checkpoint=mcfg["checkpoint"])
+        return make_generator("sam", checkpoint=settings.checkpoint)
     if g == "synthetic":
-        return make_generator("synthetic", seed=mcfg["seed"])
+        return make_generator("synthetic", seed=settings.seed)
     return make_generator(g)
 
 
@@ -68,11 +70,12 @@ def _files_key(views, src: Path) -> str:
 def run(ctx: SequenceRun) -> list[StageRecord]:
     import masks as masklib
 
-    mcfg = ctx.cfg["masks"]
-    if mcfg["generator"] == "files":
-        if not mcfg.get("dir"):
+    settings = ctx.settings.masks
+    mcfg = dataclasses.asdict(settings)  # what the key hashes
+    if settings.generator == "files":
+        if not getattr(settings, "dir", None):
             raise ConfigError("masks.generator=files (trase-bench fit) needs --set masks.dir=PATH (a folder of mask files)")
-        src = Path(mcfg["dir"])
+        src = Path(settings.dir)
         if not src.is_dir():
             raise ConfigError(f"{src}: masks.dir is not a folder")
         key = ctx.cache.key("masks", mcfg, {"scene": ctx.scene_key, "files": _files_key(ctx.scene.train, src)})
@@ -84,12 +87,12 @@ def run(ctx: SequenceRun) -> list[StageRecord]:
         return [ctx.cache.run("masks", key, copy, mcfg)]
     # an RGBA image is composited over the reconstruction's background (imagefiles' rule), so
     # masks are cut from the picture the geometry trains on
-    white = bool(ctx.cfg["geometry"].get("train", {}).get("white_background", False))
+    white = bool(ctx.settings.geometry.train.white_background)
     key = ctx.cache.key("masks", mcfg, {"scene": ctx.scene_key, "background": "white" if white else "black"})
 
     def work(d: Path) -> dict:
-        instance_maps = synthetic_truth(ctx.scene).instance_maps if mcfg["generator"] == "synthetic" else None
-        paths = masklib.generate_scene_masks(ctx.scene.train, make_mask_generator(mcfg), d,
+        instance_maps = synthetic_truth(ctx.scene).instance_maps if settings.generator == "synthetic" else None
+        paths = masklib.generate_scene_masks(ctx.scene.train, make_mask_generator(settings), d,
                                              progress=ctx.progress, instance_maps=instance_maps,
                                              background=(1.0, 1.0, 1.0) if white else None)
         sizes = [p.stat().st_size for p in paths]

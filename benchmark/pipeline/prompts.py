@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 from benchmark.cache import StageRecord
@@ -15,17 +16,18 @@ PROMPTS_FILE = "prompts.json"
 def run(ctx: SequenceRun) -> list[StageRecord]:
     from benchmark.protocol.prompts import BENCHMARK_RULES, load_or_make_prompts
 
-    pcfg, scene = ctx.cfg["prompts"], ctx.scene
-    if pcfg["rule"] not in BENCHMARK_RULES:
-        raise ConfigError(f"--set prompts.rule={pcfg['rule']}: choose {' or '.join(BENCHMARK_RULES)}")
-    n_sets = pcfg.get("click_sets", 1)
-    if isinstance(n_sets, bool) or not isinstance(n_sets, int) or n_sets < 1:
+    protocol, scene = ctx.settings.prompts, ctx.scene
+    if protocol.rule not in BENCHMARK_RULES:
+        raise ConfigError(f"--set prompts.rule={protocol.rule}: choose {' or '.join(BENCHMARK_RULES)}")
+    n_sets = protocol.click_sets
+    if n_sets < 1:
         raise ConfigError(f"--set prompts.click_sets={n_sets!r}: a whole number >= 1 (1: the run's own clicks only)")
+    pcfg = dataclasses.asdict(protocol)
     key = ctx.cache.key("prompts", pcfg, {"gt": ctx.gt_key})
 
     def work(d: Path) -> dict:
         bp = load_or_make_prompts(d / PROMPTS_FILE, scene.test, lambda i: read_mask(scene.gt_masks[i]),
-                                  rule=pcfg["rule"], click_sets=n_sets)
+                                  rule=protocol.rule, click_sets=n_sets)
         return {"view": bp.view, "n_clicks": len(bp.clicks), "frames": bp.frames(),
                 "click_sets": 1 + len(bp.alternatives)}
 

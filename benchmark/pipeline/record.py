@@ -17,7 +17,8 @@ OFFICIAL_KEYS = ("miou", "macc", "pooled_iou", "metric_version")
 
 def build_record(ctx: SequenceRun, run: dict, dataset: str, variant: str, scene_dir: Path, config_hash: str,
                  prompts: dict, run_dir: Path) -> RunRecord:
-    scene, cfg = ctx.scene, ctx.cfg
+    scene, settings = ctx.scene, ctx.settings
+    method = settings.method
     ev = ctx.records["evaluate"].info
     ceiling = ctx.records["ceiling"].info if "ceiling" in ctx.records else None
     v1, official = ev["v1"], ev["official"]
@@ -33,10 +34,10 @@ def build_record(ctx: SequenceRun, run: dict, dataset: str, variant: str, scene_
         n_gaussians=ev["n_gaussians"], n_clusters=ev["n_clusters"],
         selected_clusters=ev["selected"], click_clusters=ev["click_clusters"], click_sets=ev["click_sets"],
         feature_space=ev["feature_space"], geometry_checksum=ev["geometry_checksum"], storage=ev["storage"],
-        config=jsonable(cfg), config_hash=config_hash,
-        seeds={"run": cfg["seed"], "masks": cfg["masks"]["seed"], "geometry": cfg["geometry"]["train"].get("seed"),
-               "features": cfg["method"].get("features", {}).get("seed"),
-               "clustering": cfg["method"].get("clustering", {}).get("seed")},
+        config=jsonable(settings.to_dict()), config_hash=config_hash,
+        seeds={"run": settings.seed, "masks": settings.masks.seed, "geometry": settings.geometry.train.seed,
+               "features": getattr(getattr(method, "features", None), "seed", None),
+               "clustering": getattr(getattr(method, "clustering", None), "seed", None)},
         checksums={"gt": ctx.gt_key, "pred": sha256_files(pred_files)[:16]},
         prompts=prompts, scene_dir=str(Path(scene_dir).resolve()),
         frames=[{"frame": f"{i:05d}", "view": v.name, "image": str(v.image_path), "gt": str(scene.gt_masks[i]),

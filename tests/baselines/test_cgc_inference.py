@@ -12,8 +12,8 @@ from baselines.cgc_inference import (
     select_by_clicks,
     similarity_select,
 )
-from tests.trase.helpers import exact_masks, tiny_scene
 from benchmark.protocol.prompts import interior_points
+from tests.trase.helpers import exact_masks, tiny_scene
 from trase.prompts import Click
 from trase.segment import render_masks
 

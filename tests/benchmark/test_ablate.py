@@ -48,14 +48,13 @@ def test_subsample_clusters_with_the_public_codes_min_cluster_size_under_every_p
     few clusters: the study resolves to the public code's 10 whatever the preset."""
     from benchmark.datasets.registry import get_dataset
     from benchmark.methods import get_method
-    from benchmark.methods.trase_method import CPU_MIN_CLUSTER_SIZE, PAPER_MIN_CLUSTER_SIZE
-    from benchmark.pipeline.config import default_config
+    from tests.benchmark.settings_helpers import resolved_dict
 
     method, spec = get_method("trase"), get_dataset("hypernerf")
-    plain = default_config(method, spec, "synthetic", {})
-    assert plain["method"]["clustering"]["params"]["min_cluster_size"] == CPU_MIN_CLUSTER_SIZE > 10
-    cfg = default_config(method, spec, "synthetic", parse_overrides(_overrides("subsample", "2%")))
-    assert cfg["method"]["clustering"]["params"]["min_cluster_size"] == 10 == PAPER_MIN_CLUSTER_SIZE
+    plain = resolved_dict(method, spec, "synthetic", {})
+    assert plain["method"]["clustering"]["params"]["min_cluster_size"] == 50  # the cpu preset's
+    cfg = resolved_dict(method, spec, "synthetic", parse_overrides(_overrides("subsample", "2%")))
+    assert cfg["method"]["clustering"]["params"]["min_cluster_size"] == 10  # the public code's
     assert cfg["method"]["clustering"]["params"]["cluster_selection_epsilon"] == 0.01  # the rest kept
     assert cfg["method"]["clustering"]["min_sample"] == 0 and cfg["method"]["clustering"]["fraction"] == 0.02
 

@@ -56,10 +56,9 @@ def test_failed_stage_is_never_done_and_partial_resumes(tmp_path):
 
 
 def test_atomic_directory_leaves_nothing_on_failure(tmp_path):
-    with pytest.raises(ValueError):
-        with atomic_directory(tmp_path / "d") as d:
-            (d / "f").write_text("half")
-            raise ValueError
+    with pytest.raises(ValueError), atomic_directory(tmp_path / "d") as d:
+        (d / "f").write_text("half")
+        raise ValueError
     assert list(tmp_path.iterdir()) == []
     with atomic_directory(tmp_path / "d") as d:
         (d / "f").write_text("whole")

@@ -17,17 +17,17 @@ from benchmark.captures import CaptureOptions, load_capture
 from benchmark.config import ConfigError, parse_overrides
 from benchmark.errors import UserError
 from benchmark.methods import get_method
-from benchmark.pipeline.config import capture_config
 from benchmark.pipeline.masks import masks_from_files
 from benchmark.runs import find_runs
+from tests.benchmark.settings_helpers import capture_dict
 
 FAST = ["geometry.train.iterations=60", "method.features.iterations=40"]
 
 
 def test_capture_config_follows_the_rig_and_checks_the_capture_section():
     m = get_method("trase")
-    mono = capture_config(m, True, CaptureOptions().to_dict(), {})
-    multi = capture_config(m, False, CaptureOptions().to_dict(), parse_overrides(["geometry.preset=paper"]))
+    mono = capture_dict(m, True, CaptureOptions().to_dict(), {})
+    multi = capture_dict(m, False, CaptureOptions().to_dict(), parse_overrides(["geometry.preset=paper"]))
     assert (mono["method"]["features"]["n_masks"], multi["method"]["features"]["n_masks"]) == (25, 50)
     assert multi["method"]["features"]["n_pixels"] == 10000 and multi["method"]["filter_threshold"] == 0.9
     # Deformable-3DGS's own schedule under the paper preset (no benchmark's per-dataset one)
@@ -35,7 +35,7 @@ def test_capture_config_follows_the_rig_and_checks_the_capture_section():
     assert mono["masks"] == {"generator": "classical", "checkpoint": None, "seed": 0, "dir": None}
     assert "prompts" not in mono and mono["capture"]["holdout"] == "none"
     with pytest.raises(ConfigError, match="--set capture.nope: unknown setting"):
-        capture_config(m, True, CaptureOptions().to_dict(), parse_overrides(["capture.nope=1"]))
+        capture_dict(m, True, CaptureOptions().to_dict(), parse_overrides(["capture.nope=1"]))
 
 
 def test_monocular_is_one_view_per_time(tiny_scene, capture_dirs):

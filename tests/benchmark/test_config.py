@@ -7,7 +7,7 @@ import pytest
 from benchmark.config import ConfigError, merge, parse_overrides, typed
 from benchmark.datasets.registry import get_dataset
 from benchmark.methods import get_method
-from benchmark.pipeline.config import default_config
+from tests.benchmark.settings_helpers import resolved_dict
 from trase.features import FeatureConfig
 from trase.reconstruction_config import ReconstructionConfig
 
@@ -34,13 +34,13 @@ def test_typed_builds_the_dataclass_and_names_a_wrong_value():
 
 def test_the_run_config_is_checked_once_before_any_stage():
     method, spec = get_method("trase"), get_dataset("hypernerf")
-    ok = default_config(method, spec, "synthetic", parse_overrides(["method.features.iterations=5"]))
+    ok = resolved_dict(method, spec, "synthetic", parse_overrides(["method.features.iterations=5"]))
     assert ok["method"]["features"]["iterations"] == 5
     for bad, message in (("geometry.train.iterations=ten", "geometry.train.iterations"),
                          ("method.features.dim=8.5", "method.features.dim"),
                          ("method.features.objective_params=3", "method.features.objective_params")):
         with pytest.raises(ConfigError, match=message):
-            default_config(method, spec, "synthetic", parse_overrides([bad]))
+            resolved_dict(method, spec, "synthetic", parse_overrides([bad]))
 
 
 def test_merge_rejects_a_misspelt_key_and_opens_params_sections():
@@ -54,17 +54,17 @@ def test_devices_are_resolved_once_into_the_config():
     import torch
 
     spec, method = get_dataset("hypernerf"), get_method("trase")
-    cfg = default_config(method, spec, "synthetic", {})
+    cfg = resolved_dict(method, spec, "synthetic", {})
     here = "cuda" if torch.cuda.is_available() else "cpu"
     assert cfg["geometry"]["train"]["device"] == here and cfg["method"]["features"]["device"] == here
-    pinned = default_config(method, spec, "synthetic", parse_overrides(["geometry.train.device=cpu",
+    pinned = resolved_dict(method, spec, "synthetic", parse_overrides(["geometry.train.device=cpu",
                                                                         "method.features.device=cpu"]))
     assert pinned["geometry"]["train"]["device"] == "cpu" and pinned["method"]["features"]["device"] == "cpu"
     with pytest.raises(ConfigError, match=r"^--set geometry.train.device: unknown device 'gpu'; choose auto, cpu, cuda$"):
-        default_config(method, spec, "synthetic", parse_overrides(["geometry.train.device=gpu"]))
+        resolved_dict(method, spec, "synthetic", parse_overrides(["geometry.train.device=gpu"]))
     if not torch.cuda.is_available():
         with pytest.raises(ConfigError, match="method.features.device: device cuda: torch sees no GPU"):
-            default_config(method, spec, "synthetic", parse_overrides(["method.features.device=cuda"]))
+            resolved_dict(method, spec, "synthetic", parse_overrides(["method.features.device=cuda"]))
 
 
 def test_a_gpu_without_gsplat_stops_the_run_before_any_stage(monkeypatch):
@@ -78,7 +78,7 @@ def test_a_gpu_without_gsplat_stops_the_run_before_any_stage(monkeypatch):
     spec, method = get_dataset("hypernerf"), get_method("trase")
     with pytest.raises(ConfigError, match=r"^geometry.train.device: device cuda draws with gsplat, which is not "
                                           r"installed \(pip install -e '.\[gpu\]'\); or --set geometry.train.device=cpu$"):
-        default_config(method, spec, "synthetic", {})
-    cpu = default_config(method, spec, "synthetic", parse_overrides(["geometry.train.device=cpu",
+        resolved_dict(method, spec, "synthetic", {})
+    cpu = resolved_dict(method, spec, "synthetic", parse_overrides(["geometry.train.device=cpu",
                                                                      "method.features.device=cpu"]))
     assert cpu["geometry"]["preset"] == "paper"  # auto preset: paper where torch sees a GPU

@@ -130,40 +130,41 @@ def test_overrides_parse_and_merge():
 def test_paper_preset_takes_the_registry_schedule():
     from benchmark.datasets import get_dataset
     from benchmark.methods import get_method
-    from benchmark.pipeline.config import default_config
+    from tests.benchmark.settings_helpers import resolved_dict
 
     spec = get_dataset("hypernerf")
-    cfg = default_config(get_method("trase"), spec, "real", {"geometry": {"preset": "paper"}})
+    cfg = resolved_dict(get_method("trase"), spec, "real", {"geometry": {"preset": "paper"}})
     train = cfg["geometry"]["train"]
     assert (train["warm_up"], train["densify_until"]) == (spec.warm_up, spec.densify_until) == (1500, 9000)
     # one click rule under every preset: the rendered feature's nearest cluster
     assert cfg["method"]["prompts"]["click_rule"] == "feature"
-    assert default_config(get_method("trase"), spec, "real", {"geometry": {"preset": "cpu"}})["method"]["prompts"][
+    assert resolved_dict(get_method("trase"), spec, "real", {"geometry": {"preset": "cpu"}})["method"]["prompts"][
         "click_rule"] == "feature"
     assert train["iterations"] == 20_000 and train["image_downscale"] == 1.0
     # one preset for the whole run: the paper's geometry comes with the paper's method settings
     assert cfg["method"]["preset"] == "paper" and cfg["method"]["features"]["iterations"] == 10_000
-    assert default_config(get_method("trase"), spec, "real", {"geometry": {"preset": "cpu-v1"}})["method"]["preset"] == "cpu"
+    assert resolved_dict(get_method("trase"), spec, "real", {"geometry": {"preset": "cpu-v1"}})["method"]["preset"] == "cpu"
     multi = get_dataset("technicolor")
     for preset, mono_its, multi_its, mono_prune in (("cpu", 4000, 4000, 0.1), ("cpu-v4", 4000, 2000, 0.1),
                                                     ("cpu-v3", 4000, 2000, 0.005),
                                                     ("cpu-v2", 2000, 2000, 0.005), ("cpu-v1", 2000, 2000, 0.005)):
-        cfg = default_config(get_method("trase"), spec, "real", {"geometry": {"preset": preset}})
+        cfg = resolved_dict(get_method("trase"), spec, "real", {"geometry": {"preset": preset}})
         assert cfg["geometry"]["train"]["iterations"] == mono_its and cfg["method"]["preset"] == "cpu"
         assert cfg["geometry"]["train"]["min_opacity"] == mono_prune
-        cfg = default_config(get_method("trase"), multi, "real", {"geometry": {"preset": preset}})
+        cfg = resolved_dict(get_method("trase"), multi, "real", {"geometry": {"preset": preset}})
         assert cfg["geometry"]["train"]["iterations"] == multi_its
         assert cfg["geometry"]["train"]["min_opacity"] == 0.005  # multi-view rigs: no change since cpu-v2
     with pytest.raises(ConfigError, match="method.preset=paper: the method's preset follows the run's"):
-        default_config(get_method("trase"), spec, "real", {"geometry": {"preset": "cpu"}, "method": {"preset": "paper"}})
-    with pytest.raises(ConfigError, match="geometry.preset=gpu: choose auto, paper, cpu, cpu-v4, cpu-v3, cpu-v2, cpu-v1"):
-        default_config(get_method("trase"), spec, "real", {"geometry": {"preset": "gpu"}})
+        resolved_dict(get_method("trase"), spec, "real", {"geometry": {"preset": "cpu"}, "method": {"preset": "paper"}})
+    with pytest.raises(ConfigError, match="preset=gpu: choose auto, paper, cpu-v1, cpu-v2, cpu-v3, cpu-v4, cpu"):
+        resolved_dict(get_method("trase"), spec, "real", {"geometry": {"preset": "gpu"}})
 
 
 def test_cpu_preset_training_resolution_follows_the_images():
     from benchmark.datasets import get_dataset
     from benchmark.methods import get_method
-    from benchmark.pipeline.config import cpu_train_downscale, default_config
+    from tests.benchmark.settings_helpers import resolved_dict
+    from trase.reconstruction_presets import cpu_train_downscale
 
     assert cpu_train_downscale(None) == 1.0
     assert cpu_train_downscale((160, 120)) == 1.0  # synthetic scenes train at full resolution
@@ -171,11 +172,11 @@ def test_cpu_preset_training_resolution_follows_the_images():
     assert cpu_train_downscale((960, 536)) == 2.0  # HyperNeRF
     assert cpu_train_downscale((1352, 1014)) == 4.0  # Neu3D
     spec = get_dataset("hypernerf")
-    cfg = default_config(get_method("trase"), spec, "synthetic", {"geometry": {"preset": "cpu"}}, (160, 120))
+    cfg = resolved_dict(get_method("trase"), spec, "synthetic", {"geometry": {"preset": "cpu"}}, (160, 120))
     train = cfg["geometry"]["train"]
     assert train["image_downscale"] == 1.0 and train["iterations"] == 4000
     assert (train["position_lr_max_steps"], train["deform_lr_max_steps"]) == (20_000, 20_000)  # no annealing in 4000 steps
-    cfg = default_config(get_method("trase"), spec, "real", {"geometry": {"preset": "cpu"}}, (960, 536))
+    cfg = resolved_dict(get_method("trase"), spec, "real", {"geometry": {"preset": "cpu"}}, (960, 536))
     assert cfg["geometry"]["train"]["image_downscale"] == 2.0
 
 
@@ -183,18 +184,18 @@ def test_run_seed_reaches_every_seeded_section_and_explicit_settings_win():
     from benchmark.config import parse_seeds
     from benchmark.datasets import get_dataset
     from benchmark.methods import get_method
-    from benchmark.pipeline.config import default_config
+    from tests.benchmark.settings_helpers import resolved_dict
 
     spec, method = get_dataset("hypernerf"), get_method("trase")
-    cfg = default_config(method, spec, "synthetic", parse_overrides(["seed=3"]), (160, 120))
+    cfg = resolved_dict(method, spec, "synthetic", parse_overrides(["seed=3"]), (160, 120))
     assert cfg["seed"] == 3
     assert cfg["geometry"]["train"]["seed"] == cfg["method"]["features"]["seed"] == 3
     assert cfg["method"]["clustering"]["seed"] == 3 and cfg["masks"]["seed"] == 0  # masks: the input
-    cfg = default_config(method, spec, "synthetic", parse_overrides(["seed=3", "method.features.seed=7"]))
+    cfg = resolved_dict(method, spec, "synthetic", parse_overrides(["seed=3", "method.features.seed=7"]))
     assert cfg["method"]["features"]["seed"] == 7 and cfg["method"]["clustering"]["seed"] == 3
     for bad in ("seed=-1", "seed=1.5", 'seed="a"', "seed=true"):
         with pytest.raises(ConfigError, match="run seed"):
-            default_config(method, spec, "synthetic", parse_overrides([bad]))
+            resolved_dict(method, spec, "synthetic", parse_overrides([bad]))
     assert parse_seeds("3") == [0, 1, 2] and parse_seeds("0,4,7") == [0, 4, 7] and parse_seeds("5,") == [5]
     for bad in ("0", "-1", "a", "1,1", "1,-2"):
         with pytest.raises(ConfigError, match="--seeds"):

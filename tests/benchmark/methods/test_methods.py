@@ -6,16 +6,17 @@ import pytest
 
 import masks as masklib
 from benchmark.methods import FittedModel, MethodError, get_method
-from benchmark.methods.trase_method import CPU_FILTER_THRESHOLD, CPU_MIN_CLUSTER_SIZE, TraseMethod
+from benchmark.methods.trase_method import TraseMethod
+from benchmark.methods.trase_presets import TraseSettings
 from benchmark.protocol.prompts import make_benchmark_prompts
 from benchmark.scoring import score_masks
 from tests.trase.helpers import exact_masks, tiny_scene
 
 
 def _small_config(method):
-    cfg = method.default_config("hypernerf", "cpu")
-    cfg["features"].update(n_pixels=300, n_masks=3.0)
-    cfg["filter_threshold"] = 0.5
+    cfg = method.settings("cpu", "hypernerf")
+    cfg.features.n_pixels, cfg.features.n_masks = 300, 3.0
+    cfg.filter_threshold = 0.5
     return cfg
 
 
@@ -42,8 +43,8 @@ def test_fit_segment_end_to_end(tmp_path):
     scene = _Scene(train=views, test=views)
     method = get_method("trase")
     cfg = _small_config(method)
-    cfg["features"].update(iterations=120, dim=8, knn=4, knn_keep=2, lr=0.02)
-    cfg["clustering"].update(method="kmeans", params={"n_clusters": 2})
+    cfg.features = dataclasses.replace(cfg.features, iterations=120, dim=8, knn=4, knn_keep=2, lr=0.02)
+    cfg.clustering = dataclasses.replace(cfg.clustering, method="kmeans", params={"n_clusters": 2})
     fitted = method.fit(scene, gm, deform, masks_dir, cfg, tmp_path / "fit", progress=False)
     assert fitted.labels.shape == (len(ids),) and fitted.stats["n_clusters"] == 2
     gts = [exact_masks(gm, deform, ids, v).masks[0] for v in views]  # object 0 is "of interest"
@@ -57,8 +58,9 @@ def test_fit_segment_end_to_end(tmp_path):
     assert len(oclusters) == 1
     # save / load round trip
     fitted.save(tmp_path / "out")
-    back = FittedModel.load(tmp_path / "out", gm, deform)
+    back = FittedModel.load(tmp_path / "out", gm, deform, TraseSettings)
     assert np.array_equal(back.labels, fitted.labels) and back.stats["n_clusters"] == 2
+    assert back.config == fitted.config  # the typed settings round trip
     assert (tmp_path / "out" / "point_cloud.ply").is_file()
     with pytest.raises(MethodError, match="not a fitted model directory"):
         FittedModel.load(tmp_path / "missing")
@@ -75,30 +77,31 @@ def test_missing_masks_is_a_user_error(tmp_path):
 def test_filter_threshold_paper_values_one_value_on_cpu():
     m = TraseMethod()
     for key, thr in (("nerfds", 0.4), ("immersive", 0.6), ("hypernerf", 0.9), ("neu3d", 0.98)):
-        assert m.default_config(key, "paper", monocular=False)["filter_threshold"] == thr
-        assert m.default_config(key, "cpu")["filter_threshold"] == CPU_FILTER_THRESHOLD == 0.7
-    assert m.default_config(None, "paper")["filter_threshold"] == 0.9  # a capture of one's own
+        assert m.settings("paper", key).filter_threshold == thr
+        assert m.settings("cpu", key).filter_threshold == 0.7
+        assert m.settings("cpu-v2", key).filter_threshold == 0.7  # an earlier geometry preset: the cpu tier
+    assert m.settings("paper").filter_threshold == 0.9  # a capture of one's own
 
 
 def test_cpu_preset_clustering_and_steps():
     m = TraseMethod()
-    cpu, paper = m.default_config("hypernerf", "cpu"), m.default_config("hypernerf", "paper")
-    assert cpu["clustering"]["params"]["min_cluster_size"] == CPU_MIN_CLUSTER_SIZE == 50
-    assert (cpu["clustering"]["min_sample"], paper["clustering"]["min_sample"]) == (15000, 5000)  # cpu: all
-    assert paper["clustering"]["params"] == {"min_cluster_size": 10, "cluster_selection_epsilon": 0.01}
-    assert cpu["features"]["iterations"] == 3000 and paper["features"]["iterations"] == 10000
-    assert (cpu["features"]["n_pixels"], paper["features"]["n_pixels"]) == (2000, 5000)  # Np capped on cpu
-    assert (cpu["features"]["n_masks"], paper["features"]["n_masks"]) == (25, 25)
-    multi = m.default_config("neu3d", "paper")["features"]
-    assert (multi["n_pixels"], multi["n_masks"]) == (10000, 50)
-    own = m.default_config(None, "paper", monocular=False)["features"]
-    assert (own["n_pixels"], own["n_masks"]) == (10000, 50)
-    assert paper["render_rule"] == "alone"  # the paper's rule
+    cpu, paper = m.settings("cpu", "hypernerf"), m.settings("paper", "hypernerf")
+    assert cpu.clustering.params["min_cluster_size"] == 50
+    assert (cpu.clustering.min_sample, paper.clustering.min_sample) == (15000, 5000)  # cpu: all
+    assert paper.clustering.params == {"min_cluster_size": 10, "cluster_selection_epsilon": 0.01}
+    assert cpu.features.iterations == 3000 and paper.features.iterations == 10000
+    assert (cpu.features.n_pixels, paper.features.n_pixels) == (2000, 5000)  # Np capped on cpu
+    assert (cpu.features.n_masks, paper.features.n_masks) == (25, 25)
+    multi = m.settings("paper", "neu3d").features
+    assert (multi.n_pixels, multi.n_masks) == (10000, 50)
+    own = m.settings("paper", None, monocular=False).features
+    assert (own.n_pixels, own.n_masks) == (10000, 50)
+    assert paper.render_rule == "alone"  # the paper's rule
 
 
 def test_render_rule_visible_under_the_cpu_preset_on_a_monocular_rig_only():
     m = TraseMethod()
-    rules = {(preset, mono): m.default_config("hypernerf", preset, monocular=mono)["render_rule"]
+    rules = {(preset, mono): m.settings(preset, None, monocular=mono).render_rule
              for preset in ("cpu", "paper") for mono in (True, False)}
     assert rules == {("cpu", True): "visible", ("cpu", False): "alone",
                      ("paper", True): "alone", ("paper", False): "alone"}
@@ -119,7 +122,8 @@ def test_each_click_is_lifted_in_its_own_frame(monkeypatch):
     clicks = [Click(1.0, 1.0, views[0].name, views[0].camera.time, 0),
               Click(2.0, 2.0, views[2].name, views[2].camera.time, 2)]
     prompts = BenchmarkPrompts(0, views[0].name, views[0].camera.time, clicks)
-    fitted = types.SimpleNamespace(gaussians=None, deformation=None, labels=np.zeros(4, int), features=None, config={})
+    fitted = types.SimpleNamespace(gaussians=None, deformation=None, labels=np.zeros(4, int), features=None,
+                                   config=TraseMethod().settings("cpu", "hypernerf"))
     assert TraseMethod().select(fitted, _Scene(train=views, test=views), prompts) == [0]
     assert seen == [views[0].camera.name, views[2].camera.name]
 

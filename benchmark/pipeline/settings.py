@@ -1,0 +1,254 @@
+"""A run's settings, resolved and checked once per sequence into a typed ``RunSettings`` that
+the stages read: the run's one preset (``--set preset=P``; auto: paper with a GPU, cpu without)
+resolved in the reconstruction's presets and the method's own (lazyspecs.presets), the run seed
+written into every seeded section, then the ``--set`` overrides (a misspelt key is an error).
+
+Dicts exist only at the edges: ``RunSettings.to_dict()`` is what results.json records and the
+run's name hashes; the stage cache hashes the resolved values of a stage's own section.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+from typing import Any
+
+from benchmark.cache import config_hash
+from benchmark.config import ConfigError, merge, typed
+from benchmark.datasets.registry import get_dataset
+from lazyspecs.presets import Context, Derived, When
+from trase.reconstruction_config import ReconstructionConfig
+from trase.reconstruction_presets import RECONSTRUCTION_PRESETS
+
+# The benchmark's geometry presets: the reconstruction's, with the public code's per-dataset
+# schedule (warm-up, densification end) under ``paper``, as the dataset registry states it.
+A_BENCHMARK = When("a benchmark", lambda c: c.dataset is not None)
+GEOMETRY_PRESETS = RECONSTRUCTION_PRESETS.extended("geometry")
+GEOMETRY_PRESETS.declare("paper", when=A_BENCHMARK, why="the public code's per-dataset config",
+                         warm_up=Derived(lambda c: get_dataset(c.dataset).warm_up, "the dataset's warm_up (its registry entry)"),
+                         densify_until=Derived(lambda c: get_dataset(c.dataset).densify_until,
+                                               "the dataset's densify_until (its registry entry)"))
+
+# where the run seed goes: every random choice of the method's pipeline (gaussian
+# initialisation and densification, pixel/mask sampling of feature training, the clustering
+# sample). The 2D masks are the benchmark's input and keep their own seed (masks.seed).
+SEED_PATHS = (("geometry", "train", "seed"), ("method", "features", "seed"), ("method", "clustering", "seed"))
+
+
+@dataclasses.dataclass
+class MaskSettings:
+    generator: str = "classical"  # synthetic | classical | sam (benchmark runs); files (captures)
+    checkpoint: str | None = None  # SAM checkpoint path (generator "sam")
+    seed: int = 0
+
+
+@dataclasses.dataclass
+class CaptureMaskSettings(MaskSettings):
+    dir: str | None = None  # generator "files": masks made elsewhere (benchmark.pipeline.masks)
+
+
+@dataclasses.dataclass
+class GeometrySettings:
+    source: str = "reconstruct"  # reconstruct | ground-truth (synthetic) | import
+    preset: str = "cpu"  # the run's preset, recorded (the cache key hashes ``train`` instead)
+    model_dir: str | None = None  # for source=import: a Deformable-3DGS/TRASE model directory
+    train: ReconstructionConfig = dataclasses.field(default_factory=ReconstructionConfig)
+
+    def cache_config(self) -> dict:
+        """What the geometry stage's key hashes: resolved values, not the preset's name."""
+        d = dataclasses.asdict(self)
+        d.pop("preset")
+        return d
+
+
+@dataclasses.dataclass
+class PromptProtocol:
+    """The benchmark's clicks (benchmark.protocol.prompts)."""
+
+    # clicks on every object of interest, in the first test frame it appears in
+    # ("gt-first-frame": the first non-empty frame only)
+    rule: str = "gt-first-appearance"
+    click_sets: int = 5  # click sets scored beside the run's own; 1 = the single-click protocol alone
+
+
+@dataclasses.dataclass
+class RunSettings:
+    """Everything one sequence's stages read, resolved once."""
+
+    preset: str  # the run's preset (auto resolved)
+    seed: int  # the run seed
+    masks: MaskSettings
+    geometry: GeometrySettings
+    method: Any  # the method's typed settings (its presets' config class)
+    prompts: PromptProtocol | None = None  # benchmark runs
+    capture: dict | None = None  # trase-bench fit: the capture's reading options (CaptureOptions)
+    sources: dict[str, str] = dataclasses.field(default_factory=dict)  # dotted setting -> where declared
+    group_hash: str = ""  # the config hash without the run seed: one row of a table over seeds
+    is_default: bool = False  # no --set changed a setting (the seed aside)
+
+    def to_dict(self) -> dict:
+        """The record's form (results.json, the run's name)."""
+        out = {"masks": dataclasses.asdict(self.masks), "geometry": dataclasses.asdict(self.geometry),
+               "method": dataclasses.asdict(self.method)}
+        if self.prompts is not None:
+            out["prompts"] = dataclasses.asdict(self.prompts)
+        if self.capture is not None:
+            out["capture"] = dict(self.capture)
+        out["seed"] = self.seed
+        return out
+
+
+def run_settings(method, spec, variant: str, overrides: dict, image_size: tuple[int, int] | None = None) -> RunSettings:
+    """The settings of one benchmark run: ``spec``'s sequence under the run's preset, the run
+    seed (``--set seed=S``, written into every seeded section), then ``overrides`` (an explicit
+    ``method.features.seed`` still wins). ``image_size`` (W, H) of the benchmark images picks
+    the cpu presets' training resolution."""
+    masks = {"generator": "synthetic" if variant == "synthetic" else "classical", "checkpoint": None, "seed": 0}
+    ctx = Context(dataset=spec.key, monocular=spec.monocular, image_size=image_size)
+    return _resolve(method, ctx, overrides, masks, {"prompts": dataclasses.asdict(PromptProtocol())})
+
+
+def capture_settings(method, monocular: bool, capture: dict, overrides: dict,
+                     image_size: tuple[int, int] | None = None) -> RunSettings:
+    """The settings of ``trase-bench fit`` on a capture of one's own: as a run's, with the
+    method's settings for the capture's rig, Deformable-3DGS's default schedule under the paper
+    preset, masks by the classical generator (or SAM with --set masks.generator=sam
+    masks.checkpoint=PATH, or masks made elsewhere with masks.generator=files masks.dir=PATH),
+    and the ``capture`` section (benchmark.captures.CaptureOptions)."""
+    masks = {"generator": "classical", "checkpoint": None, "seed": 0, "dir": None}
+    ctx = Context(dataset=None, monocular=monocular, image_size=image_size)
+    return _resolve(method, ctx, overrides, masks, {"capture": dict(capture)})
+
+
+def _resolve(method, ctx: Context, overrides: dict, masks: dict, extra: dict) -> RunSettings:
+    overrides = dict(overrides)
+    seed = run_seed(overrides)
+    preset, auto_preset = take_preset(overrides)
+    ctx = dataclasses.replace(ctx, device=_device_here())
+    geometry = GEOMETRY_PRESETS.resolve(preset, ctx)
+    resolved = method.resolve_settings(preset, ctx, GEOMETRY_PRESETS.preset(preset).tier)
+    asked = overrides.get("method", {}).get("preset") if isinstance(overrides.get("method"), dict) else None
+    if asked is not None and asked != resolved.config.preset:
+        raise ConfigError(f"--set method.preset={asked}: the method's preset follows the run's "
+                          f"(preset={preset} gives {resolved.config.preset}); set --set preset instead")
+    base = {"masks": masks,
+            "geometry": {"source": "reconstruct", "preset": preset, "model_dir": None,
+                         "train": dataclasses.asdict(geometry.config)},
+            "method": dataclasses.asdict(resolved.config), **extra}
+    plain = without_seed(overrides)
+    cfg = merge(apply_seed(base, seed), plain)
+    settings = _typed(method, cfg, preset)
+    settings.sources = {**{f"geometry.train.{k}": v for k, v in geometry.sources.items()},
+                        **{f"method.{k}": v for k, v in resolved.sources.items()}}
+    # the same run without its seed (an explicit seed of one section stays), and without --set
+    group = _with_devices(merge(apply_seed(base, 0), plain), settings)
+    default = _with_devices(merge(base, {}), settings)
+    settings.group_hash = config_hash(group)
+    settings.is_default = preset == auto_preset and group == default
+    return settings
+
+
+def _with_devices(cfg: dict, settings: RunSettings) -> dict:
+    """``cfg`` with its "auto" devices as ``settings`` resolved them."""
+    cfg["geometry"]["train"]["device"] = settings.geometry.train.device
+    features = getattr(settings.method, "features", None)
+    if features is not None and isinstance(cfg["method"].get("features"), dict):
+        cfg["method"]["features"]["device"] = features.device
+    return cfg
+
+
+def _typed(method, cfg: dict, preset: str) -> RunSettings:
+    """Every section typed and checked (a wrong value stops the run here, naming the setting),
+    devices resolved."""
+    masks_cls = CaptureMaskSettings if "dir" in cfg["masks"] else MaskSettings
+    geometry = typed(GeometrySettings, cfg["geometry"], "geometry")
+    method_settings = typed(method.settings_class(), cfg["method"], "method")
+    geometry.train.device = _resolve_device(geometry.train.device, "geometry.train.device")
+    features = getattr(method_settings, "features", None)
+    if features is not None and hasattr(features, "device"):
+        features.device = _resolve_device(features.device, "method.features.device")
+    method.check_settings(method_settings)
+    return RunSettings(preset=preset, seed=cfg["seed"], masks=typed(masks_cls, cfg["masks"], "masks"),
+                       geometry=geometry, method=method_settings,
+                       prompts=typed(PromptProtocol, cfg["prompts"], "prompts") if "prompts" in cfg else None,
+                       capture=cfg.get("capture"))
+
+
+# -- the preset -----------------------------------------------------------------------------
+def take_preset(overrides: dict) -> tuple[str, str]:
+    """(the run's preset, what auto gives here), taken out of ``overrides``: ``--set preset=P``,
+    or its old spelling ``--set geometry.preset=P`` (with a notice); auto -> paper with a GPU,
+    cpu without. Two spellings that disagree are an error."""
+    top = overrides.pop("preset", None)
+    geometry = overrides.get("geometry")
+    old = geometry.pop("preset", None) if isinstance(geometry, dict) else None
+    if isinstance(geometry, dict) and not geometry:
+        overrides.pop("geometry")
+    if old is not None:
+        print("trase-bench: --set geometry.preset is now --set preset (the old spelling goes in the next version)",
+              file=sys.stderr)
+        if top is not None and top != old:
+            raise ConfigError(f"--set preset={top} and --set geometry.preset={old} disagree: give one "
+                              "(geometry.preset is the old name of preset)")
+    asked = top if top is not None else old if old is not None else "auto"
+    auto = "paper" if _device_here() == "cuda" else "cpu"
+    preset = auto if asked == "auto" else asked
+    if preset not in GEOMETRY_PRESETS:
+        raise ConfigError(f"--set preset={preset}: choose auto, {', '.join(GEOMETRY_PRESETS.names())}")
+    return preset, auto
+
+
+def _device_here() -> str:
+    import torch
+
+    return "cuda" if torch.cuda.is_available() else "cpu"
+
+
+def _resolve_device(setting: str, name: str) -> str:
+    """"auto" -> "cuda" or "cpu" (so a run's record and cache keys say where it computed). CUDA
+    rasterizes with gsplat: without it the run stops here, before any stage, rather than at its
+    first render."""
+    from trase.devices import DeviceError, gsplat_missing, resolve_device
+
+    try:
+        device = resolve_device(setting).type
+    except DeviceError as exc:
+        raise ConfigError(f"--set {name}: {exc}") from None
+    why = gsplat_missing(device)
+    if why:
+        raise ConfigError(f"{name}: {why}; or --set {name}=cpu")
+    return device
+
+
+# -- the run seed ---------------------------------------------------------------------------
+def run_seed(overrides: dict) -> int:
+    """The run seed of ``--set seed=S`` (default 0), checked."""
+    seed = overrides.get("seed", 0)
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise ConfigError(f"--set seed={seed!r}: the run seed is a whole number >= 0")
+    return seed
+
+
+def apply_seed(cfg: dict, seed: int) -> dict:
+    """Write the run seed into every section that has a seed (SEED_PATHS), in place."""
+    cfg["seed"] = seed
+    for path in SEED_PATHS:
+        node = _get(cfg, path[:-1])
+        if isinstance(node, dict) and path[-1] in node:
+            node[path[-1]] = seed
+    return cfg
+
+
+def without_seed(overrides: dict) -> dict:
+    return {k: v for k, v in overrides.items() if k != "seed"}
+
+
+def _get(d: dict, path: tuple[str, ...]):
+    for p in path:
+        d = d.get(p) if isinstance(d, dict) else None
+    return d
+
+
+__all__ = ["GEOMETRY_PRESETS", "SEED_PATHS", "CaptureMaskSettings", "GeometrySettings", "MaskSettings",
+           "PromptProtocol", "RunSettings", "apply_seed", "capture_settings", "run_seed", "run_settings",
+           "take_preset", "without_seed"]
