@@ -32,6 +32,8 @@ COMMANDS.add("perf", "benchmark.commands.perf:perf",
              "Measured performance suites (rasterizer numba vs torch ...).")
 COMMANDS.add("prepare", "benchmark.commands.prepare:prepare",
              "Raw multi-view downloads -> training frames.")
+COMMANDS.add("presets", "benchmark.commands.presets:presets",
+             "The presets, or one resolved: every setting's value and where it was declared.")
 COMMANDS.add("render", "benchmark.commands.render:render",
              "Frames, an MP4 and a preview of a run, a fitted capture or an edited scene.")
 COMMANDS.add("report", "benchmark.commands.report:report",

@@ -184,7 +184,9 @@ class PresetTable:
         used = name if name in self._presets or tier is None else tier
         data, sources = _defaults(self.config_cls)
         for field, table in self.nested.items():
-            sub = table.resolve(name, ctx, tier)
+            # the nested table's preset: the nearest of this preset's chain that it declares
+            own = next((p.name for p in reversed(self.chain(used)) if p.name in table), used)
+            sub = table.resolve(own, ctx, tier)
             data[field] = dataclasses.asdict(sub.config)
             sources.update({f"{field}.{k}": v for k, v in sub.sources.items()})
         for preset in self.chain(used):
@@ -205,18 +207,19 @@ def _dataclass_of(field: dataclasses.Field, owner: type) -> type | None:
 
 
 def _defaults(cls: type) -> tuple[dict, dict[str, str]]:
+    """The class's default values and, for every (dotted) field, "default (<its class>)"."""
     data = dataclasses.asdict(cls())
-    return data, {k: f"default ({cls.__name__})" for k in _flat(data, cls)}
+    return data, _default_sources(cls)
 
 
-def _flat(data: dict, cls: type, prefix: str = "") -> list[str]:
-    out = []
+def _default_sources(cls: type, prefix: str = "") -> dict[str, str]:
+    out = {}
     for f in dataclasses.fields(cls):
         sub = _dataclass_of(f, cls)
         if sub is not None:
-            out += _flat(data[f.name], sub, f"{prefix}{f.name}.")
+            out.update(_default_sources(sub, f"{prefix}{f.name}."))
         else:
-            out.append(prefix + f.name)
+            out[prefix + f.name] = f"default ({cls.__name__})"
     return out
 
 

@@ -139,7 +139,9 @@ def _resolve(method, ctx: Context, overrides: dict, masks: dict, extra: dict) ->
     cfg = merge(apply_seed(base, seed), plain)
     settings = _typed(method, cfg, preset)
     settings.sources = {**{f"geometry.train.{k}": v for k, v in geometry.sources.items()},
-                        **{f"method.{k}": v for k, v in resolved.sources.items()}}
+                        **{f"method.{k}": v for k, v in resolved.sources.items()},
+                        **{".".join(p): f"the run seed ({seed})" for p in SEED_PATHS},
+                        **{k: "--set" for k in _dotted(plain)}}
     # the same run without its seed (an explicit seed of one section stays), and without --set
     group = _with_devices(merge(apply_seed(base, 0), plain), settings)
     default = _with_devices(merge(base, {}), settings)
@@ -241,6 +243,14 @@ def apply_seed(cfg: dict, seed: int) -> dict:
 
 def without_seed(overrides: dict) -> dict:
     return {k: v for k, v in overrides.items() if k != "seed"}
+
+
+def _dotted(d: dict, prefix: str = "") -> list[str]:
+    """The dotted names of a nested dict's values."""
+    out = []
+    for k, v in d.items():
+        out += _dotted(v, f"{prefix}{k}.") if isinstance(v, dict) and v else [prefix + k]
+    return out
 
 
 def _get(d: dict, path: tuple[str, ...]):

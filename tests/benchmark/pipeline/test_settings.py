@@ -1,0 +1,76 @@
+"""RunSettings: one preset key (and its old spelling), resolved and typed once, cache keys of
+resolved values, the run's group over seeds."""
+
+import pytest
+
+from benchmark.cache import config_hash
+from benchmark.config import ConfigError, parse_overrides
+from benchmark.datasets.registry import get_dataset
+from benchmark.methods import get_method
+from benchmark.methods.trase_presets import TraseSettings
+from benchmark.pipeline.settings import run_settings
+from trase.reconstruction_config import ReconstructionConfig
+
+
+def _settings(*sets, dataset="hypernerf", size=(160, 120)):
+    return run_settings(get_method("trase"), get_dataset(dataset), "synthetic", parse_overrides(list(sets)), size)
+
+
+def test_one_preset_key_and_its_old_spelling_with_a_notice(capsys):
+    new = _settings("preset=cpu-v2")
+    assert capsys.readouterr().err == ""
+    old = _settings("geometry.preset=cpu-v2")
+    assert "--set geometry.preset is now --set preset" in capsys.readouterr().err
+    assert new.to_dict() == old.to_dict() and new.preset == "cpu-v2" and new.geometry.preset == "cpu-v2"
+    assert _settings("preset=cpu", "geometry.preset=cpu").preset == "cpu"  # the same twice: fine
+    with pytest.raises(ConfigError, match=r"^--set preset=paper and --set geometry.preset=cpu disagree: give one"):
+        _settings("preset=paper", "geometry.preset=cpu")
+
+
+def test_typed_once_with_the_methods_settings_class():
+    s = _settings("method.features.iterations=5")
+    assert isinstance(s.geometry.train, ReconstructionConfig) and isinstance(s.method, TraseSettings)
+    assert s.method.features.iterations == 5 and s.sources["method.features.iterations"] == "--set"
+    assert s.method.clustering.params["min_cluster_size"] == 50 and s.geometry.train.device == "cpu"
+    with pytest.raises(ConfigError, match=r'--set method.clustering.min_sample="all": expected a whole number'):
+        _settings('method.clustering.min_sample="all"')
+    with pytest.raises(ConfigError, match="method.prompts: is a section"):
+        _settings("method.prompts=3")
+
+
+def test_the_geometry_key_hashes_resolved_values_not_the_presets_name():
+    # on a multi-view rig cpu-v3 trains exactly as cpu-v2: one geometry, two protocol labels
+    v2, v3 = _settings("preset=cpu-v2", dataset="neu3d"), _settings("preset=cpu-v3", dataset="neu3d")
+    assert v2.geometry.cache_config() == v3.geometry.cache_config()
+    assert config_hash(v2.to_dict()) != config_hash(v3.to_dict())  # the runs stay apart
+    mono2, mono3 = _settings("preset=cpu-v2"), _settings("preset=cpu-v3")
+    assert mono2.geometry.cache_config() != mono3.geometry.cache_config()  # a monocular rig: they differ
+
+
+def test_the_group_leaves_the_run_seed_out_and_is_default_means_no_setting_changed():
+    s0, s3 = _settings(), _settings("seed=3")
+    assert s3.seed == 3 and s3.method.features.seed == s3.geometry.train.seed == 3
+    assert s0.group_hash == s3.group_hash and s0.is_default and s3.is_default
+    assert config_hash(s0.to_dict()) == s0.group_hash  # seed 0, nothing set: the run is its group
+    assert _settings("preset=cpu").is_default and _settings("geometry.train.device=cpu").is_default
+    changed = _settings("seed=3", "method.features.iterations=5")
+    assert not changed.is_default and changed.group_hash != s0.group_hash
+    pinned = _settings("seed=3", "method.features.seed=7")  # an explicit section seed stays in the group
+    assert pinned.method.features.seed == 7 and pinned.group_hash != s0.group_hash
+    assert not _settings("preset=paper").is_default
+
+
+def test_a_run_resolves_its_settings_once_per_sequence(monkeypatch, tmp_path):
+    import benchmark.runner as runner
+
+    calls = []
+    real = runner.run_settings
+    monkeypatch.setattr(runner, "run_settings", lambda *a, **k: calls.append(1) or real(*a, **k))
+    opts = runner.RunOptions(method="trase", dataset="hypernerf", data_root=tmp_path, out_dir=tmp_path / "runs",
+                             overrides=["seed=2"])
+    from benchmark.datasets.synthetic import generate
+
+    generate("hypernerf", tmp_path / "hypernerf" / "synthetic", seed=0, size="tiny")
+    p = runner.prepare_sequence(opts, "synthetic")
+    assert calls == [1]
+    assert p.name == f"c{p.settings.group_hash[:8]}-s2" and p.group == _settings().group_hash
