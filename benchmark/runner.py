@@ -21,8 +21,8 @@ from benchmark.errors import UserError
 from benchmark.io import sha256_files
 from benchmark.pipeline import ceiling, evaluate, fit, geometry, masks, prompts
 from benchmark.pipeline.context import SequenceRun, scene_fingerprint
-from benchmark.pipeline.settings import RunSettings, run_settings
 from benchmark.pipeline.record import build_record
+from benchmark.pipeline.settings import RunSettings, run_settings
 from benchmark.results import write_results
 from benchmark.runs import check_free, run_dir, run_info, run_name
 

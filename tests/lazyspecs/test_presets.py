@@ -63,7 +63,7 @@ def test_a_name_the_table_does_not_declare_resolves_its_tier():
 
 
 def test_bad_declarations_fail_where_they_are_made():
-    inner, outer = _tables()
+    _, outer = _tables()
     with pytest.raises(ValueError, match="Outer has no field 'inner.nope'"):
         outer.declare("paper", values={"inner.nope": 1})
     with pytest.raises(ValueError, match="base 'gpu' is not declared"):

@@ -61,7 +61,7 @@ def test_the_group_leaves_the_run_seed_out_and_is_default_means_no_setting_chang
 
 
 def test_a_run_resolves_its_settings_once_per_sequence(monkeypatch, tmp_path):
-    import benchmark.runner as runner
+    from benchmark import runner
 
     calls = []
     real = runner.run_settings
