@@ -15,6 +15,7 @@ import types
 import typing
 
 from benchmark.errors import UserError
+from lazyspecs.presets import hints as type_hints
 
 
 class ConfigError(UserError):
@@ -74,7 +75,7 @@ def typed(cls, data: dict, where: str):
     """The dataclass ``cls`` built from config section ``data``, every value checked against its
     annotation first, so a wrong type stops the run at resolution with the setting's name
     rather than deep inside a stage (``--set geometry.train.iterations=many``)."""
-    hints = typing.get_type_hints(cls)
+    hints = type_hints(cls)
     data = dict(data)
     for k, v in data.items():
         if k not in hints:

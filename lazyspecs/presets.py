@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import functools
 import sys
 import typing
 from collections.abc import Callable, Iterator
@@ -145,7 +146,7 @@ class PresetTable:
             fields = {f.name: f for f in dataclasses.fields(cls)} if dataclasses.is_dataclass(cls) else {}
             if part not in fields:
                 raise ValueError(f"{self.kind} preset {preset!r}: {self.config_cls.__name__} has no field {dotted!r}")
-            hint = typing.get_type_hints(cls).get(part)
+            hint = hints(cls).get(part)
             cls = dict if hint is dict or typing.get_origin(hint) is dict else _dataclass_of(fields[part], cls)
 
     def extended(self, kind: str, config_cls: type | None = None) -> PresetTable:
@@ -200,9 +201,15 @@ class PresetTable:
         return Resolved(name, used, build(self.config_cls, data), sources)
 
 
+@functools.cache
+def hints(cls: type) -> dict[str, Any]:
+    """``typing.get_type_hints(cls)``, once per class (string annotations resolved as Python does)."""
+    return typing.get_type_hints(cls)
+
+
 def _dataclass_of(field: dataclasses.Field, owner: type) -> type | None:
-    """The dataclass a field's annotation names (string annotations resolved as Python does)."""
-    hint = typing.get_type_hints(owner).get(field.name)
+    """The dataclass a field's annotation names."""
+    hint = hints(owner).get(field.name)
     return hint if isinstance(hint, type) and dataclasses.is_dataclass(hint) else None
 
 

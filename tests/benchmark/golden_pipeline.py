@@ -5,9 +5,10 @@ benchmark layer's redesign, so every behaviour-preserving commit can be checked 
 
 Each case is one run (method, dataset, --set values); what is compared: the scores (v1,
 official, oracle, ceiling, click sets), the clusters chosen, the model's size and the checksums
-of the predicted masks and of the geometry. The recording names the machine's instruction sets:
-feature and geometry bits depend on them (docs/determinism.md), so the exact comparison applies
-where they match.
+of the predicted masks and of the geometry. Each recording names the machine's instruction
+sets: feature and geometry bits depend on them (docs/determinism.md), so the exact comparison
+applies where one matches; ``--write`` adds (or replaces) this machine's recording, made at a
+commit before the change it is to check. What holds on every machine: golden_portable.py.
 """
 
 from __future__ import annotations
@@ -43,6 +44,11 @@ def machine_isa() -> dict:
 
     return {"torch_cpu_capability": torch.backends.cpu.get_cpu_capability(),
             "numba_cpu": numba.config.CPU_NAME or binding.get_host_cpu_name()}
+
+
+def recordings() -> list[dict]:
+    """The recordings, one per instruction set."""
+    return json.loads(GOLDEN.read_text())["recordings"] if GOLDEN.is_file() else []
 
 
 def _pick(r: dict) -> dict:
@@ -97,8 +103,8 @@ def main(argv=None) -> int:
     record = {"machine": machine_isa(), "cases": results}
     text = json.dumps(record, indent=1, sort_keys=True) + "\n"
     if args.write:
-        GOLDEN.parent.mkdir(exist_ok=True)
-        GOLDEN.write_text(text)
+        others = [r for r in recordings() if r["machine"] != record["machine"]]
+        GOLDEN.write_text(json.dumps({"recordings": [*others, record]}, indent=1, sort_keys=True) + "\n")
     if args.json:
         args.json.write_text(text)
     else:
