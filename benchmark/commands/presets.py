@@ -27,9 +27,10 @@ def presets(dataset, method_name, preset, rig, image_size, overrides, show_all, 
 
     if dataset is None and preset is None and not overrides:
         click.echo("presets (--set preset=NAME; auto: paper with a GPU, cpu without):")
+        width = max(len(n) for n in GEOMETRY_PRESETS.names())
         for p in GEOMETRY_PRESETS:
             base = f" [from {p.base}]" if p.base else ""
-            click.echo(f"  {p.name:<7} {p.help}{base}")
+            click.echo(f"  {p.name:<{width}} {p.help}{base}")
         click.echo("resolve one: trase-bench presets --preset cpu --dataset hypernerf [--method M] [--all]")
         return
     rows = resolve_rows(dataset, method_name, preset, rig, _size(image_size), list(overrides))
