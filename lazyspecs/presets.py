@@ -77,7 +77,6 @@ class Declaration:
     values: dict[str, Any]  # dotted field -> value or Derived
     when: When
     source: str  # "path:line" of the declaring call
-    why: str = ""
 
 
 @dataclasses.dataclass
@@ -96,7 +95,7 @@ class Resolved:
     name: str  # the preset asked for
     used: str  # the table's preset that answered it (the name itself, or its tier)
     config: Any
-    sources: dict[str, str]  # dotted field -> "path:line (condition)" or "default (Class)"
+    sources: dict[str, str]  # dotted field -> "path:line (condition)[: derived value]" or "default (Class)"
 
 
 class PresetError(LookupError):
@@ -120,8 +119,7 @@ class PresetTable:
 
     # -- declaring ---------------------------------------------------------------------
     def declare(self, name: str, values: dict[str, Any] | None = None, *, base: str | None = None,
-                tier: str | None = None, help: str = "", when: When = ALWAYS, why: str = "",
-                **fields: Any) -> None:
+                tier: str | None = None, help: str = "", when: When = ALWAYS, **fields: Any) -> None:
         """Declare preset ``name`` (first call) or add to it: ``values`` (dotted names) and
         ``fields`` apply where ``when`` holds, after every earlier declaration of the preset."""
         values = {**(values or {}), **fields}
@@ -136,7 +134,7 @@ class PresetTable:
         elif base is not None and base != preset.base or tier is not None and tier != preset.tier:
             raise ValueError(f"{self.kind} preset {name!r}: base and tier are given where it is first declared")
         frame = sys._getframe(1)
-        preset.declarations.append(Declaration(values, when, f"{frame.f_code.co_filename}:{frame.f_lineno}", why))
+        preset.declarations.append(Declaration(values, when, f"{frame.f_code.co_filename}:{frame.f_lineno}"))
 
     def _check_field(self, dotted: str, preset: str) -> None:
         cls = self.config_cls
@@ -196,8 +194,9 @@ class PresetTable:
                     continue
                 where = decl.source if decl.when is ALWAYS else f"{decl.source} ({decl.when.label})"
                 for key, value in decl.values.items():
-                    _set(data, key, value(ctx) if isinstance(value, Derived) else copy.deepcopy(value))
-                    sources[key] = where
+                    derived = isinstance(value, Derived)
+                    _set(data, key, value(ctx) if derived else copy.deepcopy(value))
+                    sources[key] = f"{where}: {value.label}" if derived else where
         return Resolved(name, used, build(self.config_cls, data), sources)
 
 

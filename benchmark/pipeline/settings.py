@@ -24,7 +24,7 @@ from trase.reconstruction_presets import RECONSTRUCTION_PRESETS
 # schedule (warm-up, densification end) under ``paper``, as the dataset registry states it.
 A_BENCHMARK = When("a benchmark", lambda c: c.dataset is not None)
 GEOMETRY_PRESETS = RECONSTRUCTION_PRESETS.extended("geometry")
-GEOMETRY_PRESETS.declare("paper", when=A_BENCHMARK, why="the public code's per-dataset config",
+GEOMETRY_PRESETS.declare("paper", when=A_BENCHMARK,
                          warm_up=Derived(lambda c: get_dataset(c.dataset).warm_up, "the dataset's warm_up (its registry entry)"),
                          densify_until=Derived(lambda c: get_dataset(c.dataset).densify_until,
                                                "the dataset's densify_until (its registry entry)"))
