@@ -17,7 +17,8 @@ Deviations from the public trainer (documented because they change numbers sligh
 * ``max_gaussians`` caps densification (keeping the largest-gradient candidates).
 
 Beside it: the settings and schedules (``trase.reconstruction_config``), the training images
-(``trase.training_images``), densification (``trase.densify``).
+(``trase.training_images``), densification (``trase.densify``), the log and progress bar
+(``trase.training_log``).
 """
 
 from __future__ import annotations
@@ -46,6 +47,7 @@ from trase.io import read_torch
 from trase.losses import l1_loss, opacity_entropy, psnr, ssim
 from trase.reconstruction_config import ReconstructionConfig, expon_lr, time_noise_scale
 from trase.training_images import ImageCache, load_image
+from trase.training_log import ProgressBar, TrainLog
 
 
 # -- rendering ------------------------------------------------------------------------------
@@ -120,63 +122,6 @@ def _make_optimizers(g: GaussianModel, deform: DeformMLP, cfg: ReconstructionCon
 
 def _state_path(out_dir: Path, iteration: int) -> Path:
     return out_dir / "trainer_state" / f"iteration_{iteration}.pt"
-
-
-class _TrainLog:
-    """train_log.csv: iteration, smoothed loss and training PSNR, gaussian count, seconds
-    since this (possibly resumed) run started, and the process CPU seconds over the same span
-    (all threads; on a busy shared machine it is the fairer measure of the work done). Rows past a resumed checkpoint are dropped."""
-
-    HEADER = "iteration,loss,psnr,num_gaussians,seconds,cpu_seconds\n"
-
-    def __init__(self, path: Path, start: int) -> None:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        rows = []
-        if start > 0 and path.is_file():
-            for line in path.read_text().splitlines()[1:]:
-                head = line.split(",", 1)[0]
-                if head.isdigit() and int(head) <= start:
-                    rows.append(line + "\n")
-        self.f = open(path, "w")  # noqa: SIM115 - kept open for the run, closed in close()
-        self.f.write(self.HEADER + "".join(rows))
-        self.f.flush()
-
-    def write(self, it: int, loss: float, psnr_db: float, n: int, seconds: float, cpu: float) -> None:
-        self.f.write(f"{it},{loss:.6f},{psnr_db:.4f},{n},{seconds:.2f},{cpu:.2f}\n")
-        self.f.flush()
-
-    def close(self) -> None:
-        self.f.close()
-
-
-class _Progress:
-    """rich progress bar with loss and PSNR (no-op when disabled)."""
-
-    def __init__(self, enabled: bool, total: int, start: int) -> None:
-        self.bar = None
-        if enabled:
-            from rich.progress import (
-                BarColumn,
-                MofNCompleteColumn,
-                Progress,
-                TextColumn,
-                TimeElapsedColumn,
-            )
-
-            self.bar = Progress(
-                TextColumn("reconstruct"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                TextColumn("{task.fields[info]}"),
-            )
-            self.bar.start()
-            self.task = self.bar.add_task("train", total=total, completed=start, info="")
-
-    def update(self, it: int, info: str) -> None:
-        if self.bar is not None:
-            self.bar.update(self.task, completed=it, info=info)
-
-    def close(self) -> None:
-        if self.bar is not None:
-            self.bar.stop()
 
 
 def reconstruct(
@@ -280,8 +225,8 @@ def _reconstruct(views, points, point_colors, config, out_dir, resume, progress,
         atomic_torch_save(state, _state_path(out_dir, it))
         save_model(out_dir, gaussians, deform, it, white_background=cfg.white_background)  # PLY last: marks it complete
 
-    log = _TrainLog(out_dir / "train_log.csv", start)
-    bar = _Progress(progress, cfg.iterations, start)
+    log = TrainLog(out_dir / "train_log.csv", start)
+    bar = ProgressBar(progress, cfg.iterations, start)
     t0, c0 = time.perf_counter(), time.process_time()
     it = start
     try:
