@@ -17,8 +17,8 @@ Deviations from the public trainer (documented because they change numbers sligh
 * ``max_gaussians`` caps densification (keeping the largest-gradient candidates).
 
 Beside it: the settings and schedules (``trase.reconstruction_config``), the training images
-(``trase.training_images``), densification (``trase.densify``), the log and progress bar
-(``trase.training_log``).
+(``trase.training_images``), densification (``trase.densify``: ``DensifyStrategy``), the
+log and progress bar (``trase.training_log``).
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ from trase.checkpoint import (
     save_model,
 )
 from trase.deformation import DeformMLP, deformed, deformed_visible
-from trase.densify import densify_and_prune, lstsq_screen_grad_norm, scene_extent, screen_grad_norm
+from trase.densify import DensifyStrategy, in_view, scene_extent
 from trase.devices import resolve_device
 from trase.gaussians import GaussianModel
 from trase.io import read_torch
@@ -73,16 +73,6 @@ def render_view(gaussians: GaussianModel, deformation, camera: Camera, backgroun
         background=background, backend=backend,
     )
     return out, means
-
-
-def in_view(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, camera: Camera) -> torch.Tensor:
-    """[N] bool: the gaussians the rasterizer does not cull for ``camera`` (radii > 0); the
-    numba projection on CPU (same radii as the torch reference, ~10x faster)."""
-    from trase.render.numba_projection import project_gaussians_numba
-    from trase.render.projection import project_gaussians
-
-    project = project_gaussians_numba if means.device.type == "cpu" else project_gaussians
-    return project(means, quats, scales, camera).radii > 0
 
 
 @torch.no_grad()
@@ -164,7 +154,7 @@ def _reconstruct(views, points, point_colors, config, out_dir, resume, progress,
     bg_np = np.ones(3, np.float32) if cfg.white_background else np.zeros(3, np.float32)
     bg = torch.from_numpy(bg_np).to(dev)
     data = ImageCache(views, cfg.image_downscale, bg_np, dev)
-    extent = scene_extent(data.cameras)
+    strategy = DensifyStrategy(cfg, scene_extent(data.cameras))
     n_views = len(data)
 
     torch.manual_seed(cfg.seed)
@@ -181,21 +171,20 @@ def _reconstruct(views, points, point_colors, config, out_dir, resume, progress,
         if not sp.is_file():
             raise CheckpointError(f"{sp}: trainer state for iteration {start} is missing; cannot resume")
         state = read_torch(sp, CheckpointError, "unreadable trainer state")
-        need = ["active_sh_degree", "opt_g", "opt_d", "grad_accum", "denom", "rng", "view_stack", "ema_loss", "ema_psnr"]
+        need = ["active_sh_degree", "opt_g", "opt_d", *DensifyStrategy.STATE_KEYS, "rng", "view_stack",
+                "ema_loss", "ema_psnr"]
         lost = [k for k in need if not isinstance(state, dict) or k not in state]
         if lost:
             raise CheckpointError(f"{sp}: trainer state lacks {', '.join(lost)}")
-        if state["grad_accum"].shape[0] != gaussians.num_gaussians:
-            raise CheckpointError(
-                f"{sp}: trainer state is for {state['grad_accum'].shape[0]} gaussians, "
-                f"the point cloud has {gaussians.num_gaussians}"
-            )
+        try:
+            strategy.load_state_dict(state, gaussians.num_gaussians, dev)
+        except ValueError as exc:
+            raise CheckpointError(f"{sp}: {exc}") from None
         gaussians.active_sh_degree = int(state["active_sh_degree"])
         deform.train()
         opt_g, opt_d = _make_optimizers(gaussians, deform, cfg)
         opt_g.load_state_dict(state["opt_g"])
         opt_d.load_state_dict(state["opt_d"])
-        grad_accum, denom = state["grad_accum"].to(dev), state["denom"].to(dev)
         gen.set_state(state["rng"])
         view_stack = [int(i) for i in state["view_stack"]]
         ema_loss, ema_psnr = float(state["ema_loss"]), float(state["ema_psnr"])
@@ -206,8 +195,7 @@ def _reconstruct(views, points, point_colors, config, out_dir, resume, progress,
             deform.zero_heads()
         gaussians, deform = gaussians.to(dev), deform.to(dev)  # initialised on the CPU: alike everywhere
         opt_g, opt_d = _make_optimizers(gaussians, deform, cfg)
-        n = gaussians.num_gaussians
-        grad_accum, denom = torch.zeros(n, device=dev), torch.zeros(n, device=dev)
+        strategy.initialize_state(gaussians.num_gaussians, dev)
         view_stack = []
         ema_loss, ema_psnr = 0.0, 0.0
 
@@ -217,7 +205,7 @@ def _reconstruct(views, points, point_colors, config, out_dir, resume, progress,
             "active_sh_degree": gaussians.active_sh_degree,
             "opt_g": opt_g.state_dict(),
             "opt_d": opt_d.state_dict(),
-            "grad_accum": grad_accum.cpu(), "denom": denom.cpu(),
+            **strategy.state_dict(),
             "rng": gen.get_state(),
             "view_stack": torch.tensor(view_stack, dtype=torch.int64),
             "ema_loss": ema_loss, "ema_psnr": ema_psnr,
@@ -253,9 +241,7 @@ def _reconstruct(views, points, point_colors, config, out_dir, resume, progress,
                 offset = noise * time_noise_scale(it, cfg) / n_views
             out, means_t = render_view(gaussians, deform, cam, bg, backend, offset, use_deform,
                                        visible_only=cfg.deform_visible_only)
-            screen = out.means2d if cfg.densify_statistic == "means2d" else means_t
-            if screen.requires_grad:
-                screen.retain_grad()
+            strategy.step_pre_backward(out, means_t)
             image = out.color
             l1 = l1_loss(image, gt)
             loss = (1.0 - cfg.lambda_dssim) * l1 + cfg.lambda_dssim * (1.0 - ssim(image, gt))
@@ -273,29 +259,7 @@ def _reconstruct(views, points, point_colors, config, out_dir, resume, progress,
                     log.write(it, ema_loss, ema_psnr, gaussians.num_gaussians, time.perf_counter() - t0,
                               time.process_time() - c0)
 
-                # densification statistics and steps
-                if it < cfg.densify_until:
-                    if cfg.densify_statistic == "means2d":
-                        vis = out.radii.to(grad_accum.device) > 0  # the render's own projection (3DGS)
-                        gn = screen_grad_norm(screen.grad, cam) if screen.grad is not None else None
-                    else:
-                        # the visibility the cpu presets were tuned with: deformed means, canonical
-                        # rotations and scales (the render's radii changed the seed-0 HyperNeRF
-                        # geometry: ceiling 0.7482 -> 0.7494, and its click then chose a background
-                        # cluster, mIoU 0.740 -> 0.130)
-                        mt = means_t.detach()
-                        vis = in_view(mt, gaussians.rotations.detach(), gaussians.scales.detach(), cam)
-                        gn = lstsq_screen_grad_norm(screen.grad, mt, cam) if screen.grad is not None else None
-                    if gn is not None:
-                        grad_accum[vis] += gn[vis]
-                        denom[vis] += 1
-                    if it > cfg.densify_from and it % cfg.densify_interval == 0:
-                        prune_large = it > cfg.opacity_reset_interval
-                        densify_and_prune(gaussians, opt_g, cfg, grad_accum, denom, extent, prune_large, gen)
-                        n = gaussians.num_gaussians
-                        grad_accum, denom = torch.zeros(n, device=dev), torch.zeros(n, device=dev)
-                    if it % cfg.opacity_reset_interval == 0 or (cfg.white_background and it == cfg.densify_from):
-                        gaussians.reset_opacity(opt_g)
+                strategy.step_post_backward(it, gaussians, opt_g, out, means_t, cam, gen)
 
                 opt_g.step()
                 opt_g.zero_grad(set_to_none=True)
