@@ -17,15 +17,18 @@ Deviations from the public trainer (documented because they change numbers sligh
 * ``max_gaussians`` caps densification (keeping the largest-gradient candidates).
 
 Beside it: the settings and schedules (``trase.reconstruction_config``), the training images
-(``trase.training_images``), densification (``trase.densify``).
+(``trase.training_images``), densification (``trase.densify``: ``DensifyStrategy``), the
+log and progress bar (``trase.training_log``).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import time
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -39,13 +42,17 @@ from trase.checkpoint import (
     save_model,
 )
 from trase.deformation import DeformMLP, deformed, deformed_visible
-from trase.densify import densify_and_prune, lstsq_screen_grad_norm, scene_extent, screen_grad_norm
+from trase.densify import DensifyStrategy, in_view, scene_extent
 from trase.devices import resolve_device
 from trase.gaussians import GaussianModel
 from trase.io import read_torch
 from trase.losses import l1_loss, opacity_entropy, psnr, ssim
 from trase.reconstruction_config import ReconstructionConfig, expon_lr, time_noise_scale
 from trase.training_images import ImageCache, load_image
+from trase.training_log import ProgressBar, TrainLog
+
+if TYPE_CHECKING:
+    from trase.render.types import RenderOutput
 
 
 # -- rendering ------------------------------------------------------------------------------
@@ -71,16 +78,6 @@ def render_view(gaussians: GaussianModel, deformation, camera: Camera, backgroun
         background=background, backend=backend,
     )
     return out, means
-
-
-def in_view(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, camera: Camera) -> torch.Tensor:
-    """[N] bool: the gaussians the rasterizer does not cull for ``camera`` (radii > 0); the
-    numba projection on CPU (same radii as the torch reference, ~10x faster)."""
-    from trase.render.numba_projection import project_gaussians_numba
-    from trase.render.projection import project_gaussians
-
-    project = project_gaussians_numba if means.device.type == "cpu" else project_gaussians
-    return project(means, quats, scales, camera).radii > 0
 
 
 @torch.no_grad()
@@ -119,64 +116,91 @@ def _make_optimizers(g: GaussianModel, deform: DeformMLP, cfg: ReconstructionCon
 
 
 def _state_path(out_dir: Path, iteration: int) -> Path:
+    """The sidecar trainer state of the checkpoint at ``iteration``."""
     return out_dir / "trainer_state" / f"iteration_{iteration}.pt"
 
 
-class _TrainLog:
-    """train_log.csv: iteration, smoothed loss and training PSNR, gaussian count, seconds
-    since this (possibly resumed) run started, and the process CPU seconds over the same span
-    (all threads; on a busy shared machine it is the fairer measure of the work done). Rows past a resumed checkpoint are dropped."""
-
-    HEADER = "iteration,loss,psnr,num_gaussians,seconds,cpu_seconds\n"
-
-    def __init__(self, path: Path, start: int) -> None:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        rows = []
-        if start > 0 and path.is_file():
-            for line in path.read_text().splitlines()[1:]:
-                head = line.split(",", 1)[0]
-                if head.isdigit() and int(head) <= start:
-                    rows.append(line + "\n")
-        self.f = open(path, "w")  # noqa: SIM115 - kept open for the run, closed in close()
-        self.f.write(self.HEADER + "".join(rows))
-        self.f.flush()
-
-    def write(self, it: int, loss: float, psnr_db: float, n: int, seconds: float, cpu: float) -> None:
-        self.f.write(f"{it},{loss:.6f},{psnr_db:.4f},{n},{seconds:.2f},{cpu:.2f}\n")
-        self.f.flush()
-
-    def close(self) -> None:
-        self.f.close()
+# what a trainer-state file must hold to resume (beside "iteration")
+_STATE_KEYS = ("active_sh_degree", "opt_g", "opt_d", *DensifyStrategy.STATE_KEYS, "rng", "view_stack",
+               "ema_loss", "ema_psnr")
 
 
-class _Progress:
-    """rich progress bar with loss and PSNR (no-op when disabled)."""
+@dataclasses.dataclass
+class _Trainer:
+    """Everything the loop changes from one iteration to the next: what a checkpoint saves and
+    a resumed run restores, so a resumed run continues bit for bit."""
 
-    def __init__(self, enabled: bool, total: int, start: int) -> None:
-        self.bar = None
-        if enabled:
-            from rich.progress import (
-                BarColumn,
-                MofNCompleteColumn,
-                Progress,
-                TextColumn,
-                TimeElapsedColumn,
-            )
+    gaussians: GaussianModel
+    deform: DeformMLP
+    opt_g: torch.optim.Optimizer  # the gaussians' parameters, one group each (_make_optimizers)
+    opt_d: torch.optim.Optimizer  # the deformation network's
+    strategy: DensifyStrategy
+    gen: torch.Generator  # the run's draws: view order, time noise, splits
+    view_stack: list[int]  # views left in the current random pass (popped from the end)
+    ema_loss: float = 0.0  # smoothed loss and training PSNR (dB), for the log
+    ema_psnr: float = 0.0
 
-            self.bar = Progress(
-                TextColumn("reconstruct"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                TextColumn("{task.fields[info]}"),
-            )
-            self.bar.start()
-            self.task = self.bar.add_task("train", total=total, completed=start, info="")
+    def state_dict(self, it: int) -> dict:
+        """The trainer-state file's contents (keys and order as ever: old files still load)."""
+        return {
+            "iteration": it,
+            "active_sh_degree": self.gaussians.active_sh_degree,
+            "opt_g": self.opt_g.state_dict(),
+            "opt_d": self.opt_d.state_dict(),
+            **self.strategy.state_dict(),
+            "rng": self.gen.get_state(),
+            "view_stack": torch.tensor(self.view_stack, dtype=torch.int64),
+            "ema_loss": self.ema_loss, "ema_psnr": self.ema_psnr,
+        }
 
-    def update(self, it: int, info: str) -> None:
-        if self.bar is not None:
-            self.bar.update(self.task, completed=it, info=info)
 
-    def close(self) -> None:
-        if self.bar is not None:
-            self.bar.stop()
+def _new_trainer(points, point_colors, cfg: ReconstructionConfig, dev, strategy: DensifyStrategy,
+                 gen: torch.Generator) -> _Trainer:
+    """A run from the point cloud: gaussians and network initialised on the CPU (alike on
+    every device), then moved."""
+    gaussians = GaussianModel.from_points(points, point_colors, sh_degree=cfg.sh_degree)
+    deform = DeformMLP.preset(cfg.deform_preset)
+    if cfg.deform_zero_init:
+        deform.zero_heads()
+    gaussians, deform = gaussians.to(dev), deform.to(dev)
+    opt_g, opt_d = _make_optimizers(gaussians, deform, cfg)
+    strategy.initialize_state(gaussians.num_gaussians, dev)
+    return _Trainer(gaussians, deform, opt_g, opt_d, strategy, gen, [])
+
+
+def _resumed_trainer(out_dir: Path, start: int, cfg: ReconstructionConfig, dev,
+                     strategy: DensifyStrategy, gen: torch.Generator) -> _Trainer:
+    """The run saved at iteration ``start``: its model and its trainer state (CheckpointError
+    when either is missing, unreadable or incomplete)."""
+    gaussians, deform = load_model(out_dir, start)
+    if deform is None:
+        raise CheckpointError(f"{out_dir}: checkpoint {start} has no deformation network to resume")
+    gaussians, deform = gaussians.to(dev), deform.to(dev)
+    sp = _state_path(out_dir, start)
+    if not sp.is_file():
+        raise CheckpointError(f"{sp}: trainer state for iteration {start} is missing; cannot resume")
+    state = read_torch(sp, CheckpointError, "unreadable trainer state")
+    lost = [k for k in _STATE_KEYS if not isinstance(state, dict) or k not in state]
+    if lost:
+        raise CheckpointError(f"{sp}: trainer state lacks {', '.join(lost)}")
+    try:
+        strategy.load_state_dict(state, gaussians.num_gaussians, dev)
+    except ValueError as exc:
+        raise CheckpointError(f"{sp}: {exc}") from None
+    gaussians.active_sh_degree = int(state["active_sh_degree"])
+    deform.train()
+    opt_g, opt_d = _make_optimizers(gaussians, deform, cfg)
+    opt_g.load_state_dict(state["opt_g"])
+    opt_d.load_state_dict(state["opt_d"])
+    gen.set_state(state["rng"])
+    return _Trainer(gaussians, deform, opt_g, opt_d, strategy, gen, [int(i) for i in state["view_stack"]],
+                    float(state["ema_loss"]), float(state["ema_psnr"]))
+
+
+def _save(tr: _Trainer, out_dir: Path, it: int, cfg: ReconstructionConfig) -> None:
+    """Trainer state, then the model in the public layout (its PLY last: marks it complete)."""
+    atomic_torch_save(tr.state_dict(it), _state_path(out_dir, it))
+    save_model(out_dir, tr.gaussians, tr.deform, it, white_background=cfg.white_background)
 
 
 def reconstruct(
@@ -212,6 +236,7 @@ def reconstruct(
 
 
 def _reconstruct(views, points, point_colors, config, out_dir, resume, progress, backend, max_seconds):
+    """reconstruct's body: data, then a new or resumed trainer, then the loop."""
     cfg = config
     if not views:
         raise ValueError("reconstruct: no training views")
@@ -219,155 +244,125 @@ def _reconstruct(views, points, point_colors, config, out_dir, resume, progress,
     bg_np = np.ones(3, np.float32) if cfg.white_background else np.zeros(3, np.float32)
     bg = torch.from_numpy(bg_np).to(dev)
     data = ImageCache(views, cfg.image_downscale, bg_np, dev)
-    extent = scene_extent(data.cameras)
-    n_views = len(data)
+    strategy = DensifyStrategy(cfg, scene_extent(data.cameras))
 
-    torch.manual_seed(cfg.seed)
+    torch.manual_seed(cfg.seed)  # the network's initialisation
     gen = torch.Generator().manual_seed(cfg.seed)
-    start = 0
     existing = available_iterations(out_dir) if resume else []
+    start = existing[-1] if existing else 0
     if existing:
-        start = existing[-1]
-        gaussians, deform = load_model(out_dir, start)
-        if deform is None:
-            raise CheckpointError(f"{out_dir}: checkpoint {start} has no deformation network to resume")
-        gaussians, deform = gaussians.to(dev), deform.to(dev)
-        sp = _state_path(out_dir, start)
-        if not sp.is_file():
-            raise CheckpointError(f"{sp}: trainer state for iteration {start} is missing; cannot resume")
-        state = read_torch(sp, CheckpointError, "unreadable trainer state")
-        need = ["active_sh_degree", "opt_g", "opt_d", "grad_accum", "denom", "rng", "view_stack", "ema_loss", "ema_psnr"]
-        lost = [k for k in need if not isinstance(state, dict) or k not in state]
-        if lost:
-            raise CheckpointError(f"{sp}: trainer state lacks {', '.join(lost)}")
-        if state["grad_accum"].shape[0] != gaussians.num_gaussians:
-            raise CheckpointError(
-                f"{sp}: trainer state is for {state['grad_accum'].shape[0]} gaussians, "
-                f"the point cloud has {gaussians.num_gaussians}"
-            )
-        gaussians.active_sh_degree = int(state["active_sh_degree"])
-        deform.train()
-        opt_g, opt_d = _make_optimizers(gaussians, deform, cfg)
-        opt_g.load_state_dict(state["opt_g"])
-        opt_d.load_state_dict(state["opt_d"])
-        grad_accum, denom = state["grad_accum"].to(dev), state["denom"].to(dev)
-        gen.set_state(state["rng"])
-        view_stack = [int(i) for i in state["view_stack"]]
-        ema_loss, ema_psnr = float(state["ema_loss"]), float(state["ema_psnr"])
+        tr = _resumed_trainer(out_dir, start, cfg, dev, strategy, gen)
     else:
-        gaussians = GaussianModel.from_points(points, point_colors, sh_degree=cfg.sh_degree)
-        deform = DeformMLP.preset(cfg.deform_preset)
-        if cfg.deform_zero_init:
-            deform.zero_heads()
-        gaussians, deform = gaussians.to(dev), deform.to(dev)  # initialised on the CPU: alike everywhere
-        opt_g, opt_d = _make_optimizers(gaussians, deform, cfg)
-        n = gaussians.num_gaussians
-        grad_accum, denom = torch.zeros(n, device=dev), torch.zeros(n, device=dev)
-        view_stack = []
-        ema_loss, ema_psnr = 0.0, 0.0
+        tr = _new_trainer(points, point_colors, cfg, dev, strategy, gen)
+    _train(tr, data, bg, cfg, out_dir, start, progress, backend, max_seconds)
+    tr.deform.eval()
+    return tr.gaussians, tr.deform
 
-    def save(it: int) -> None:
-        state = {
-            "iteration": it,
-            "active_sh_degree": gaussians.active_sh_degree,
-            "opt_g": opt_g.state_dict(),
-            "opt_d": opt_d.state_dict(),
-            "grad_accum": grad_accum.cpu(), "denom": denom.cpu(),
-            "rng": gen.get_state(),
-            "view_stack": torch.tensor(view_stack, dtype=torch.int64),
-            "ema_loss": ema_loss, "ema_psnr": ema_psnr,
-        }
-        atomic_torch_save(state, _state_path(out_dir, it))
-        save_model(out_dir, gaussians, deform, it, white_background=cfg.white_background)  # PLY last: marks it complete
 
-    log = _TrainLog(out_dir / "train_log.csv", start)
-    bar = _Progress(progress, cfg.iterations, start)
+def _train(tr: _Trainer, data: ImageCache, bg: torch.Tensor, cfg: ReconstructionConfig, out_dir: Path,
+           start: int, progress: bool, backend: str, max_seconds: float | None) -> None:
+    """Iterations start + 1 .. cfg.iterations: a step, its bookkeeping, checkpoints; stops
+    early (after a checkpoint) once ``max_seconds`` have passed."""
+    log = TrainLog(out_dir / "train_log.csv", start)
+    bar = ProgressBar(progress, cfg.iterations, start)
     t0, c0 = time.perf_counter(), time.process_time()
-    it = start
     try:
         for it in range(start + 1, cfg.iterations + 1):
-            # learning rates
-            for grp in opt_g.param_groups:
-                if grp["name"] == "means":
-                    grp["lr"] = expon_lr(it, cfg.position_lr_init * cfg.spatial_lr_scale,
-                                         cfg.position_lr_final * cfg.spatial_lr_scale, cfg.position_lr_max_steps)
-            opt_d.param_groups[0]["lr"] = expon_lr(it, cfg.position_lr_init * cfg.spatial_lr_scale,
-                                                   cfg.position_lr_final, cfg.deform_lr_max_steps)
-            if cfg.sh_interval > 0 and it % cfg.sh_interval == 0:
-                gaussians.active_sh_degree = min(gaussians.active_sh_degree + 1, gaussians.max_sh_degree)
-
-            if not view_stack:
-                view_stack = torch.randperm(n_views, generator=gen).tolist()
-            vi = view_stack.pop()
-            cam, gt = data.cameras[vi], data.images[vi]
-
-            use_deform = it >= cfg.warm_up
-            offset = 0.0
-            if use_deform:
-                noise = float(torch.randn(1, generator=gen))
-                offset = noise * time_noise_scale(it, cfg) / n_views
-            out, means_t = render_view(gaussians, deform, cam, bg, backend, offset, use_deform,
-                                       visible_only=cfg.deform_visible_only)
-            screen = out.means2d if cfg.densify_statistic == "means2d" else means_t
-            if screen.requires_grad:
-                screen.retain_grad()
-            image = out.color
-            l1 = l1_loss(image, gt)
-            loss = (1.0 - cfg.lambda_dssim) * l1 + cfg.lambda_dssim * (1.0 - ssim(image, gt))
-            if cfg.opacity_entropy_weight > 0 and it >= cfg.opacity_entropy_from:
-                loss = loss + cfg.opacity_entropy_weight * opacity_entropy(gaussians.opacities)
-            loss.backward()
-
+            step = _forward_backward(tr, it, data, bg, cfg, backend)
             with torch.no_grad():
-                lv = float(loss)
-                pv = psnr(image.clamp(0, 1), gt)
-                ema_loss = lv if it == 1 else 0.4 * lv + 0.6 * ema_loss
-                ema_psnr = pv if it == 1 else 0.4 * pv + 0.6 * ema_psnr
+                _record(tr, it, step)
                 if it % cfg.log_interval == 0 or it == cfg.iterations:
-                    bar.update(it, f"loss {ema_loss:.4f}  psnr {ema_psnr:.2f} dB  N={gaussians.num_gaussians}")
-                    log.write(it, ema_loss, ema_psnr, gaussians.num_gaussians, time.perf_counter() - t0,
-                              time.process_time() - c0)
-
-                # densification statistics and steps
-                if it < cfg.densify_until:
-                    if cfg.densify_statistic == "means2d":
-                        vis = out.radii.to(grad_accum.device) > 0  # the render's own projection (3DGS)
-                        gn = screen_grad_norm(screen.grad, cam) if screen.grad is not None else None
-                    else:
-                        # the visibility the cpu presets were tuned with: deformed means, canonical
-                        # rotations and scales (the render's radii changed the seed-0 HyperNeRF
-                        # geometry: ceiling 0.7482 -> 0.7494, and its click then chose a background
-                        # cluster, mIoU 0.740 -> 0.130)
-                        mt = means_t.detach()
-                        vis = in_view(mt, gaussians.rotations.detach(), gaussians.scales.detach(), cam)
-                        gn = lstsq_screen_grad_norm(screen.grad, mt, cam) if screen.grad is not None else None
-                    if gn is not None:
-                        grad_accum[vis] += gn[vis]
-                        denom[vis] += 1
-                    if it > cfg.densify_from and it % cfg.densify_interval == 0:
-                        prune_large = it > cfg.opacity_reset_interval
-                        densify_and_prune(gaussians, opt_g, cfg, grad_accum, denom, extent, prune_large, gen)
-                        n = gaussians.num_gaussians
-                        grad_accum, denom = torch.zeros(n, device=dev), torch.zeros(n, device=dev)
-                    if it % cfg.opacity_reset_interval == 0 or (cfg.white_background and it == cfg.densify_from):
-                        gaussians.reset_opacity(opt_g)
-
-                opt_g.step()
-                opt_g.zero_grad(set_to_none=True)
-                if use_deform:
-                    opt_d.step()
-                opt_d.zero_grad(set_to_none=True)
-
-            if it % cfg.checkpoint_interval == 0 or it == cfg.iterations:
-                save(it)
-            if max_seconds is not None and time.perf_counter() - t0 > max_seconds:
-                if it % cfg.checkpoint_interval != 0 and it != cfg.iterations:
-                    save(it)
+                    n = tr.gaussians.num_gaussians
+                    bar.update(it, f"loss {tr.ema_loss:.4f}  psnr {tr.ema_psnr:.2f} dB  N={n}")
+                    log.write(it, tr.ema_loss, tr.ema_psnr, n, time.perf_counter() - t0, time.process_time() - c0)
+                tr.strategy.step_post_backward(it, tr.gaussians, tr.opt_g, step.out, step.means, step.camera,
+                                               tr.gen)
+                _optimizer_step(tr, step.use_deform)
+            if _checkpoint(tr, out_dir, it, cfg, t0, max_seconds):
                 break
     finally:
         bar.close()
         log.close()
-    deform.eval()
-    return gaussians, deform
 
 
+def _checkpoint(tr: _Trainer, out_dir: Path, it: int, cfg: ReconstructionConfig, t0: float,
+                max_seconds: float | None) -> bool:
+    """Save on the checkpoint schedule and at the end; True (stop) once ``max_seconds`` have
+    passed since ``t0`` (time.perf_counter), counting the save, after saving this iteration."""
+    due = it % cfg.checkpoint_interval == 0 or it == cfg.iterations
+    if due:
+        _save(tr, out_dir, it, cfg)
+    if max_seconds is not None and time.perf_counter() - t0 > max_seconds:
+        if not due:
+            _save(tr, out_dir, it, cfg)
+        return True
+    return False
+
+
+@dataclasses.dataclass
+class _Step:
+    """What one iteration's forward pass leaves for the bookkeeping after its backward."""
+
+    camera: Camera
+    gt: torch.Tensor  # [H, W, 3] the view's image
+    out: RenderOutput  # the render (out.color [H, W, 3]; means2d, radii [N] for densification)
+    means: torch.Tensor  # [N, 3] deformed means the view was rendered with
+    loss: torch.Tensor  # [] after backward
+    use_deform: bool  # past the warm-up: the network trains this step
+
+
+def _schedule(tr: _Trainer, it: int, cfg: ReconstructionConfig) -> None:
+    """Iteration ``it``'s learning rates (means and network decay exponentially) and SH band."""
+    for grp in tr.opt_g.param_groups:
+        if grp["name"] == "means":
+            grp["lr"] = expon_lr(it, cfg.position_lr_init * cfg.spatial_lr_scale,
+                                 cfg.position_lr_final * cfg.spatial_lr_scale, cfg.position_lr_max_steps)
+    tr.opt_d.param_groups[0]["lr"] = expon_lr(it, cfg.position_lr_init * cfg.spatial_lr_scale,
+                                              cfg.position_lr_final, cfg.deform_lr_max_steps)
+    if cfg.sh_interval > 0 and it % cfg.sh_interval == 0:
+        g = tr.gaussians
+        g.active_sh_degree = min(g.active_sh_degree + 1, g.max_sh_degree)
+
+
+def _forward_backward(tr: _Trainer, it: int, data: ImageCache, bg: torch.Tensor, cfg: ReconstructionConfig,
+                      backend: str) -> _Step:
+    """Iteration ``it`` up to its backward: the next view of the random pass, rendered at its
+    time plus the annealed time noise (after the warm-up), L1 + D-SSIM (+ opacity entropy)."""
+    _schedule(tr, it, cfg)
+    n_views = len(data)
+    if not tr.view_stack:
+        tr.view_stack = torch.randperm(n_views, generator=tr.gen).tolist()
+    vi = tr.view_stack.pop()
+    cam, gt = data.cameras[vi], data.images[vi]
+
+    use_deform = it >= cfg.warm_up
+    offset = 0.0
+    if use_deform:
+        noise = float(torch.randn(1, generator=tr.gen))
+        offset = noise * time_noise_scale(it, cfg) / n_views
+    out, means_t = render_view(tr.gaussians, tr.deform, cam, bg, backend, offset, use_deform,
+                               visible_only=cfg.deform_visible_only)
+    tr.strategy.step_pre_backward(out, means_t)
+    image = out.color  # [H, W, 3]
+    loss = (1.0 - cfg.lambda_dssim) * l1_loss(image, gt) + cfg.lambda_dssim * (1.0 - ssim(image, gt))
+    if cfg.opacity_entropy_weight > 0 and it >= cfg.opacity_entropy_from:
+        loss = loss + cfg.opacity_entropy_weight * opacity_entropy(tr.gaussians.opacities)
+    loss.backward()
+    return _Step(cam, gt, out, means_t, loss, use_deform)
+
+
+def _record(tr: _Trainer, it: int, step: _Step) -> None:
+    """Fold this step's loss and training PSNR into the smoothed values the log shows."""
+    lv = float(step.loss)
+    pv = psnr(step.out.color.clamp(0, 1), step.gt)
+    tr.ema_loss = lv if it == 1 else 0.4 * lv + 0.6 * tr.ema_loss
+    tr.ema_psnr = pv if it == 1 else 0.4 * pv + 0.6 * tr.ema_psnr
+
+
+def _optimizer_step(tr: _Trainer, use_deform: bool) -> None:
+    """Adam steps (the network's only past the warm-up), then the gradients cleared."""
+    tr.opt_g.step()
+    tr.opt_g.zero_grad(set_to_none=True)
+    if use_deform:
+        tr.opt_d.step()
+    tr.opt_d.zero_grad(set_to_none=True)

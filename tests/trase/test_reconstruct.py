@@ -60,6 +60,22 @@ def test_resume_continues_from_checkpoint(scene, tmp_path):
     assert torch.allclose(g.means, full_g.means, atol=1e-4)
 
 
+@pytest.mark.parametrize("statistic", ["lstsq", "means2d"])
+def test_resume_between_densifications_continues_the_statistics_exactly(scene, tmp_path, statistic):
+    """A checkpoint at 25 (densified at 20, next at 30) holds the densification statistics of
+    iterations 21-25; the resumed run carries them on and lands on the full run's bits."""
+    views, pts = scene
+    cfg = dataclasses.replace(CFG, densify_statistic=statistic)
+    full_g, _ = reconstruct(views, pts, None, cfg, tmp_path / "full", progress=False)
+    reconstruct(views, pts, None, dataclasses.replace(cfg, iterations=25), tmp_path / "split", progress=False)
+    state = torch.load(tmp_path / "split/trainer_state/iteration_25.pt", weights_only=True)
+    assert state["denom"].max() == 5 and state["grad_accum"].any()
+    g, _ = reconstruct(views, pts, None, cfg, tmp_path / "split", progress=False)
+    assert torch.equal(g.means, full_g.means) and torch.equal(g.opacity_logits, full_g.opacity_logits)
+    a, b = (torch.load(p / "trainer_state/iteration_40.pt", weights_only=True) for p in (tmp_path / "split", tmp_path / "full"))
+    assert torch.equal(a["grad_accum"], b["grad_accum"]) and torch.equal(a["denom"], b["denom"])
+
+
 def test_resume_without_trainer_state_is_an_error(scene, tmp_path):
     views, pts = scene
     half = dataclasses.replace(CFG, iterations=20)
