@@ -24,7 +24,7 @@ from benchmark.pipeline.config import default_config, without_seed
 from benchmark.pipeline.context import SequenceRun, scene_fingerprint
 from benchmark.pipeline.record import build_record
 from benchmark.results import write_results
-from benchmark.runs import check_free, run_dir, run_info, run_name
+from benchmark.results.runs import check_free, run_dir, run_info, run_name
 
 # in order; each adds its stage records to the SequenceRun
 STAGES = (masks.run, geometry.run, fit.run, prompts.run, evaluate.run, ceiling.run)

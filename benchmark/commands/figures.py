@@ -30,7 +30,7 @@ def figures(out_dir, seeds, formats, geometries, collect_only, data_path, page, 
     measurement resumes.
     """
     from benchmark.config import parse_seeds
-    from benchmark.figures import (
+    from benchmark.results.figures import (
         FORMATS,
         GEOMETRIES,
         collect,
@@ -42,7 +42,7 @@ def figures(out_dir, seeds, formats, geometries, collect_only, data_path, page, 
     formats = tuple(formats) or FORMATS
     geometries = tuple(geometries) or GEOMETRIES
     if not collect_only:
-        from benchmark.figures import run_all
+        from benchmark.results.figures import run_all
 
         run_all(Path(out_dir), parse_seeds(seeds), formats, geometries, progress=not quiet)
     data = collect(Path(out_dir), formats, geometries)

@@ -31,7 +31,7 @@ def fit(scene_dir, fmt, out_dir, holdout, method, cache_dir, overrides, quiet) -
     other clustering settings reuses the masks, the reconstruction and the features. A fitted
     capture is never a benchmark result.
     """
-    from benchmark.capture_fit import FitOptions, fit_capture, next_steps
+    from benchmark.captures.fit import FitOptions, fit_capture, next_steps
 
     path = fit_capture(FitOptions(Path(scene_dir), Path(out_dir) if out_dir else None, method, fmt, holdout,
                                   list(overrides), Path(cache_dir) if cache_dir else None, not quiet))

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from benchmark.leaderboard import FORMATS, render_all
+from benchmark.results.leaderboard import FORMATS, render_all
 
 
 @click.command()
@@ -34,7 +34,7 @@ def leaderboard(results_dir: str, run_dirs: tuple[str, ...], kinds: tuple[str, .
     differs). Synthetic and real results are separate tables; published numbers are labelled
     rows beside real results only.
     """
-    from benchmark.runs import find_runs, load_run, one_config_per_row, select_runs
+    from benchmark.results.runs import find_runs, load_run, one_config_per_row, select_runs
 
     warn = lambda m: click.echo(m, err=True)
     if run_dirs:

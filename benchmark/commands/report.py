@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from benchmark.errors import UserError
-from benchmark.report import make_report
+from benchmark.results.report import make_report
 
 
 @click.command()
@@ -20,7 +20,7 @@ from benchmark.report import make_report
 def report(method: str, dataset: str, sequence: str, name: str | None, out_dir: str) -> None:
     """Write report.html (test views with predicted and ground-truth masks, per-frame IoU,
     clusters, stage timings, config) next to the run's results.json."""
-    from benchmark.runs import load_run, newest_per_seed
+    from benchmark.results.runs import load_run, newest_per_seed
 
     seq_dir = Path(out_dir) / method / dataset / sequence
     if name is not None:

@@ -64,8 +64,8 @@ def run(method, dataset, sequences, data_root, out_dir, cache_dir, overrides, na
                    f"{r['run']['name']}, {r['run']['kind']}, seed {r['run']['seed']}): mIoU {fmt(official['miou'])} mAcc {fmt(official['macc'])}{v1}  "
                    f"[oracle mIoU {fmt(oracle.get('miou'))}{ceiling}]  -> {path}")
     if opts.seeds and len(opts.seeds) > 1:
-        from benchmark.runs import load_run
-        from benchmark.stability import format_summary, seed_summary
+        from benchmark.results.runs import load_run
+        from benchmark.results.stability import format_summary, seed_summary
 
         by_seq: dict[str, list[dict]] = {}
         for path in paths:

@@ -20,7 +20,7 @@ def runs(results_dir: str, kind: str, as_json: bool) -> None:
     """List runs: method, dataset, sequence, name, kind, run seed, mIoU (official metric),
     config hash, directory, and a legend of the protocols (geometry, features preset, masks, prompts,
     render rule, metric) they were measured under."""
-    from benchmark.runs import ProtocolLegend, find_runs, protocol, protocol_label
+    from benchmark.results.runs import ProtocolLegend, find_runs, protocol, protocol_label
 
     records = find_runs(Path(results_dir), warn=lambda m: click.echo(m, err=True))
     if kind != "all":

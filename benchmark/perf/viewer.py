@@ -41,7 +41,7 @@ def fitted_run(out_dir: Path, quick: bool, echo) -> Path:
 
 
 def run(quick: bool, echo, out_dir: Path) -> dict:
-    from benchmark.scene_folders import open_scene_folder, resolve_selection
+    from benchmark.scene.folders import open_scene_folder, resolve_selection
     from trase.edit import by_click
     from trase.visualize import Painter
 

@@ -66,7 +66,7 @@ def evaluate(method, fitted, scene, prompts, directory: Path) -> dict:
     scores (v1 and official, as dicts), oracle, scores of the other click sets, model facts."""
     import cv2
 
-    from benchmark.stability import geometry_checksum, save_cluster_maps
+    from benchmark.results.stability import geometry_checksum, save_cluster_maps
     from trase.checkpoint import model_storage
 
     preds = method.segment(fitted, scene, prompts)

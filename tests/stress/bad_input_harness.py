@@ -79,7 +79,7 @@ def build_pristine(base: Path) -> dict[str, Path]:
     out["geometry"] = geo
 
     res = base / "src" / "results"
-    from tests.benchmark.results_helpers import record
+    from tests.benchmark.results.helpers import record
 
     write_results(res / "m" / "hypernerf" / "s" / "main" / "results.json",
                   record("m", "hypernerf", "s", 0.5, 0.9, name="main"))

@@ -3,10 +3,10 @@ import json
 import pytest
 
 from benchmark.cli import main
-from benchmark.leaderboard import build_tables, render, render_all
 from benchmark.results import ResultsError, write_results
-from benchmark.runs import RunError, find_runs, one_config_per_row, select_runs
-from tests.benchmark.results_helpers import config, record, write
+from benchmark.results.leaderboard import build_tables, render, render_all
+from benchmark.results.runs import RunError, find_runs, one_config_per_row, select_runs
+from tests.benchmark.results.helpers import config, record, write
 
 
 def _main_runs(root):
@@ -46,7 +46,7 @@ def test_ablation_variants_and_reruns_stay_out_of_the_main_table(tmp_path):
 
 
 def test_a_set_that_restates_the_defaults_is_still_the_main_run():
-    from benchmark.runs import run_info
+    from benchmark.results.runs import run_info
 
     assert run_info("c1", ["method.features.knn=16"], defaults=True)["kind"] == "main"
     assert run_info("c1", [], defaults=False)["kind"] == "run"
@@ -187,7 +187,7 @@ def test_cli_leaderboard_and_runs(tmp_path, capsys):
 
 
 def test_a_gpu_run_names_its_device_in_the_protocol(tmp_path):
-    from benchmark.runs import protocol, protocol_label
+    from benchmark.results.runs import protocol, protocol_label
 
     cpu = config()
     gpu = config(preset="paper", features={"device": "cuda"})

@@ -52,8 +52,8 @@ def run_all(out_dir: Path, seeds: list[int], formats=FORMATS, geometries=GEOMETR
 
 def collect(out_dir: Path, formats=FORMATS, geometries=GEOMETRIES) -> dict:
     """Summaries of the runs under ``out_dir`` per (format, geometry), with provenance."""
-    from benchmark.runs import find_runs, seed_siblings
-    from benchmark.stability import seed_summary
+    from benchmark.results.runs import find_runs, seed_siblings
+    from benchmark.results.stability import seed_summary
 
     records = find_runs(Path(out_dir))
     rows, used = [], []

@@ -2,9 +2,9 @@ import cv2
 import numpy as np
 
 from benchmark.cli import main
-from benchmark.report import overlay
 from benchmark.results import write_results
-from tests.benchmark.results_helpers import record
+from benchmark.results.report import overlay
+from tests.benchmark.results.helpers import record
 
 
 def test_overlay_colours():
@@ -50,7 +50,7 @@ def test_report_from_run_dir(tmp_path, capsys):
 
 
 def test_ceiling_notes_name_holes_movers_and_the_frames_they_touch():
-    from benchmark.report import _ceiling_objects_notes
+    from benchmark.results.report import _ceiling_objects_notes
 
     c = {"miou": 0.8, "objects": {"ball": {"holes": 0.1}, "ring": {"holes": None}},
          "movers": {"pillar": {"holes": 0.98}},

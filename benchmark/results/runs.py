@@ -24,7 +24,7 @@ import sys
 from pathlib import Path
 
 from benchmark.errors import UserError
-from benchmark.results import (
+from benchmark.results.record import (
     LEGACY_SCHEMAS,
     RUN_KINDS,
     ResultsError,
