@@ -129,7 +129,7 @@ def run_study(name: str, dataset: str, out_dir: Path, data_root: Path | None = N
     study = STUDIES[name]
     rows = []
     for v in study.variants:
-        # a variant is a run of its study: <out>/ablations/<study>/<method>/<dataset>/<sequence>/<variant>
+        # a variant is a run of its study: <runs>/ablations/<study>/<method>/<dataset>/<sequence>/<variant>
         opts = RunOptions(method=v.method, dataset=dataset, sequences=sequences, data_root=data_root,
                           out_dir=Path(out_dir) / "ablations" / name, cache_dir=Path(out_dir) / ".cache",
                           overrides=list(study.protocol) + list(overrides or []) + list(v.overrides),

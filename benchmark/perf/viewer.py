@@ -29,7 +29,7 @@ def fitted_run(out_dir: Path, quick: bool, echo) -> Path:
     from benchmark.cli import main
 
     root = Path(out_dir) / "viewer"
-    args = ["run", "--method", "trase", "--dataset", "hypernerf", "--out", str(root / "runs"), "--quiet"]
+    args = ["run", "--method", "trase", "--dataset", "hypernerf", "--runs", str(root / "runs"), "--quiet"]
     if quick:
         args += ["--sequence", "synthetic-tiny"] + [a for s in QUICK_SET for a in ("--set", s)]
     t0 = time.perf_counter()

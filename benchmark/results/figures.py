@@ -66,7 +66,7 @@ def collect(out_dir: Path, formats=FORMATS, geometries=GEOMETRIES) -> dict:
             groups = {r["run"]["group"] for r in mine}
             if len(groups) > 1:
                 raise UserError(f"{out_dir}: {ds} with {geo} geometry has runs of {len(groups)} configs; "
-                                "use a fresh --out for the figures")
+                                "use a fresh --runs for the figures")
             sibs = seed_siblings(mine[0], mine)
             summary = seed_summary(sibs)
             used += sibs
