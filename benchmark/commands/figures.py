@@ -11,10 +11,13 @@ from benchmark.commands import old_spelling
 
 @click.command()
 @old_spelling("--out", "--runs")
+@old_spelling("--format", "--dataset")
 @click.option("--runs", "runs_dir", type=click.Path(file_okay=False), default="runs/figures", show_default=True,
               help="The folder of the figures' runs (their stage cache inside): reruns reuse what is there.")
 @click.option("--seeds", default="3", show_default=True, metavar="N|S,S,...", help="Run seeds per format and geometry.")
-@click.option("--format", "formats", multiple=True, help="Only these formats (repeatable; default all five).")
+@click.option("--dataset", "formats", multiple=True,
+              help="Only these formats, by their benchmark's key (repeatable; default all five: nerfds, "
+                   "hypernerf, neu3d, immersive, technicolor).")
 @click.option("--geometry", "geometries", multiple=True, type=click.Choice(["reconstruct", "ground-truth"]),
               help="Only this geometry source (repeatable; default both).")
 @click.option("--collect-only", is_flag=True, help="Summarise the runs already under --runs; run nothing.")

@@ -20,6 +20,7 @@ RENAMED = [
     ("run", ["--method", "trase", "--dataset", "hypernerf"], "--out", "--runs", "x"),
     ("ablate", ["smoothing", "--dataset", "hypernerf"], "--out", "--runs", "x"),
     ("figures", [], "--out", "--runs", "x"),
+    ("figures", [], "--format", "--dataset", "hypernerf"),
     ("runs", [], "--results", "--runs", "x"),
     ("leaderboard", [], "--results", "--runs", "x"),
     ("report", [], "--out", "--runs", "x"),
