@@ -31,8 +31,8 @@ test-all: $(STAMP)
 # The main job on the built-in default data: TRASE on the synthetic HyperNeRF-format scene
 # (generated once into the cache), then the leaderboard of the main runs under runs/.
 demo: $(STAMP)
-	$(VENV)/bin/trase-bench run --method trase --dataset hypernerf --out runs
-	$(VENV)/bin/trase-bench leaderboard --results runs --variant synthetic
+	$(VENV)/bin/trase-bench run --method trase --dataset hypernerf --runs runs
+	$(VENV)/bin/trase-bench leaderboard --runs runs --variant synthetic
 
 clean:
 	rm -rf $(VENV) build *.egg-info

@@ -28,7 +28,7 @@ class Variant:
 
     @property
     def run_name(self) -> str:
-        """The variant's run directory name (benchmark.runs.NAME_RE): '2%' -> '2pct',
+        """The variant's run directory name (benchmark.results.runs.NAME_RE): '2%' -> '2pct',
         '16/no' -> '16-no'."""
         return re.sub(r"[^A-Za-z0-9._=+-]", "-", self.label.replace("%", "pct"))
 
@@ -129,7 +129,7 @@ def run_study(name: str, dataset: str, out_dir: Path, data_root: Path | None = N
     study = STUDIES[name]
     rows = []
     for v in study.variants:
-        # a variant is a run of its study: <out>/ablations/<study>/<method>/<dataset>/<sequence>/<variant>
+        # a variant is a run of its study: <runs>/ablations/<study>/<method>/<dataset>/<sequence>/<variant>
         opts = RunOptions(method=v.method, dataset=dataset, sequences=sequences, data_root=data_root,
                           out_dir=Path(out_dir) / "ablations" / name, cache_dir=Path(out_dir) / ".cache",
                           overrides=list(study.protocol) + list(overrides or []) + list(v.overrides),
@@ -273,15 +273,15 @@ def render_table(df: pd.DataFrame, fmt: str, title: str) -> str:
     lines = [f"### {title}", "", "| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     lines += ["| " + " | ".join(cell(c, r[c], i) for c in cols) + " |" for i, (_, r) in enumerate(df.iterrows())]
     if near:
-        from benchmark.leaderboard import SPREAD_NOTE
+        from benchmark.results.leaderboard import SPREAD_NOTE
 
         lines += ["", SPREAD_NOTE]
     return "\n".join(lines) + "\n"
 
 
 def _within_spread(df: pd.DataFrame, col: str) -> list[bool]:
-    """Per row: within the spread of the column's best (benchmark.leaderboard.within_spread)."""
-    from benchmark.leaderboard import within_spread
+    """Per row: within the spread of the column's best (benchmark.results.leaderboard.within_spread)."""
+    from benchmark.results.leaderboard import within_spread
 
     best = df[col].max()
     best_sd = df.loc[df[col] == best, f"{col} ±"].max()

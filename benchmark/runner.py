@@ -3,7 +3,7 @@
 Every stage goes through the stage cache (benchmark.cache): its key hashes its own config
 section and its inputs' keys, so a rerun, or another method on the same scene, reuses the
 masks and the reconstruction and says so. Results land in the run's directory,
-``<out>/<method>/<dataset>/<sequence>/<name>/results.json`` (``benchmark.runs``: name = --name or
+``<runs>/<method>/<dataset>/<sequence>/<name>/results.json`` (``benchmark.results.runs``: name = --name or
 c<config hash>), with predictions beside them.
 """
 
@@ -24,7 +24,7 @@ from benchmark.pipeline.context import SequenceRun, scene_fingerprint
 from benchmark.pipeline.record import build_record
 from benchmark.pipeline.settings import RunSettings, run_settings
 from benchmark.results import write_results
-from benchmark.runs import check_free, run_dir, run_info, run_name
+from benchmark.results.runs import check_free, run_dir, run_info, run_name
 
 # in order; each adds its stage records to the SequenceRun
 STAGES = (masks.run, geometry.run, fit.run, prompts.run, evaluate.run, ceiling.run)
@@ -41,7 +41,7 @@ class RunOptions:
     overrides: list[str] = dataclasses.field(default_factory=list)  # --set key=value
     jobs: int = 1
     progress: bool = True
-    name: str | None = None  # run directory name; None: c<config hash> (benchmark.runs)
+    name: str | None = None  # run directory name; None: c<config hash> (benchmark.results.runs)
     study: str | None = None  # set by ablation studies: the run is a variant of this study
     study_variant: str | None = None
     seeds: list[int] | None = None  # run seeds (each its own run, --set seed=S); None: as --set says

@@ -23,7 +23,7 @@ def _selection_options(f):
 
 def _open(run_dir, cache, clusters, clicks, selected):
     from benchmark.errors import UserError
-    from benchmark.scene_folders import open_scene_folder, resolve_selection
+    from benchmark.scene.folders import open_scene_folder, resolve_selection
 
     folder = open_scene_folder(run_dir, cache)
     ks, sel = resolve_selection(folder, clusters, clicks, selected)
@@ -53,7 +53,7 @@ def edit() -> None:
 @_selection_options
 def remove_cmd(run_dir, out_dir, cache, clusters, clicks, selected) -> None:
     """Delete the selected gaussians."""
-    from benchmark.scene_edit import write_edit
+    from benchmark.scene.edit import write_edit
     from trase.edit import remove
 
     folder, ks, sel = _open(run_dir, cache, clusters, clicks, selected)
@@ -68,7 +68,7 @@ def remove_cmd(run_dir, out_dir, cache, clusters, clicks, selected) -> None:
               help="With --ply: the object as it stands at this time (0..1), its motion applied; default canonical.")
 def extract_cmd(run_dir, out_dir, cache, clusters, clicks, selected, ply_path, at_time) -> None:
     """Keep only the selected gaussians (and, with --ply, write them as one PLY)."""
-    from benchmark.scene_edit import write_edit
+    from benchmark.scene.edit import write_edit
     from trase.edit import export_object_ply, extract
 
     folder, ks, sel = _open(run_dir, cache, clusters, clicks, selected)
@@ -86,7 +86,7 @@ def extract_cmd(run_dir, out_dir, cache, clusters, clicks, selected, ply_path, a
 def recolor_cmd(run_dir, out_dir, cache, clusters, clicks, selected, rgb, shift) -> None:
     """Set or shift the colour of the selected gaussians."""
     from benchmark.errors import UserError
-    from benchmark.scene_edit import parse_vector, write_edit
+    from benchmark.scene.edit import parse_vector, write_edit
     from trase.edit import recolor
 
     if (rgb is None) == (shift is None):
@@ -112,8 +112,8 @@ def compose_cmd(run_dir, out_dir, cache, clusters, clicks, selected, from_dir, f
     offset; each part keeps its own motion. --clusters/--click/--selected pick nothing here:
     the base scene is kept whole (use them to remove first, with edit remove)."""
     from benchmark.errors import UserError
-    from benchmark.scene_edit import parse_vector, write_edit
-    from benchmark.scene_folders import open_scene_folder, resolve_selection
+    from benchmark.scene.edit import parse_vector, write_edit
+    from benchmark.scene.folders import open_scene_folder, resolve_selection
     from trase.edit import RigidTransform, compose, extract
 
     if clusters or clicks or selected:
@@ -144,7 +144,7 @@ def style_cmd(run_dir, out_dir, cache, clusters, clicks, selected, style_path, v
     """Restyle the selection's colours after a style image (NNFM on VGG-16 features)."""
     from rich.progress import Progress
 
-    from benchmark.scene_edit import write_edit
+    from benchmark.scene.edit import write_edit
     from imagefiles import read_rgb
     from trase.edit.style import StyleConfig, VGG16Features, stylize
 

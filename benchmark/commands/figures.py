@@ -6,31 +6,37 @@ from pathlib import Path
 
 import click
 
+from benchmark.commands import old_spelling
+
 
 @click.command()
-@click.option("--out", "out_dir", type=click.Path(file_okay=False), default="runs/figures", show_default=True,
-              help="Where the runs go (their stage cache inside): reruns reuse what is there.")
+@old_spelling("--out", "--runs")
+@old_spelling("--format", "--dataset")
+@click.option("--runs", "runs_dir", type=click.Path(file_okay=False), default="runs/figures", show_default=True,
+              help="The folder of the figures' runs (their stage cache inside): reruns reuse what is there.")
 @click.option("--seeds", default="3", show_default=True, metavar="N|S,S,...", help="Run seeds per format and geometry.")
-@click.option("--format", "formats", multiple=True, help="Only these formats (repeatable; default all five).")
+@click.option("--dataset", "formats", multiple=True,
+              help="Only these formats, by their benchmark's key (repeatable; default all five: nerfds, "
+                   "hypernerf, neu3d, immersive, technicolor).")
 @click.option("--geometry", "geometries", multiple=True, type=click.Choice(["reconstruct", "ground-truth"]),
               help="Only this geometry source (repeatable; default both).")
-@click.option("--collect-only", is_flag=True, help="Summarise the runs already under --out; run nothing.")
+@click.option("--collect-only", is_flag=True, help="Summarise the runs already under --runs; run nothing.")
 @click.option("--data", "data_path", type=click.Path(dir_okay=False), default="docs/figures.json", show_default=True,
               help="The summary written (and read by --write-page).")
 @click.option("--write-page", "page", type=click.Path(dir_okay=False), default=None, is_flag=False,
               flag_value="docs/figures.md", help="Rewrite this page's figures block from --data (default docs/figures.md).")
-@click.option("--quiet", is_flag=True)
-def figures(out_dir, seeds, formats, geometries, collect_only, data_path, page, quiet) -> None:
+@click.option("--quiet", is_flag=True, help="No progress output.")
+def figures(runs_dir, seeds, formats, geometries, collect_only, data_path, page, quiet) -> None:
     """Run trase on the five built-in formats (reconstructed and ground-truth geometry, each for
     --seeds run seeds), summarise mean ± std over seeds into --data with the commit and machine,
     print the table, and with --write-page put it into the figures page's block.
 
     The whole measurement takes hours on 2 CPU cores (15 reconstructions of several minutes
-    each); every stage is cached under --out and measured runs are kept, so an interrupted
+    each); every stage is cached under --runs and measured runs are kept, so an interrupted
     measurement resumes.
     """
     from benchmark.config import parse_seeds
-    from benchmark.figures import (
+    from benchmark.results.figures import (
         FORMATS,
         GEOMETRIES,
         collect,
@@ -42,10 +48,10 @@ def figures(out_dir, seeds, formats, geometries, collect_only, data_path, page, 
     formats = tuple(formats) or FORMATS
     geometries = tuple(geometries) or GEOMETRIES
     if not collect_only:
-        from benchmark.figures import run_all
+        from benchmark.results.figures import run_all
 
-        run_all(Path(out_dir), parse_seeds(seeds), formats, geometries, progress=not quiet)
-    data = collect(Path(out_dir), formats, geometries)
+        run_all(Path(runs_dir), parse_seeds(seeds), formats, geometries, progress=not quiet)
+    data = collect(Path(runs_dir), formats, geometries)
     write_json(Path(data_path), data)
     block = render_block(data)
     click.echo(block)

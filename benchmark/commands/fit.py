@@ -20,7 +20,7 @@ import click
 @click.option("--cache", "cache_dir", type=click.Path(file_okay=False), default=None,
               help="Stage cache (default <out>/.cache).")
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
-              help="Override a setting, e.g. --set geometry.preset=paper, --set masks.generator=sam "
+              help="Override a setting, e.g. --set preset=paper, --set masks.generator=sam "
                    "--set masks.checkpoint=sam_vit_h.pth, --set capture.image_scale=4 (repeatable).")
 @click.option("--quiet", is_flag=True, help="No progress output.")
 def fit(scene_dir, fmt, out_dir, holdout, method, cache_dir, overrides, quiet) -> None:
@@ -31,7 +31,7 @@ def fit(scene_dir, fmt, out_dir, holdout, method, cache_dir, overrides, quiet) -
     other clustering settings reuses the masks, the reconstruction and the features. A fitted
     capture is never a benchmark result.
     """
-    from benchmark.capture_fit import FitOptions, fit_capture, next_steps
+    from benchmark.captures.fit import FitOptions, fit_capture, next_steps
 
     path = fit_capture(FitOptions(Path(scene_dir), Path(out_dir) if out_dir else None, method, fmt, holdout,
                                   list(overrides), Path(cache_dir) if cache_dir else None, not quiet))

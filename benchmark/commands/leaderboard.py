@@ -6,17 +6,19 @@ from pathlib import Path
 
 import click
 
-from benchmark.leaderboard import FORMATS, render_all
+from benchmark.commands import old_spelling
+from benchmark.results.leaderboard import FORMATS, render_all
 
 
 @click.command()
-@click.option("--results", "results_dir", type=click.Path(file_okay=False), default="runs",
-              show_default=True, help="Directory searched recursively for runs.")
+@old_spelling("--results", "--runs")
+@click.option("--runs", "runs_dir", type=click.Path(file_okay=False), default="runs",
+              show_default=True, help="The folder of runs (searched recursively).")
 @click.option("--run", "run_dirs", multiple=True, type=click.Path(),
               help="Use exactly these runs (a run directory or its results.json; repeatable) instead of "
-                   "the main runs under --results. See `trase-bench runs`.")
+                   "the main runs under --runs. See `trase-bench runs`.")
 @click.option("--kind", "kinds", multiple=True, type=click.Choice(["main", "run", "ablation"]),
-              help="Kinds of run taken from --results (repeatable; default: main, i.e. made with the "
+              help="Kinds of run taken from --runs (repeatable; default: main, i.e. made with the "
                    "method's defaults). Ablation variants enter only when asked for, one per row "
                    "(several variants of one method: pick with --run).")
 @click.option("--format", "fmt", type=click.Choice(FORMATS), default="markdown", show_default=True)
@@ -24,31 +26,31 @@ from benchmark.leaderboard import FORMATS, render_all
               show_default=True, help="Which data variant's tables to show.")
 @click.option("--no-published", is_flag=True, help="Leave out the paper's published rows.")
 @click.option("--out", type=click.Path(dir_okay=False), help="Write to a file instead of stdout.")
-def leaderboard(results_dir: str, run_dirs: tuple[str, ...], kinds: tuple[str, ...], fmt: str, variant: str,
+def leaderboard(runs_dir: str, run_dirs: tuple[str, ...], kinds: tuple[str, ...], fmt: str, variant: str,
                 no_published: bool, out: str | None) -> None:
     """Leaderboard in the paper's Table 1 layout plus per-sequence tables.
 
-    By default each method's main run under --results (made without --set); --run picks runs
+    By default each method's main run under --runs (made without --set); --run picks runs
     explicitly. Two runs with different configs for one method and sequence are refused. Every
     measured row names its protocol; cells use the official metric (v1 beside where it
     differs). Synthetic and real results are separate tables; published numbers are labelled
     rows beside real results only.
     """
-    from benchmark.runs import find_runs, load_run, one_config_per_row, select_runs
+    from benchmark.results.runs import find_runs, load_run, one_config_per_row, select_runs
 
     warn = lambda m: click.echo(m, err=True)
     if run_dirs:
         if kinds:
-            raise click.UsageError("--kind chooses runs under --results; with --run the runs are given")
+            raise click.UsageError("--kind chooses runs under --runs; with --run the runs are given")
         records = [load_run(Path(p)) for p in run_dirs]
     else:
-        records = select_runs(find_runs(Path(results_dir), warn=warn), kinds or ("main",))
+        records = select_runs(find_runs(Path(runs_dir), warn=warn), kinds or ("main",))
     records = one_config_per_row(records)
     variants = ("synthetic", "real") if variant == "all" else (variant,)
     text = render_all(records, fmt, variants=variants, published=not no_published)
     if not records:
         shown = "; showing the published rows only" if "real" in variants and not no_published else ""
-        warn(f"note: no {'/'.join(kinds or ('main',))} runs under {results_dir}{shown}")
+        warn(f"note: no {'/'.join(kinds or ('main',))} runs under {runs_dir}{shown}")
     if out:
         from benchmark.io import atomic_write_text
 

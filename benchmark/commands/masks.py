@@ -7,6 +7,7 @@ from pathlib import Path
 
 import click
 
+from benchmark.commands import old_spelling
 from masks.generators import GENERATORS
 
 
@@ -27,6 +28,7 @@ def _instance_maps(scene) -> dict[str, Path]:
 
 
 @click.command()
+@old_spelling("--no-progress", "--quiet")
 @click.option("--dataset", required=True, help="Registry key: nerfds, hypernerf, neu3d, immersive, technicolor.")
 @click.option("--sequence", default=None, help="Sequence name (default: the synthetic scene).")
 @click.option("--generator", "generator_name", type=click.Choice(GENERATORS.names()), default=None,
@@ -40,9 +42,9 @@ def _instance_maps(scene) -> dict[str, Path]:
 @click.option("--model-type", default="vit_h", show_default=True, help="SAM backbone.")
 @click.option("--device", default="cpu", show_default=True, help="SAM device (cpu, cuda).")
 @click.option("--seed", default=0, show_default=True, help="Seed of the synthetic generator's noise.")
-@click.option("--no-progress", is_flag=True, help="No progress bar.")
+@click.option("--quiet", is_flag=True, help="No progress output.")
 def masks(dataset, sequence, generator_name, data_root, out, checkpoint, model_type, device, seed,
-          no_progress) -> None:
+          quiet) -> None:
     """Generate masks for every training view; views already done are skipped."""
     import numpy as np
 
@@ -69,7 +71,7 @@ def masks(dataset, sequence, generator_name, data_root, out, checkpoint, model_t
 
     before = sum(masklib.mask_path(out_dir, v.name).exists() for v in scene.train)
     t0 = time.perf_counter()
-    paths = masklib.generate_scene_masks(scene.train, gen, out_dir, progress=not no_progress,
+    paths = masklib.generate_scene_masks(scene.train, gen, out_dir, progress=not quiet,
                                          instance_maps=ids)
     wall = time.perf_counter() - t0
     headers = [masklib.read_header(p) for p in paths]

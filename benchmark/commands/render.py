@@ -31,8 +31,8 @@ def render(run_dir, cache, mode, cameras, frames, orbit_degrees, scale, fps, mp4
     from pathlib import Path
 
     from benchmark.errors import UserError
-    from benchmark.scene_folders import open_scene_folder, resolve_selection
-    from benchmark.scene_render import RenderOptions, render_frames
+    from benchmark.scene.folders import open_scene_folder, resolve_selection
+    from benchmark.scene.render import RenderOptions, render_frames
 
     folder = open_scene_folder(run_dir, cache)
     ks, sel = resolve_selection(folder, clusters, clicks, selected)

@@ -5,24 +5,48 @@ from __future__ import annotations
 from pathlib import Path
 
 import click
+from click.core import ParameterSource
 
+from benchmark.commands import old_spelling
 from benchmark.errors import UserError
-from benchmark.report import make_report
+from benchmark.results.report import make_report
 
 
 @click.command()
-@click.option("--method", required=True)
-@click.option("--dataset", required=True)
-@click.option("--sequence", required=True)
+@old_spelling("--out", "--runs")
+@click.option("--run", "run_dir", type=click.Path(exists=True), metavar="DIR",
+              help="The run (its directory or its results.json), instead of --method/--dataset/--sequence.")
+@click.option("--method", default=None)
+@click.option("--dataset", default=None)
+@click.option("--sequence", default=None)
 @click.option("--name", default=None, help="The run's name (see `trase-bench runs`); default: the main run.")
-@click.option("--out", "out_dir", type=click.Path(file_okay=False), default="runs", show_default=True,
-              help="The --out directory of `trase-bench run`.")
-def report(method: str, dataset: str, sequence: str, name: str | None, out_dir: str) -> None:
+@click.option("--runs", "runs_dir", type=click.Path(file_okay=False), default="runs", show_default=True,
+              help="The folder of runs that --method/--dataset/--sequence/--name look in.")
+def report(run_dir: str | None, method: str | None, dataset: str | None, sequence: str | None, name: str | None,
+           runs_dir: str) -> None:
     """Write report.html (test views with predicted and ground-truth masks, per-frame IoU,
-    clusters, stage timings, config) next to the run's results.json."""
-    from benchmark.runs import load_run, newest_per_seed
+    clusters, stage timings, config) next to the run's results.json.
 
-    seq_dir = Path(out_dir) / method / dataset / sequence
+    The run: --run DIR, or --method, --dataset and --sequence (with --name, else the main
+    run) under --runs.
+    """
+    from benchmark.results.runs import load_run, newest_per_seed
+
+    named = {"--method": method, "--dataset": dataset, "--sequence": sequence}
+    if run_dir is not None:
+        given = [k for k, v in {**named, "--name": name}.items() if v is not None]
+        if click.get_current_context().get_parameter_source("runs_dir") is ParameterSource.COMMANDLINE:
+            given.append("--runs")
+        if given:
+            raise click.UsageError(f"--run names the run; leave out {', '.join(given)}")
+        run = load_run(Path(run_dir))
+        click.echo(f"wrote {make_report(Path(run['_dir']))}")
+        return
+    missing = [k for k, v in named.items() if v is None]
+    if missing:
+        raise click.UsageError(f"say which run: --run DIR, or --method, --dataset and --sequence "
+                               f"(missing {', '.join(missing)})")
+    seq_dir = Path(runs_dir) / method / dataset / sequence
     if name is not None:
         run = load_run(seq_dir / name)
     else:
@@ -38,4 +62,3 @@ def report(method: str, dataset: str, sequence: str, name: str | None, out_dir: 
         # the lowest seed (its siblings' scores are in the report), newest if rerun
         run = newest_per_seed(mains)[0]
     click.echo(f"wrote {make_report(Path(run['_dir']))}")
-

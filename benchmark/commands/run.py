@@ -6,8 +6,11 @@ from pathlib import Path
 
 import click
 
+from benchmark.commands import old_spelling
+
 
 @click.command()
+@old_spelling("--out", "--runs")
 @click.option("--method", required=True, help="Registered method: trase, trase-hard, trase-all, cgc, opengaussian.")
 @click.option("--dataset", required=True, help="nerfds, hypernerf, neu3d, immersive or technicolor.")
 @click.option("--sequence", "sequences", multiple=True,
@@ -15,9 +18,10 @@ import click
                    "root, else the built-in synthetic scene.")
 @click.option("--data-root", type=click.Path(file_okay=False), default=None,
               help="Root of real data (default $TRASE_DATA).")
-@click.option("--out", "out_dir", type=click.Path(file_okay=False), default="runs", show_default=True)
+@click.option("--runs", "runs_dir", type=click.Path(file_okay=False), default="runs", show_default=True,
+              help="The folder of runs: each run goes to <runs>/<method>/<dataset>/<sequence>/<name>.")
 @click.option("--cache", "cache_dir", type=click.Path(file_okay=False), default=None,
-              help="Stage cache (default <out>/.cache).")
+              help="Stage cache (default <runs>/.cache).")
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
               help="Override a setting, e.g. --set geometry.source=ground-truth "
                    "--set method.features.iterations=500 (repeatable).")
@@ -30,11 +34,11 @@ import click
                    "One seed: --set seed=S.")
 @click.option("--jobs", type=int, default=1, show_default=True, help="Sequences run in parallel.")
 @click.option("--quiet", is_flag=True, help="No progress output.")
-def run(method, dataset, sequences, data_root, out_dir, cache_dir, overrides, name, seeds, jobs, quiet) -> None:
+def run(method, dataset, sequences, data_root, runs_dir, cache_dir, overrides, name, seeds, jobs, quiet) -> None:
     """Run masks -> geometry -> features/clustering -> prompts -> evaluation per sequence.
 
     Each stage is cached under a key of its inputs and config: reruns and other methods on
-    the same scene reuse what they can. Writes <out>/<method>/<dataset>/<sequence>/<name>/results.json:
+    the same scene reuse what they can. Writes <runs>/<method>/<dataset>/<sequence>/<name>/results.json:
     one directory per config, so a rerun with other --set values never replaces a result. A run
     without --set is the method's main run (what `trase-bench leaderboard` shows by default).
     """
@@ -43,7 +47,7 @@ def run(method, dataset, sequences, data_root, out_dir, cache_dir, overrides, na
     from benchmark.runner import run as run_pipeline
 
     opts = RunOptions(method=method, dataset=dataset, sequences=list(sequences) or None,
-                      data_root=Path(data_root) if data_root else None, out_dir=Path(out_dir),
+                      data_root=Path(data_root) if data_root else None, out_dir=Path(runs_dir),
                       cache_dir=Path(cache_dir) if cache_dir else None, overrides=list(overrides),
                       jobs=jobs, progress=not quiet, name=name, seeds=parse_seeds(seeds) if seeds else None)
     from benchmark.results import load_results
@@ -64,8 +68,8 @@ def run(method, dataset, sequences, data_root, out_dir, cache_dir, overrides, na
                    f"{r['run']['name']}, {r['run']['kind']}, seed {r['run']['seed']}): mIoU {fmt(official['miou'])} mAcc {fmt(official['macc'])}{v1}  "
                    f"[oracle mIoU {fmt(oracle.get('miou'))}{ceiling}]  -> {path}")
     if opts.seeds and len(opts.seeds) > 1:
-        from benchmark.runs import load_run
-        from benchmark.stability import format_summary, seed_summary
+        from benchmark.results.runs import load_run
+        from benchmark.results.stability import format_summary, seed_summary
 
         by_seq: dict[str, list[dict]] = {}
         for path in paths:

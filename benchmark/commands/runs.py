@@ -1,4 +1,4 @@
-"""``trase-bench runs``: every run under a results directory, with its kind and protocol."""
+"""``trase-bench runs``: every run under a folder of runs, with its kind and protocol."""
 
 from __future__ import annotations
 
@@ -7,26 +7,29 @@ from pathlib import Path
 
 import click
 
+from benchmark.commands import old_spelling
+
 KIND_CHOICES = ["all", "main", "run", "ablation"]
 
 
 @click.command()
-@click.option("--results", "results_dir", type=click.Path(file_okay=False), default="runs", show_default=True,
-              help="Directory searched recursively for runs.")
+@old_spelling("--results", "--runs")
+@click.option("--runs", "runs_dir", type=click.Path(file_okay=False), default="runs", show_default=True,
+              help="The folder of runs (searched recursively).")
 @click.option("--kind", type=click.Choice(KIND_CHOICES), default="all", show_default=True,
               help="main: made with the method's defaults; run: with --set overrides; ablation: study variants.")
 @click.option("--json", "as_json", is_flag=True, help="One JSON object per run instead of a table.")
-def runs(results_dir: str, kind: str, as_json: bool) -> None:
+def runs(runs_dir: str, kind: str, as_json: bool) -> None:
     """List runs: method, dataset, sequence, name, kind, run seed, mIoU (official metric),
     config hash, directory, and a legend of the protocols (geometry, features preset, masks, prompts,
     render rule, metric) they were measured under."""
-    from benchmark.runs import ProtocolLegend, find_runs, protocol, protocol_label
+    from benchmark.results.runs import ProtocolLegend, find_runs, protocol, protocol_label
 
-    records = find_runs(Path(results_dir), warn=lambda m: click.echo(m, err=True))
+    records = find_runs(Path(runs_dir), warn=lambda m: click.echo(m, err=True))
     if kind != "all":
         records = [r for r in records if r["run"]["kind"] == kind]
     if not records:
-        click.echo(f"no runs under {results_dir}" + ("" if kind == "all" else f" of kind {kind}"), err=True)
+        click.echo(f"no runs under {runs_dir}" + ("" if kind == "all" else f" of kind {kind}"), err=True)
         return
     legend = ProtocolLegend()
     rows = []

@@ -14,7 +14,7 @@ import click
               help="Where the masks go (default <fit>/selection).")
 def select(fit_dir, clicks, out_dir) -> None:
     """Masks of the clicked objects at every view of the capture (PNG, 0/255)."""
-    from benchmark.capture_select import select_clicks
+    from benchmark.captures.select import select_clicks
 
     res = select_clicks(fit_dir, list(clicks), out_dir)
     chosen = ", ".join(map(str, res["clusters"])) or "none (the clicks hit no surface)"

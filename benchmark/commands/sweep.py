@@ -35,15 +35,15 @@ def sweep(spec_path, dry_run, executor, workers, partition, gpus, time_min, mem,
     from benchmark.sweep import load_spec, pending_jobs, submit
 
     spec = load_spec(spec_path, _overrides(executor, workers, partition, gpus, time_min, mem, array_parallelism))
-    if not any(o.startswith("geometry.preset=") for v in spec.variants.values() for o in v):
-        click.echo("note: no variant pins geometry.preset; 'auto' resolves on each worker (paper where torch "
+    if not any(o.startswith(("preset=", "geometry.preset=")) for v in spec.variants.values() for o in v):
+        click.echo("note: no variant pins the preset (preset=...); 'auto' resolves on each worker (paper where torch "
                    "sees a GPU, cpu elsewhere), so jobs on mixed nodes would run different presets", err=True)
     if dry_run:
         _dry_run(spec)
         return
     t0 = time.time()
     todo = pending_jobs(spec)
-    click.echo(f"sweep {spec.name}: {len(spec.jobs())} jobs, {len(todo)} to run ({spec.executor}); out {spec.out}")
+    click.echo(f"sweep {spec.name}: {len(spec.jobs())} jobs, {len(todo)} to run ({spec.executor}); runs {spec.out}")
     res = submit(spec, wait=(spec.executor == "local") if wait is None else wait, echo=click.echo)
     if res["submitted"] and (wait or (wait is None and spec.executor == "local")):
         click.echo(f"wall time {time.time() - t0:.1f}s")
@@ -123,5 +123,5 @@ def sweep_status(spec_path, table) -> None:
         from benchmark.sweep import results_table
 
         click.echo(results_table(spec))
-    click.echo(f"leaderboards: trase-bench leaderboard --results {spec.out}   (main runs; the variants other "
+    click.echo(f"leaderboards: trase-bench leaderboard --runs {spec.out}   (main runs; the variants other "
                f"than main are named runs: add --kind run)")

@@ -22,8 +22,8 @@ def view(run_dir, cache, host, port, height, device, out_dir) -> None:
     """Open a scene in the browser: orbit, time, render modes, click selection, edits, export."""
     import time
 
-    from benchmark.scene_folders import open_scene_folder
-    from benchmark.viewer import SceneViewer
+    from benchmark.scene.folders import open_scene_folder
+    from benchmark.scene.viewer import SceneViewer
 
     folder = open_scene_folder(run_dir, cache)
     viewer = SceneViewer(folder, host=host, port=port, out=out_dir, height=int(height), device=device)

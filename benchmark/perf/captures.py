@@ -49,7 +49,7 @@ def training_view_ceiling(fit_dir: Path, maps: dict[str, np.ndarray], ids: list[
     whose largest instance vote is that object, rendered by the fit's render rule and threshold
     (the label ceiling of benchmark.protocol.ceiling, on the capture's own geometry and
     training views): what a perfect clustering and click could reach on this geometry."""
-    from benchmark.capture_select import fitted_capture
+    from benchmark.captures.select import fitted_capture
     from benchmark.protocol.ceiling import instance_votes, truth_selection
     from trase.segment import render_masks
 
@@ -134,8 +134,8 @@ def run(quick: bool, echo, out_dir: Path, dataset: str = "hypernerf") -> dict:
 def _fit_and_select(maps, n_ids: int, cap: Path, fit_dir: Path, cache: Path, sets: list[str], clicks, ids, echo,
                     label) -> dict:
     """Fit one capture with one mask source, then one click per object and all clicks at once."""
-    from benchmark.capture_fit import FitOptions, fit_capture
-    from benchmark.capture_select import select_clicks
+    from benchmark.captures.fit import FitOptions, fit_capture
+    from benchmark.captures.select import select_clicks
 
     t0 = time.perf_counter()
     fit_json = fit_capture(FitOptions(cap, fit_dir, overrides=sets, cache_dir=cache, progress=True))

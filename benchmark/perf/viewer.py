@@ -29,7 +29,7 @@ def fitted_run(out_dir: Path, quick: bool, echo) -> Path:
     from benchmark.cli import main
 
     root = Path(out_dir) / "viewer"
-    args = ["run", "--method", "trase", "--dataset", "hypernerf", "--out", str(root / "runs"), "--quiet"]
+    args = ["run", "--method", "trase", "--dataset", "hypernerf", "--runs", str(root / "runs"), "--quiet"]
     if quick:
         args += ["--sequence", "synthetic-tiny"] + [a for s in QUICK_SET for a in ("--set", s)]
     t0 = time.perf_counter()
@@ -41,7 +41,7 @@ def fitted_run(out_dir: Path, quick: bool, echo) -> Path:
 
 
 def run(quick: bool, echo, out_dir: Path) -> dict:
-    from benchmark.scene_folders import open_scene_folder, resolve_selection
+    from benchmark.scene.folders import open_scene_folder, resolve_selection
     from trase.edit import by_click
     from trase.visualize import Painter
 

@@ -13,6 +13,6 @@ and adds its ``StageRecord``)::
 
 ``config`` resolves the run's config (presets, seeds, --set) once and checks its types;
 ``record`` turns the stage records into the typed results record (benchmark.results.RunRecord).
-``trase-bench fit`` (benchmark.capture_fit) runs masks, geometry, features and fit on a
+``trase-bench fit`` (benchmark.captures.fit) runs masks, geometry, features and fit on a
 capture of one's own.
 """

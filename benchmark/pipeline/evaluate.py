@@ -15,7 +15,7 @@ from benchmark.pipeline.prompts import load_prompts
 from benchmark.scoring import read_mask, score_masks
 
 OUTPUT_DIRS = ("pred", "clusters")  # copied into the run's directory
-N_SHOWN = 8  # test views rendered with cluster colours (and cluster id maps for benchmark.stability)
+N_SHOWN = 8  # test views rendered with cluster colours (and cluster id maps for benchmark.results.stability)
 
 
 def render_clusters(fitted, camera) -> np.ndarray:
@@ -66,7 +66,7 @@ def evaluate(method, fitted, scene, prompts, directory: Path) -> dict:
     scores (v1 and official, as dicts), oracle, scores of the other click sets, model facts."""
     import cv2
 
-    from benchmark.stability import geometry_checksum, save_cluster_maps
+    from benchmark.results.stability import geometry_checksum, save_cluster_maps
     from trase.checkpoint import model_storage
 
     preds = method.segment(fitted, scene, prompts)
@@ -83,7 +83,7 @@ def evaluate(method, fitted, scene, prompts, directory: Path) -> dict:
         for n in shown:
             rgb = render_clusters(fitted, scene.test[names.index(n)].camera)
             cv2.imwrite(str(d / f"{n}.png"), rgb[..., ::-1])
-        if fitted.gaussians is not None:  # for agreement between seeds (benchmark.stability)
+        if fitted.gaussians is not None:  # for agreement between seeds (benchmark.results.stability)
             save_cluster_maps(d, fitted, {n: scene.test[names.index(n)].camera for n in shown})
     official = score_masks(dict(zip(names, preds)), dict(zip(names, gts)), "official")
     per_click = fitted.stats.get("click_clusters")  # methods that choose clusters by clicks

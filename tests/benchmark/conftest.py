@@ -52,7 +52,7 @@ def tiny_run(tmp_path_factory) -> Path:
     generate("hypernerf", root / "hypernerf" / "synthetic", seed=0, size="tiny")
     out = root / "runs"
     args = ["run", "--method", "trase", "--dataset", "hypernerf", "--sequence", "synthetic", "--data-root",
-            str(root), "--out", str(out), "--quiet", "--set", "geometry.source=ground-truth",
+            str(root), "--runs", str(out), "--quiet", "--set", "geometry.source=ground-truth",
             "--set", "method.features.iterations=40", "--set", "method.features.n_pixels=400"]
     assert main(args) == 0
     (results,) = out.glob("trase/hypernerf/synthetic/*/results.json")

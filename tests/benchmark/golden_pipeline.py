@@ -81,7 +81,7 @@ def measure(work: Path, cases=CASES) -> dict:
             generate(dataset, scene, seed=0, size="tiny")
         runs = work / "runs" / case
         args = ["run", "--method", method, "--dataset", dataset, "--sequence", "synthetic", "--data-root",
-                str(data), "--out", str(runs), "--quiet"]
+                str(data), "--runs", str(runs), "--quiet"]
         for s in sets:
             args += ["--set", s]
         if main(args) != 0:

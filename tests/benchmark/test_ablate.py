@@ -99,7 +99,7 @@ def test_differences_name_every_setting_that_is_not_the_papers(tmp_path):
 
 
 def test_every_variant_has_a_valid_run_name():
-    from benchmark.runs import run_name
+    from benchmark.results.runs import run_name
 
     for study in STUDIES.values():
         names = [v.run_name for v in study.variants]

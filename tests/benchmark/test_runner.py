@@ -24,7 +24,7 @@ def data_root(tmp_path_factory):
 
 def _run(data_root, out, method="trase", extra=(), name=None):
     args = ["run", "--method", method, "--dataset", "hypernerf", "--sequence", "synthetic",
-            "--data-root", str(data_root), "--out", str(out), "--quiet"] + (["--name", name] if name else [])
+            "--data-root", str(data_root), "--runs", str(out), "--quiet"] + (["--name", name] if name else [])
     for s in FAST + list(extra):
         args += ["--set", s]
     return main(args)
@@ -95,9 +95,9 @@ def test_pipeline_end_to_end(data_root, tmp_path, capsys):
     assert "a run with another config exists" in capsys.readouterr().err
 
     # main runs only by default: none here (every run used --set); the other kinds when asked
-    assert main(["leaderboard", "--results", str(out), "--variant", "synthetic"]) == 0
+    assert main(["leaderboard", "--runs", str(out), "--variant", "synthetic"]) == 0
     assert "HyperNeRF-Mask" not in capsys.readouterr().out
-    assert main(["leaderboard", "--results", str(out), "--variant", "synthetic", "--kind", "run"]) == 1
+    assert main(["leaderboard", "--runs", str(out), "--variant", "synthetic", "--kind", "run"]) == 1
     assert "runs with different configs" in capsys.readouterr().err  # fraction 0.5 beside the first
     assert main(["leaderboard", "--run", str(run_dir), "--run", str(_runs(out, "trase-hard")[0]),
                  "--variant", "synthetic"]) == 0
@@ -105,7 +105,7 @@ def test_pipeline_end_to_end(data_root, tmp_path, capsys):
     assert "HyperNeRF-Mask" in board and "trase-hard [a]" in board and "(published)" not in board
     assert "[a] scene synthetic v" in board and " seed 0 " in board  # which synthetic scene
     assert main(["report", "--method", "trase", "--dataset", "hypernerf", "--sequence", "synthetic",
-                 "--name", run_dir.name, "--out", str(out)]) == 0
+                 "--name", run_dir.name, "--runs", str(out)]) == 0
     assert (path.parent / "report.html").exists()
 
 
@@ -206,7 +206,7 @@ def test_run_seed_reaches_every_seeded_section_and_explicit_settings_win():
 def test_seeds_are_runs_side_by_side_and_one_leaderboard_row(data_root, tmp_path, capsys):
     out = tmp_path / "runs"
     args = ["run", "--method", "trase", "--dataset", "hypernerf", "--sequence", "synthetic", "--data-root",
-            str(data_root), "--out", str(out), "--quiet", "--seeds", "2"]
+            str(data_root), "--runs", str(out), "--quiet", "--seeds", "2"]
     for s in FAST:
         args += ["--set", s]
     assert main(args) == 0
@@ -230,11 +230,11 @@ def test_seeds_are_runs_side_by_side_and_one_leaderboard_row(data_root, tmp_path
     assert (first / "clusters" / "labels.npy").is_file() and list((first / "clusters").glob("ids_*.png"))
     out_text = capsys.readouterr().out
     assert "over seeds 0,1: mIoU " in out_text and "pixel ARI" in out_text and "gaussian ARI" in out_text
-    assert main(["leaderboard", "--results", str(out), "--variant", "synthetic", "--kind", "run"]) == 0
+    assert main(["leaderboard", "--runs", str(out), "--variant", "synthetic", "--kind", "run"]) == 0
     board = capsys.readouterr().out
     assert "| seeds |" in board and " ± " in board and board.split("###")[1].count("| trase [a]") == 1
     assert main(["report", "--method", "trase", "--dataset", "hypernerf", "--sequence", "synthetic",
-                 "--out", str(out), "--name", first.name]) == 0
+                 "--runs", str(out), "--name", first.name]) == 0
     page = (first / "report.html").read_text()
     assert "cluster per click" in page and "seeds 0,1: mIoU" in page and "gaussian ARI" in page
     clicked = {c["view_index"] for cs in [a["prompts"]["clicks"], *a["prompts"]["alternatives"]] for c in cs}

@@ -49,15 +49,17 @@ def test_masks_command_synthetic_and_classical(tmp_path, monkeypatch, capsys):
     monkeypatch.setattr(benchmark.datasets.synthetic, "find_or_generate",
                         lambda d, s, r: (scene.root, "synthetic"))
     monkeypatch.setattr(benchmark.datasets, "load_scene", lambda *a, **k: scene)
-    assert main(["masks", "--dataset", "nerfds", "--no-progress"]) == 0
+    assert main(["masks", "--dataset", "nerfds", "--quiet"]) == 0
     out = capsys.readouterr().out
     assert "2 generated" in out
     files = sorted((scene.root / "masks" / "synthetic").glob("*.masks"))
     assert [f.name for f in files] == ["left_00000.masks", "left_00001.masks"]
     assert masks.load(files[0]).generator == "synthetic"
-    assert main(["masks", "--dataset", "nerfds", "--no-progress"]) == 0
-    assert "0 generated, 2 already there" in capsys.readouterr().out
-    assert main(["masks", "--dataset", "nerfds", "--generator", "classical", "--no-progress",
+    assert main(["masks", "--dataset", "nerfds", "--no-progress"]) == 0  # the old spelling of --quiet
+    done = capsys.readouterr()
+    assert "0 generated, 2 already there" in done.out
+    assert done.err == "trase-bench: --no-progress is now --quiet (the old spelling goes in the next version)\n"
+    assert main(["masks", "--dataset", "nerfds", "--generator", "classical", "--quiet",
                  "--out", str(tmp_path / "c")]) == 0
     assert masks.load(tmp_path / "c" / "left_00001.masks").generator == "classical"
     # SAM without a checkpoint: one line, exit 1

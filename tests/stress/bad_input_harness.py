@@ -79,7 +79,7 @@ def build_pristine(base: Path) -> dict[str, Path]:
     out["geometry"] = geo
 
     res = base / "src" / "results"
-    from tests.benchmark.results_helpers import record
+    from tests.benchmark.results.helpers import record
 
     write_results(res / "m" / "hypernerf" / "s" / "main" / "results.json",
                   record("m", "hypernerf", "s", 0.5, 0.9, name="main"))
@@ -112,7 +112,7 @@ def run_target(target: str, root: Path, work: Path) -> tuple[int, str, Path | No
         out = output_dir(target, work)
         dataset = target.split("-")[0]
         argv = ["run", "--method", "trase", "--dataset", dataset, "--sequence", root.name,
-                "--data-root", str(root.parent.parent), "--out", str(out), "--quiet"]
+                "--data-root", str(root.parent.parent), "--runs", str(out), "--quiet"]
         for s in FAST:
             argv += ["--set", s]
         rc, err = _cli(argv)
@@ -126,7 +126,7 @@ def run_target(target: str, root: Path, work: Path) -> tuple[int, str, Path | No
         rc, err = _cli(["score", str(root / "pred"), str(root / "gt")])
         return rc, err, None
     if target == "results":
-        rc, err = _cli(["leaderboard", "--results", str(root), "--no-published"])
+        rc, err = _cli(["leaderboard", "--runs", str(root), "--no-published"])
         return rc, err, None
     from benchmark.errors import is_user_error
 

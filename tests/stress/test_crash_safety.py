@@ -48,7 +48,7 @@ pytestmark = pytest.mark.slow
 
 def _argv(data_root: Path, out: Path, extra=()) -> list[str]:
     argv = [sys.executable, "-m", "benchmark.cli", "run", "--method", "trase", "--dataset", "hypernerf",
-            "--sequence", "synthetic", "--data-root", str(data_root), "--out", str(out), "--quiet"]
+            "--sequence", "synthetic", "--data-root", str(data_root), "--runs", str(out), "--quiet"]
     for s in [*FAST, *extra]:
         argv += ["--set", s]
     return argv

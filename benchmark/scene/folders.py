@@ -110,7 +110,7 @@ def _click_rule(record: dict) -> str:
 
 
 def _open_fit(path: Path) -> SceneFolder:
-    from benchmark.capture_select import fitted_capture
+    from benchmark.captures.select import fitted_capture
     from trase.edit import EditableModel
 
     record, _, fitted, scene = fitted_capture(path)
@@ -148,7 +148,7 @@ def resolve_selection(folder: SceneFolder, clusters: str | None = None, clicks: 
     """(cluster ids, [N] bool or None when nothing was asked) from ``--clusters``,
     ``--click VIEW:X,Y`` (the method's click rule; pixel centres) and ``--selected`` (the
     clusters the run's prompts chose)."""
-    from benchmark.capture_select import parse_click
+    from benchmark.captures.select import parse_click
     from trase.edit import by_click, by_clusters
 
     ks = set(parse_clusters(clusters))

@@ -92,8 +92,8 @@ def test_view_command_draws_the_scene_in_chromium(tiny_run, browser, tmp_path):
 
 
 def test_selection_through_the_api_and_a_click_change_the_render(tiny_run, browser, tmp_path):
-    from benchmark.scene_folders import open_scene_folder
-    from benchmark.viewer import SceneViewer
+    from benchmark.scene.folders import open_scene_folder
+    from benchmark.scene.viewer import SceneViewer
 
     folder = open_scene_folder(tiny_run)
     viewer = SceneViewer(folder, port=_free_port(), out=tmp_path / "edited")

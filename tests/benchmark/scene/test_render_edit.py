@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from benchmark.cli import main
-from benchmark.scene_folders import open_scene_folder
+from benchmark.scene.folders import open_scene_folder
 from imagefiles import read_rgb8
 
 
@@ -100,7 +100,7 @@ def test_errors_are_one_line(run_dir, tmp_path, capsys, args, message):
 
 
 def test_report_carries_a_clip_of_the_selection(run_dir):
-    from benchmark.report import make_report
+    from benchmark.results.report import make_report
 
     page = make_report(run_dir).read_text()
     assert page.count("data:image/webp;base64") == 1 and "No clip" not in page

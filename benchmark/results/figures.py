@@ -52,8 +52,8 @@ def run_all(out_dir: Path, seeds: list[int], formats=FORMATS, geometries=GEOMETR
 
 def collect(out_dir: Path, formats=FORMATS, geometries=GEOMETRIES) -> dict:
     """Summaries of the runs under ``out_dir`` per (format, geometry), with provenance."""
-    from benchmark.runs import find_runs, seed_siblings
-    from benchmark.stability import seed_summary
+    from benchmark.results.runs import find_runs, seed_siblings
+    from benchmark.results.stability import seed_summary
 
     records = find_runs(Path(out_dir))
     rows, used = [], []
@@ -66,7 +66,7 @@ def collect(out_dir: Path, formats=FORMATS, geometries=GEOMETRIES) -> dict:
             groups = {r["run"]["group"] for r in mine}
             if len(groups) > 1:
                 raise UserError(f"{out_dir}: {ds} with {geo} geometry has runs of {len(groups)} configs; "
-                                "use a fresh --out for the figures")
+                                "use a fresh --runs for the figures")
             sibs = seed_siblings(mine[0], mine)
             summary = seed_summary(sibs)
             used += sibs

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from benchmark.cache import config_hash
 from benchmark.results import write_results
-from benchmark.runs import run_dir, run_info, run_name
+from benchmark.results.runs import run_dir, run_info, run_name
 
 
 def config(preset="cpu", **method):

@@ -3,10 +3,10 @@ import json
 import pytest
 
 from benchmark.cli import main
-from benchmark.leaderboard import build_tables, render, render_all
 from benchmark.results import ResultsError, write_results
-from benchmark.runs import RunError, find_runs, one_config_per_row, select_runs
-from tests.benchmark.results_helpers import config, record, write
+from benchmark.results.leaderboard import build_tables, render, render_all
+from benchmark.results.runs import RunError, find_runs, one_config_per_row, select_runs
+from tests.benchmark.results.helpers import config, record, write
 
 
 def _main_runs(root):
@@ -46,7 +46,7 @@ def test_ablation_variants_and_reruns_stay_out_of_the_main_table(tmp_path):
 
 
 def test_a_set_that_restates_the_defaults_is_still_the_main_run():
-    from benchmark.runs import run_info
+    from benchmark.results.runs import run_info
 
     assert run_info("c1", ["method.features.knn=16"], defaults=True)["kind"] == "main"
     assert run_info("c1", [], defaults=False)["kind"] == "run"
@@ -58,7 +58,7 @@ def test_two_configs_for_one_row_are_refused_unless_chosen(tmp_path, capsys):
     b = write(tmp_path, record("trase", "hypernerf", "synthetic", 0.8, 0.9, cfg=config(preset="paper")))
     with pytest.raises(RunError, match=r"trase on hypernerf/synthetic: 2 runs with different configs.*--run"):
         _main_runs(tmp_path)
-    assert main(["leaderboard", "--results", str(tmp_path), "--variant", "synthetic"]) == 1
+    assert main(["leaderboard", "--runs", str(tmp_path), "--variant", "synthetic"]) == 1
     assert "choose one with --run" in capsys.readouterr().err
     assert main(["leaderboard", "--run", str(b), "--variant", "synthetic"]) == 0
     out = capsys.readouterr().out
@@ -175,19 +175,19 @@ def test_cli_leaderboard_and_runs(tmp_path, capsys):
     write(tmp_path, record("trase", "hypernerf", "synthetic", 0.9, 0.99))
     write(tmp_path, record("trase", "hypernerf", "synthetic", 0.5, 0.99, cfg=config(knn=0), study="smoothing",
                            name="K=0"), under="ablations/smoothing")
-    assert main(["leaderboard", "--results", str(tmp_path), "--variant", "synthetic"]) == 0
+    assert main(["leaderboard", "--runs", str(tmp_path), "--variant", "synthetic"]) == 0
     out = capsys.readouterr().out
     assert "HyperNeRF-Mask" in out and "trase [a]" in out and "0.5000" not in out
-    assert main(["leaderboard", "--results", str(tmp_path), "--kind", "ablation", "--variant", "synthetic"]) == 0
+    assert main(["leaderboard", "--runs", str(tmp_path), "--kind", "ablation", "--variant", "synthetic"]) == 0
     assert "0.5000" in capsys.readouterr().out
-    assert main(["runs", "--results", str(tmp_path)]) == 0
+    assert main(["runs", "--runs", str(tmp_path)]) == 0
     out = capsys.readouterr().out
     assert "ablation smoothing/v" in out and "main" in out and "[a] geometry reconstruct" in out
-    assert main(["leaderboard", "--results", str(tmp_path / "none")]) == 1
+    assert main(["leaderboard", "--runs", str(tmp_path / "none")]) == 1
 
 
 def test_a_gpu_run_names_its_device_in_the_protocol(tmp_path):
-    from benchmark.runs import protocol, protocol_label
+    from benchmark.results.runs import protocol, protocol_label
 
     cpu = config()
     gpu = config(preset="paper", features={"device": "cuda"})

@@ -5,7 +5,7 @@ from pathlib import Path
 import pytest
 
 from benchmark.errors import UserError
-from benchmark.figures import (
+from benchmark.results.figures import (
     BEGIN,
     END,
     SCHEMA,
@@ -16,7 +16,7 @@ from benchmark.figures import (
     run_instruction_sets,
 )
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 
 
 def _data():

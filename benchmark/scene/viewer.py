@@ -40,7 +40,7 @@ def camera_from_view(R_c2w: np.ndarray, position: np.ndarray, fov_y: float, aspe
 
 
 class SceneViewer:
-    """The viewer of one scene folder (``benchmark.scene_folders``); ``out`` is where Export
+    """The viewer of one scene folder (``benchmark.scene.folders``); ``out`` is where Export
     writes the edited scene."""
 
     def __init__(self, folder, host: str = "127.0.0.1", port: int = 8080, out: Path | None = None,
@@ -119,7 +119,7 @@ class SceneViewer:
         self.mark_all()
 
     def _clusters_typed(self) -> None:
-        from benchmark.scene_folders import parse_clusters
+        from benchmark.scene.folders import parse_clusters
 
         try:
             ks = set(parse_clusters(self.gui_clusters.value))
@@ -157,7 +157,7 @@ class SceneViewer:
         self.set_clusters(self.clusters)
 
     def export(self) -> Path | None:
-        from benchmark.scene_edit import write_edit
+        from benchmark.scene.edit import write_edit
 
         with self._lock:
             if not self.actions:

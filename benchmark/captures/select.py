@@ -29,7 +29,7 @@ def parse_click(text: str) -> tuple[str, float, float]:
 def fitted_capture(fit_dir: Path | str):
     """(fit record, method, FittedModel with its geometry, Scene whose test views are all the
     capture's views) of a ``trase-bench fit`` folder."""
-    from benchmark.capture_fit import FIT_FILE, VIEWS_FILE
+    from benchmark.captures.fit import FIT_FILE, VIEWS_FILE
     from benchmark.datasets.scene import Scene, View
     from benchmark.io import read_json
     from benchmark.methods import FittedModel, get_method

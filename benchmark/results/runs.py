@@ -2,7 +2,7 @@
 
 A run is one method on one sequence with one resolved config. It lives in
 
-    <out>/<method>/<dataset>/<sequence>/<name>/results.json
+    <runs>/<method>/<dataset>/<sequence>/<name>/results.json
 
 where ``name`` is ``--name`` or ``c`` + the first 8 hex digits of the resolved config's hash:
 a rerun with the same config lands in the same directory, a run with another config in
@@ -14,7 +14,7 @@ Kinds of run (``results["run"]``):
   row of a method;
 * run: made with ``--set`` overrides that change the config; shown only when selected;
 * ablation: a variant of an ablation study (``trase-bench ablate``), kept under
-  ``<out>/ablations/<study>/``; never in a leaderboard unless selected.
+  ``<runs>/ablations/<study>/``; never in a leaderboard unless selected.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ import sys
 from pathlib import Path
 
 from benchmark.errors import UserError
-from benchmark.results import (
+from benchmark.results.record import (
     LEGACY_SCHEMAS,
     RUN_KINDS,
     ResultsError,

@@ -4,7 +4,7 @@ Layout follows the paper's Table 1: one row per method, a (mIoU, mAcc) column pa
 benchmark, the best value of each column in bold, and a time column. Per-sequence tables
 follow the supplementary. Rules:
 
-* the caller chooses the runs (``benchmark.runs``: by default each method's main run), and a
+* the caller chooses the runs (``benchmark.results.runs``: by default each method's main run), and a
   cell is one run: two configs for one (method, dataset, sequence) are refused before this;
 * every measured row carries its protocol (geometry, features preset, masks, prompts, render
   rule, metric) as a footnote marker;
@@ -32,8 +32,8 @@ from typing import NamedTuple
 import pandas as pd
 
 from benchmark.datasets import DATASETS
-from benchmark.results import total_seconds
-from benchmark.runs import ProtocolLegend, protocol, protocol_label
+from benchmark.results.record import total_seconds
+from benchmark.results.runs import ProtocolLegend, protocol, protocol_label
 
 FORMATS = ("markdown", "latex", "csv", "html")
 PUBLISHED_NOTE = (
@@ -253,7 +253,7 @@ def _value(col: pd.Series) -> float | None:
 def build_tables(records: list[dict], variant: str, published: bool = True) -> list[Table]:
     """Main table then one per-sequence table per dataset with measured results. ``records``:
     the chosen runs, one config per (method, dataset, sequence), one run per seed
-    (``benchmark.runs.one_config_per_row``)."""
+    (``benchmark.results.runs.one_config_per_row``)."""
     df = measured_frame([r for r in records if r["variant"] == variant])
     if variant == "real" and published:
         pub = published_frame()

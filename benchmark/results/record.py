@@ -1,4 +1,4 @@
-"""``results.json``: one file per run (``benchmark.runs``), the only input of tables.
+"""``results.json``: one file per run (``benchmark.results.runs``), the only input of tables.
 
 Everything a reader needs to trust or reproduce a number travels with it: both metric
 versions, per-frame raw values, stage timings and memory, the full config and its hash,
@@ -68,7 +68,7 @@ class RunRecord:
     """What ``trase-bench run`` writes for one sequence (built by benchmark.pipeline.record);
     ``write_results`` adds the schema, time, package versions and machine."""
 
-    run: dict  # benchmark.runs.run_info: name, kind, overrides, study, seed, group
+    run: dict  # benchmark.results.runs.run_info: name, kind, overrides, study, seed, group
     method: str
     dataset: str
     sequence: str

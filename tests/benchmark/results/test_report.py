@@ -2,9 +2,9 @@ import cv2
 import numpy as np
 
 from benchmark.cli import main
-from benchmark.report import overlay
 from benchmark.results import write_results
-from tests.benchmark.results_helpers import record
+from benchmark.results.report import overlay
+from tests.benchmark.results.helpers import record
 
 
 def test_overlay_colours():
@@ -17,7 +17,9 @@ def test_overlay_colours():
     assert ov[0, 2, 2] > ov[0, 2, 0]  # miss: blue
 
 
-def test_report_from_run_dir(tmp_path, capsys):
+def _finished_run(tmp_path):
+    """A main run of trase on hypernerf/synthetic under ``tmp_path`` (the folder of runs), with
+    three frames: (its directory, its record)."""
     rec = record("trase", "hypernerf", "synthetic", 1.0, 1.0)
     run = tmp_path / "trase" / "hypernerf" / "synthetic" / rec["run"]["name"]
     (run / "pred").mkdir(parents=True)
@@ -35,22 +37,56 @@ def test_report_from_run_dir(tmp_path, capsys):
         "per_frame": [{"frame": f["frame"], "iou": 1.0, "acc": 1.0} for f in frames],
         "frames": frames, "stages": {"masks": {"seconds": 1.5, "peak_rss_mb": 100}},
     })
+    return run, rec
+
+
+def test_report_from_run_dir(tmp_path, capsys):
+    run, rec = _finished_run(tmp_path)
     assert main(["report", "--method", "trase", "--dataset", "hypernerf", "--sequence", "synthetic",
-                 "--out", str(tmp_path)]) == 0
+                 "--runs", str(tmp_path)]) == 0
     page = (run / "report.html").read_text()
     assert "mIoU 1.0000" in page and page.count("data:image/png;base64") == 4
     assert f"Run {rec['run']['name']} (main; overrides: none). Protocol: geometry reconstruct" in page
     assert (run / "report" / "per_frame_iou.png").exists()
     assert main(["report", "--method", "x", "--dataset", "hypernerf", "--sequence", "s",
-                 "--out", str(tmp_path)]) == 1
+                 "--runs", str(tmp_path)]) == 1
     assert "no main run of x" in capsys.readouterr().err
     assert main(["report", "--method", "trase", "--dataset", "hypernerf", "--sequence", "synthetic",
-                 "--name", "nope", "--out", str(tmp_path)]) == 1
+                 "--name", "nope", "--runs", str(tmp_path)]) == 1
     assert "not a run directory" in capsys.readouterr().err
 
 
+def test_report_of_one_run_folder(tmp_path, capsys):
+    run, rec = _finished_run(tmp_path)
+    assert main(["report", "--run", str(run)]) == 0
+    assert capsys.readouterr().out == f"wrote {run / 'report.html'}\n"
+    assert "mIoU 1.0000" in (run / "report.html").read_text()
+    (run / "report.html").unlink()
+    assert main(["report", "--run", str(run / "results.json")]) == 0  # as leaderboard --run takes it
+    assert (run / "report.html").is_file()
+    # one way to name the run at a time, and a folder that is no run: one line each
+    assert main(["report", "--run", str(run), "--method", "trase", "--name", rec["run"]["name"]]) == 2
+    assert "--run names the run; leave out --method, --name" in capsys.readouterr().err
+    assert main(["report", "--run", str(run), "--runs", str(tmp_path)]) == 2
+    assert "leave out --runs" in capsys.readouterr().err
+    assert main(["report", "--method", "trase", "--dataset", "hypernerf"]) == 2
+    assert "--run DIR, or --method, --dataset and --sequence (missing --sequence)" in capsys.readouterr().err
+    assert main(["report", "--run", str(tmp_path)]) == 1
+    assert "not a run directory" in capsys.readouterr().err
+
+
+def test_report_old_spelling_of_runs_still_works(tmp_path, capsys):
+    _finished_run(tmp_path)
+    seq = ["--method", "trase", "--dataset", "hypernerf", "--sequence", "synthetic"]
+    assert main(["report", *seq, "--out", str(tmp_path)]) == 0
+    assert capsys.readouterr().err == \
+        "trase-bench: --out is now --runs (the old spelling goes in the next version)\n"
+    assert main(["report", *seq, "--runs", str(tmp_path)]) == 0
+    assert capsys.readouterr().err == ""
+
+
 def test_ceiling_notes_name_holes_movers_and_the_frames_they_touch():
-    from benchmark.report import _ceiling_objects_notes
+    from benchmark.results.report import _ceiling_objects_notes
 
     c = {"miou": 0.8, "objects": {"ball": {"holes": 0.1}, "ring": {"holes": None}},
          "movers": {"pillar": {"holes": 0.98}},

@@ -11,14 +11,14 @@ import numpy as np
 import pytest
 
 import masks as masklib
-from benchmark.capture_fit import FitOptions, fit_capture, monocular, next_steps
-from benchmark.capture_select import parse_click, select_clicks
 from benchmark.captures import CaptureOptions, load_capture
+from benchmark.captures.fit import FitOptions, fit_capture, monocular, next_steps
+from benchmark.captures.select import parse_click, select_clicks
 from benchmark.config import ConfigError, parse_overrides
 from benchmark.errors import UserError
 from benchmark.methods import get_method
 from benchmark.pipeline.masks import masks_from_files
-from benchmark.runs import find_runs
+from benchmark.results.runs import find_runs
 from tests.benchmark.settings_helpers import capture_dict
 
 FAST = ["geometry.train.iterations=60", "method.features.iterations=40"]
@@ -121,7 +121,7 @@ def test_fit_exports_a_folder_that_select_reads(capture_dirs, tmp_path):
     steps = next_steps(fit_json)
     assert any("trase-bench select --fit" in line for line in steps)
     assert any(f"trase-bench view --run {out}" in line for line in steps)
-    from benchmark.scene_folders import open_scene_folder
+    from benchmark.scene.folders import open_scene_folder
 
     folder = open_scene_folder(out)  # what render, edit and view open
     assert folder.kind == "fit" and len(folder.views) == 4 and folder.model.num_gaussians == rec["n_gaussians"]

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmark.errors import UserError
-from benchmark.scene_folders import EDIT_FILE, VIEWS_FILE, SceneFolder, views_doc
+from benchmark.scene.folders import EDIT_FILE, VIEWS_FILE, SceneFolder, views_doc
 
 
 def write_edit(source: SceneFolder, edited, out: Path, operation: str, params: dict) -> Path:

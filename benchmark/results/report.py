@@ -3,7 +3,7 @@
 Built only from a run directory, so it can be made long after the run and on another
 machine. Layout of a run directory (written by the runner):
 
-    results.json                 metrics, per-frame values, stages, config (benchmark.results)
+    results.json                 metrics, per-frame values, stages, config (benchmark.results.record)
     pred/<frame>.png             predicted masks (0/255)
     clusters/<frame>.png         optional: test view rendered with one colour per cluster
 The test images and ground-truth masks are found through ``results["frames"]``.
@@ -21,8 +21,8 @@ import numpy as np
 
 from benchmark.errors import UserError
 from benchmark.io import atomic_write_bytes, atomic_write_text
-from benchmark.results import load_results
-from benchmark.runs import protocol, protocol_label
+from benchmark.results.record import load_results
+from benchmark.results.runs import protocol, protocol_label
 from benchmark.scoring import read_mask
 
 MAX_FRAMES_SHOWN = 8
@@ -157,8 +157,8 @@ def _click_set_rows(record: dict) -> str:
 def _seed_section(record: dict, run_dir: Path) -> str:
     """The other seeds of this config beside this run (its sequence directory), with the
     clustering agreement between them."""
-    from benchmark.runs import find_runs, seed_siblings
-    from benchmark.stability import format_summary, seed_summary
+    from benchmark.results.runs import find_runs, seed_siblings
+    from benchmark.results.stability import format_summary, seed_summary
 
     try:
         candidates = find_runs(run_dir.parent, warn=lambda m: None)
@@ -192,8 +192,8 @@ def _clip(run_dir: Path) -> tuple[str, str]:
     (``trase-bench render --mode selection --selected``), or why there is none."""
     import tempfile
 
-    from benchmark.scene_folders import open_scene_folder, resolve_selection
-    from benchmark.scene_render import RenderOptions, render_frames
+    from benchmark.scene.folders import open_scene_folder, resolve_selection
+    from benchmark.scene.render import RenderOptions, render_frames
 
     try:
         folder = open_scene_folder(run_dir)

@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from benchmark.stability import (
+from benchmark.results.stability import (
     CHUNK,
     cluster_id_map,
     gaussian_ari,
