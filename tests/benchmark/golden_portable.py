@@ -50,7 +50,7 @@ def resolved_configs() -> dict:
     from benchmark.datasets import get_dataset
     from benchmark.methods import get_method
     from benchmark.pipeline.settings import capture_settings, run_settings
-    from benchmark.runs import protocol, protocol_label
+    from benchmark.results.runs import protocol, protocol_label
 
     out = {}
     for case, m, d, ov, variant, size in config_cases():
