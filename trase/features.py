@@ -153,23 +153,43 @@ def train_features(
 
 def _train(gaussians, deformation, views, load_masks, config, cache_dir, progress, log_every) -> TrainResult:
     n = gaussians.num_gaussians
+    _check_config(config)
+    dev = resolve_device(config.device)
+    gaussians, deformation = _on_device(gaussians, deformation, dev)
+    rng = np.random.default_rng(config.seed)
+    gen = torch.Generator().manual_seed(config.seed)  # CPU draws, moved: alike on every device
+    feats = torch.nn.Parameter(init_features(n, config.dim, gen).to(dev))  # [N, D]
+    objective = get_objective(config.objective, **config.objective_params)
+    whole_view = config.norm_reg_pixels == "image" and objective.uses_norm_regulariser
+    knn = knn_indices(gaussians.means.detach(), config.knn).to(dev)  # [N, K]
+    xyz = gaussians.means.detach()  # [N, 3]
+    masks_of = _MaskCache(load_masks, views, config.mask_cache)
+
+    t0 = time.perf_counter()
+    usable, cams = _usable_views(views, masks_of, whole_view)
+    path = _render_path(gaussians, deformation, views, usable, cams, config, cache_dir)
+    timings = {"prepare": time.perf_counter() - t0, "train": 0.0, "per_step": 0.0, "n_usable_views": len(usable)}
+    if not usable or config.iterations <= 0 or n == 0:
+        return _result(feats, knn, [], timings, path)
+
+    step = _FeatureStep(config, objective, path, usable, masks_of, knn, xyz, whole_view, rng, gen, dev)
+    history, t_train = _optimise(feats, step, views, progress, log_every)
+    timings.update(train=t_train, per_step=t_train / config.iterations)
+    return _result(feats, knn, history, timings, path)
+
+
+def _check_config(config: FeatureConfig) -> None:
+    """Settings that the loop cannot use, refused before any work (a user-facing error)."""
     if config.dim < 1:
         raise FeatureTrainingError(f"feature dim must be >= 1, got {config.dim}")
     if config.norm_reg_pixels not in NORM_REG_PIXELS:
         raise FeatureTrainingError(f"norm_reg_pixels must be one of {', '.join(NORM_REG_PIXELS)}, "
                                    f"got {config.norm_reg_pixels!r}")
-    dev = resolve_device(config.device)
-    gaussians, deformation = _on_device(gaussians, deformation, dev)
-    rng = np.random.default_rng(config.seed)
-    gen = torch.Generator().manual_seed(config.seed)  # CPU draws, moved: alike on every device
-    feats = torch.nn.Parameter(init_features(n, config.dim, gen).to(dev))
-    objective = get_objective(config.objective, **config.objective_params)
-    whole_view = config.norm_reg_pixels == "image" and objective.uses_norm_regulariser
-    knn = knn_indices(gaussians.means.detach(), config.knn).to(dev)
-    xyz = gaussians.means.detach()
-    masks_of = _MaskCache(load_masks, views, config.mask_cache)
 
-    t0 = time.perf_counter()
+
+def _usable_views(views: Sequence, masks_of: _MaskCache, whole_view: bool) -> tuple[list[int], dict]:
+    """The indices of the views that have masks, and per such view its camera at mask resolution
+    with the [H, W] bool pixels it renders: a view without masks teaches nothing."""
     usable, cams = [], {}
     for i, v in enumerate(views):
         ms = masks_of(i)
@@ -179,6 +199,13 @@ def _train(gaussians, deformation, views, load_masks, config, cache_dir, progres
         covered = np.ones_like(ms.covered) if whole_view else ms.covered
         cams[i] = (_camera_at(v.camera, ms.height, ms.width, v.name), covered)
         usable.append(i)
+    return usable, cams
+
+
+def _render_path(gaussians, deformation, views: Sequence, usable: list[int], cams: dict,
+                 config: FeatureConfig, cache_dir):
+    """The fast path or the rasterizer (``config.fastpath``, decided on the usable views) with
+    every usable view registered; the fast path's weights are computed here, before the timed loop."""
     fast = use_fastpath(config.fastpath, config.iterations, len(usable))
     if fast:
         path = ViewWeights(gaussians, deformation, cache_dir, config.min_weight, config.max_cache_bytes)
@@ -188,57 +215,92 @@ def _train(gaussians, deformation, views, load_masks, config, cache_dir, progres
         path.register(i, views[i].name, *cams[i])
     if fast and config.iterations > 0:
         path.prepare_all()  # weights of every view once, up front (cached on disk)
-    t_prepare = time.perf_counter() - t0
-    history: list[dict] = []
-    if not usable or config.iterations <= 0 or n == 0:
-        with torch.no_grad():
-            saved = smooth_features(feats.detach(), knn, None).cpu()
-        return TrainResult(saved, feats.detach().cpu().clone(), history,
-                           {"prepare": t_prepare, "train": 0.0, "per_step": 0.0, "n_usable_views": len(usable)},
-                           path.stats())
+    return path
 
+
+@dataclasses.dataclass
+class _FeatureStep:
+    """What every training step reads besides the features, gathered once so that the loop reads
+    as the method does: draw a view and a sample, render, loss, Adam step."""
+
+    config: FeatureConfig
+    objective: object
+    path: object  # ViewWeights or RasterizerPath, every usable view registered
+    usable: list[int]
+    masks_of: _MaskCache
+    knn: torch.Tensor  # [N, K] neighbour indices
+    xyz: torch.Tensor  # [N, 3] frozen canonical means
+    whole_view: bool  # render every pixel of the view (the norm regulariser over the image)
+    rng: np.random.Generator  # view, mask and pixel draws
+    gen: torch.Generator  # smoothing slots and the objective's own draws
+    dev: torch.device
+
+    def draw(self) -> tuple[int, object, PixelSample]:
+        """A random usable view, its MaskSet and a sample of its masks and pixels; ``rng`` draws
+        the view, then the masks, then the pixels."""
+        vi = self.usable[int(self.rng.integers(len(self.usable)))]
+        ms = self.masks_of(vi)
+        c = self.config
+        sample = build_sample(ms, c.mask_rule, c.n_masks, c.n_pixels, self.rng, view=vi).to(self.dev)
+        return vi, ms, sample
+
+    def loss(self, feats: torch.Tensor, vi: int, ms, sample: PixelSample) -> tuple[torch.Tensor, dict]:
+        """The objective's loss (plus its per-gaussian term, if any) on features [N, D] rendered
+        at the sample's pixels of view ``vi``; sets ``sample.alpha`` / ``sample.image_features``
+        where the objective reads them."""
+        if getattr(self.objective, "needs_alpha", False):
+            # rendering is linear in the features, so rendering ones gives alpha = sum of weights
+            with torch.no_grad():
+                sample.alpha = self.path.render(vi, feats.new_ones(feats.shape[0], 1), sample.pixels)[:, 0]
+        f = render_ready(feats, self.knn, self.config, self.gen)  # [N, D]
+        if self.whole_view:
+            H, W = ms.height, ms.width
+            sample.image_features = self.path.render(vi, f, torch.arange(H * W, device=self.dev))  # [H*W, D]
+            rendered = sample.image_features[sample.pixels]  # [P, D]
+        else:
+            rendered = self.path.render(vi, f, sample.pixels)  # [P, D]
+        loss, stats = self.objective(rendered, sample)
+        extra = self.objective.gaussian_loss(f, self.xyz, self.gen)
+        if extra is not None:
+            loss = loss + extra
+            stats["gaussian_loss"] = float(extra.detach())
+        return loss, stats
+
+
+def _optimise(feats: torch.nn.Parameter, step: _FeatureStep, views: Sequence, progress: bool,
+              log_every: int) -> tuple[list[dict], float]:
+    """``config.iterations`` Adam steps on features [N, D] in place -> (history every
+    ``log_every`` steps and the last, seconds of the loop)."""
+    config = step.config
     opt = torch.optim.Adam([feats], lr=config.lr, eps=config.eps)
     bar = _progress(progress, config.iterations)
+    history: list[dict] = []
     t1 = time.perf_counter()
     try:
-        for step in range(config.iterations):
-            vi = usable[int(rng.integers(len(usable)))]
-            ms = masks_of(vi)
-            sample = build_sample(ms, config.mask_rule, config.n_masks, config.n_pixels, rng, view=vi).to(dev)
-            if getattr(objective, "needs_alpha", False):
-                # rendering is linear in the features, so rendering ones gives alpha = sum of weights
-                with torch.no_grad():
-                    sample.alpha = path.render(vi, feats.new_ones(n, 1), sample.pixels)[:, 0]
-            f = render_ready(feats, knn, config, gen)  # [N, D]
-            if whole_view:
-                H, W = ms.height, ms.width
-                sample.image_features = path.render(vi, f, torch.arange(H * W, device=dev))  # [H*W, D]
-                rendered = sample.image_features[sample.pixels]  # [P, D]
-            else:
-                rendered = path.render(vi, f, sample.pixels)  # [P, D]
-            loss, stats = objective(rendered, sample)
-            extra = objective.gaussian_loss(f, xyz, gen)
-            if extra is not None:
-                loss = loss + extra
-                stats["gaussian_loss"] = float(extra.detach())
+        for it in range(config.iterations):
+            vi, ms, sample = step.draw()
+            loss, stats = step.loss(feats, vi, ms, sample)
             opt.zero_grad(set_to_none=True)
             if loss.requires_grad:
                 loss.backward()
                 opt.step()
             if not torch.isfinite(loss):
-                raise FeatureTrainingError(f"feature loss became non-finite at step {step} (view {views[vi].name})")
-            if step % log_every == 0 or step == config.iterations - 1:
-                history.append({"step": step, "loss": float(loss.detach()), **stats})
+                raise FeatureTrainingError(f"feature loss became non-finite at step {it} (view {views[vi].name})")
+            if it % log_every == 0 or it == config.iterations - 1:
+                history.append({"step": it, "loss": float(loss.detach()), **stats})
             if bar is not None:
                 bar.advance(float(loss.detach()))
     finally:
         if bar is not None:
             bar.close()
-    t_train = time.perf_counter() - t1
+    return history, time.perf_counter() - t1
+
+
+def _result(feats: torch.Tensor, knn: torch.Tensor, history: list[dict], timings: dict, path) -> TrainResult:
+    """The saved features [N, D] (smoothed over all K neighbours, as the public code saves) and
+    the raw parameters, both on the CPU."""
     with torch.no_grad():
         saved = smooth_features(feats.detach(), knn, None).cpu()
-    timings = {"prepare": t_prepare, "train": t_train, "per_step": t_train / config.iterations,
-               "n_usable_views": len(usable)}
     return TrainResult(saved, feats.detach().cpu().clone(), history, timings, path.stats())
 
 

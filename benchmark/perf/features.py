@@ -28,6 +28,7 @@ Three parts (and a real-scale row of part 1), side by side in one run:
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import statistics
 from collections.abc import Callable
@@ -110,8 +111,27 @@ class _threads:
         torch.set_num_threads(self.old[0])
 
 
-def whole_step(scene: dict, n_pixels: int, reps: int, budget_s: float, threads: list[int], echo) -> dict:
-    """Part 1: the whole step through both paths, its parts, and the ratio arithmetic."""
+@dataclasses.dataclass
+class _StepSetup:
+    """One view of a scene ready for part 1: the sample, the features and both paths, shared by
+    every timed part so that the two paths and the two objectives see the same inputs."""
+
+    sample: object  # PixelSample of Np pixels and M' masks
+    feats0: torch.Tensor  # [N, D] initial features
+    slots: torch.Tensor  # [N, 8] the same 8 of the K=16 neighbour slots for both paths
+    fused: object  # the TRASE objective, fused kernels
+    reference: object  # the TRASE objective, dense torch reference
+    fast: object  # ViewWeights, the view's weights computed
+    raster: object  # RasterizerPath (numba)
+    prep: dict  # time_repeats stats of computing the fast path's weights
+    smoothed: torch.Tensor  # [N, D] feats0 smoothed over the slots (no grad)
+    rendered: torch.Tensor  # [Np, D] smoothed through the fast path (no grad)
+    feat_diff: float  # max |fast - rasterizer| of the rendered features
+
+
+def _prepare_step(scene: dict, n_pixels: int) -> _StepSetup:
+    """The sample, features, slots, objectives and both paths of ``scene``'s view; the fast
+    path's weights are computed (and timed) once here."""
     from trase.fastpath import RasterizerPath, ViewWeights
     from trase.features import build_sample, init_features
     from trase.objectives import get_objective
@@ -129,72 +149,82 @@ def whole_step(scene: dict, n_pixels: int, reps: int, budget_s: float, threads: 
     for p in (fast, raster):
         p.register(0, "perf", cam, ms.covered)
     prep, _ = time_repeats(lambda: fast.get(0), 1)
-
-    def step(path):
-        def run():
-            f = torch.nn.Parameter(feats0.clone())
-            loss, _ = fused(path.render(0, smooth_features(f, slots, None), sample.pixels), sample)
-            loss.backward()
-            return float(loss.detach())
-        return run
-
     with torch.no_grad():
         smoothed = smooth_features(feats0, slots, None)
         rendered = fast.render(0, smoothed, sample.pixels)  # [Np, D]
         feat_diff = float((rendered - raster.render(0, smoothed, sample.pixels)).abs().max())
+    return _StepSetup(sample, feats0, slots, fused, reference, fast, raster, prep, smoothed, rendered, feat_diff)
+
+
+def _step_parts(s: _StepSetup) -> tuple[tuple[str, Callable], ...]:
+    """(name, callable) of each timed part of part 1: the whole step through each path, render +
+    backward from a leaf through each path, smoothing, and both objectives."""
+    from trase.smoothing import smooth_features
+
+    def step(path):
+        def run():
+            f = torch.nn.Parameter(s.feats0.clone())
+            loss, _ = s.fused(path.render(0, smooth_features(f, s.slots, None), s.sample.pixels), s.sample)
+            loss.backward()
+            return float(loss.detach())
+        return run
 
     def render_backward(path):
         def run():
-            leaf = smoothed.clone().requires_grad_(True)
-            r = path.render(0, leaf, sample.pixels)
+            leaf = s.smoothed.clone().requires_grad_(True)
+            r = path.render(0, leaf, s.sample.pixels)
             r.backward(torch.ones_like(r))
         return run
 
     def smoothing():  # path-independent too: the third part of both steps
-        f = torch.nn.Parameter(feats0.clone())
-        sm = smooth_features(f, slots, None)
+        f = torch.nn.Parameter(s.feats0.clone())
+        sm = smooth_features(f, s.slots, None)
         sm.backward(torch.ones_like(sm))
 
-    out = {"scene": scene["name"], "n_gaussians": gm.num_gaussians, "image": f"{cam.width}x{cam.height}",
-           "n_pixels": sample.n_pixels, "n_valid": int(sample.membership.any(1).sum()), "m_prime": sample.n_masks,
-           "dim": STEP_DIM, "precompute_s": prep, "bytes_per_view": fast.stats()["bytes_per_view_max"],
-           "feature_max_abs_diff": feat_diff, "threads": {}}
-    echo(f"whole step: {out['scene']}; {out['n_gaussians']} gaussians, {out['image']}, Np={out['n_pixels']} "
-         f"(V={out['n_valid']} in a sampled mask), M'={out['m_prime']}, D={STEP_DIM}; pixel weights "
-         f"{out['bytes_per_view'] / 2**20:.1f} MiB, computed in {fmt(prep)}")
-    rows = []
-    for nt in threads:
-        with _threads(nt):
-            t = {}
-            for name, fn in (("step_fast", step(fast)), ("step_raster", step(raster)),
-                             ("render_fast", render_backward(fast)), ("render_raster", render_backward(raster)),
-                             ("smoothing", smoothing),
-                             ("objective", objective_step(fused, rendered, sample)),
-                             ("objective_reference", objective_step(reference, rendered, sample))):
-                t[name], t[name + "_result"] = time_repeats(fn, reps, warmup=1, budget_s=budget_s)
-        m = {k: v["median"] for k, v in t.items() if not k.endswith("_result")}
-        R, F, O, Oref = m["render_raster"], m["render_fast"], m["objective"], m["objective_reference"]
-        X = m["smoothing"]
-        entry = {k: v for k, v in t.items() if not k.endswith("_result")}
-        entry.update(
-            loss_fast=t["step_fast_result"], loss_raster=t["step_raster_result"],
-            loss_abs_diff=abs(t["step_fast_result"] - t["step_raster_result"]),
-            objective_vs_reference=_compare_objectives(t["objective_result"], t["objective_reference_result"]),
-            step_speedup=m["step_raster"] / max(m["step_fast"], 1e-12),
-            render_speedup=R / max(F, 1e-12),
-            ratio_bound=(R + O + X) / max(F + O + X, 1e-12),
-            ratio_bound_reference_objective=(R + Oref + X) / max(F + Oref + X, 1e-12),
-            objective_for_10x_s=(R - 10 * F - 9 * X) / 9,
-            ceiling_free_objective=(R + X) / max(F + X, 1e-12),
-        )
-        out["threads"][str(nt)] = entry
-        rows.append([f"threads={nt}", fmt(t["step_raster"]), fmt(t["step_fast"]), f"{entry['step_speedup']:.2f}x",
-                     fmt(t["render_raster"]), fmt(t["render_fast"]), f"{entry['render_speedup']:.1f}x",
-                     fmt(t["smoothing"]), fmt(t["objective"]), fmt(t["objective_reference"]),
-                     f"{entry['ratio_bound']:.2f}x",
-                     f"{entry['objective_for_10x_s'] * 1e3:.1f}ms", f"{entry['loss_abs_diff']:.1e}"])
-    echo(table(rows, ["", "raster step", "fast step", "step x", "R raster render", "F fast render", "R/F",
-                      "X smoothing", "O objective", "O_ref (dense)", "(R+O+X)/(F+O+X)", "O for 10x", "|loss diff|"]))
+    return (("step_fast", step(s.fast)), ("step_raster", step(s.raster)),
+            ("render_fast", render_backward(s.fast)), ("render_raster", render_backward(s.raster)),
+            ("smoothing", smoothing),
+            ("objective", objective_step(s.fused, s.rendered, s.sample)),
+            ("objective_reference", objective_step(s.reference, s.rendered, s.sample)))
+
+
+def _step_entry(t: dict) -> dict:
+    """Timings of the parts (``name`` -> stats, ``name_result`` -> last result) -> one thread
+    count's entry: the timings, the two paths' losses and the ratio arithmetic."""
+    m = {k: v["median"] for k, v in t.items() if not k.endswith("_result")}
+    R, F, O, Oref = m["render_raster"], m["render_fast"], m["objective"], m["objective_reference"]
+    X = m["smoothing"]
+    entry = {k: v for k, v in t.items() if not k.endswith("_result")}
+    entry.update(
+        loss_fast=t["step_fast_result"], loss_raster=t["step_raster_result"],
+        loss_abs_diff=abs(t["step_fast_result"] - t["step_raster_result"]),
+        objective_vs_reference=_compare_objectives(t["objective_result"], t["objective_reference_result"]),
+        step_speedup=m["step_raster"] / max(m["step_fast"], 1e-12),
+        render_speedup=R / max(F, 1e-12),
+        ratio_bound=(R + O + X) / max(F + O + X, 1e-12),
+        ratio_bound_reference_objective=(R + Oref + X) / max(F + Oref + X, 1e-12),
+        objective_for_10x_s=(R - 10 * F - 9 * X) / 9,
+        ceiling_free_objective=(R + X) / max(F + X, 1e-12),
+    )
+    return entry
+
+
+STEP_HEADERS = ["", "raster step", "fast step", "step x", "R raster render", "F fast render", "R/F",
+                "X smoothing", "O objective", "O_ref (dense)", "(R+O+X)/(F+O+X)", "O for 10x", "|loss diff|"]
+
+
+def _step_row(nt: int, t: dict, entry: dict) -> list[str]:
+    """One thread count's row of the part 1 table."""
+    return [f"threads={nt}", fmt(t["step_raster"]), fmt(t["step_fast"]), f"{entry['step_speedup']:.2f}x",
+            fmt(t["render_raster"]), fmt(t["render_fast"]), f"{entry['render_speedup']:.1f}x",
+            fmt(t["smoothing"]), fmt(t["objective"]), fmt(t["objective_reference"]),
+            f"{entry['ratio_bound']:.2f}x",
+            f"{entry['objective_for_10x_s'] * 1e3:.1f}ms", f"{entry['loss_abs_diff']:.1e}"]
+
+
+def _echo_step_notes(out: dict, echo) -> None:
+    """The lines under the part 1 table: objective agreement, the bound's arithmetic per thread
+    count, and what the letters mean."""
     for nt, e in out["threads"].items():
         c = e["objective_vs_reference"]
         echo(f"threads={nt}: fused vs dense objective on the same features: |loss diff| {c['loss_abs_diff']:.1e}, "
@@ -208,6 +238,29 @@ def whole_step(scene: dict, n_pixels: int, reps: int, budget_s: float, threads: 
     echo("step = smoothing + render + objective + backward; R, F = render + backward from a leaf; X = smoothing "
          "forward + backward; O = objective forward + backward; X and O are the same for both paths, so a 10x "
          "step needs O <= (R - 10 F - 9 X) / 9 (negative: impossible even with O = 0)")
+
+
+def whole_step(scene: dict, n_pixels: int, reps: int, budget_s: float, threads: list[int], echo) -> dict:
+    """Part 1: the whole step through both paths, its parts, and the ratio arithmetic."""
+    s = _prepare_step(scene, n_pixels)
+    gm, cam, sample = scene["gaussians"], scene["camera"], s.sample
+    out = {"scene": scene["name"], "n_gaussians": gm.num_gaussians, "image": f"{cam.width}x{cam.height}",
+           "n_pixels": sample.n_pixels, "n_valid": int(sample.membership.any(1).sum()), "m_prime": sample.n_masks,
+           "dim": STEP_DIM, "precompute_s": s.prep, "bytes_per_view": s.fast.stats()["bytes_per_view_max"],
+           "feature_max_abs_diff": s.feat_diff, "threads": {}}
+    echo(f"whole step: {out['scene']}; {out['n_gaussians']} gaussians, {out['image']}, Np={out['n_pixels']} "
+         f"(V={out['n_valid']} in a sampled mask), M'={out['m_prime']}, D={STEP_DIM}; pixel weights "
+         f"{out['bytes_per_view'] / 2**20:.1f} MiB, computed in {fmt(s.prep)}")
+    rows = []
+    for nt in threads:
+        with _threads(nt):
+            t = {}
+            for name, fn in _step_parts(s):
+                t[name], t[name + "_result"] = time_repeats(fn, reps, warmup=1, budget_s=budget_s)
+        entry = out["threads"][str(nt)] = _step_entry(t)
+        rows.append(_step_row(nt, t, entry))
+    echo(table(rows, STEP_HEADERS))
+    _echo_step_notes(out, echo)
     return out
 
 
@@ -238,23 +291,9 @@ def objective_alone(fast, gm, ms, knn, n_pixels: list[int], reps: int, budget_s:
     return out
 
 
-def run(quick: bool = False, echo: Callable[[str], None] = print) -> dict:
-    from trase.fastpath import RasterizerPath, ViewWeights
-    from trase.features import build_sample, init_features
-    from trase.objectives import get_objective
-    from trase.smoothing import knn_indices, smooth_features
-
-    cfg = QUICK if quick else DEFAULT
-    reps = cfg["repeats"]
-    n, w, h = cfg["gaussians"], cfg["width"], cfg["height"]
-    echo(f"feature step, fast path vs rasterizer (numba); median of up to {reps} repeats after 1 warm-up, "
-         f"spread = max - min; torch threads {torch.get_num_threads()}")
-    gm, cam = make_gaussians(n, w, h)
-    ms = make_masks(w, h)
-    knn = knn_indices(gm.means.detach(), 16)
-    objective = get_objective("trase")
-
-    # 1. whole step (default: the synthetic scene; quick: this random scene)
+def _whole_steps(cfg: dict, gm, cam, ms, reps: int, echo) -> tuple[dict, dict, list[int]]:
+    """Parts 1 and 1b: the whole step on the default scene (quick: the random scene of part 3) at
+    each thread count, and at real-data scale at the first -> (part 1, part 1b, thread counts)."""
     if cfg["synthetic"]:
         scene = synthetic_view(**cfg["synthetic"])
     else:
@@ -273,49 +312,95 @@ def run(quick: bool = False, echo: Callable[[str], None] = print) -> dict:
                   "m_prime": M_PRIME}
     step_real = whole_step(real_scene, cfg["step_pixels"], reps, cfg["budget_s"], step_threads[:1], echo)
     del gm_r, real_scene
+    return step, step_real, step_threads
 
-    def prepare() -> ViewWeights:  # one view's weights from scratch (no disk cache)
+
+def _prepare_weights(gm, cam, ms):
+    """One view's fast-path weights from scratch (no disk cache), timed after a warm-up that
+    compiles the numba kernels -> (stats, the ViewWeights)."""
+    from trase.fastpath import ViewWeights
+
+    def prepare() -> ViewWeights:
         vw = ViewWeights(gm, None, cache_dir=None)
         vw.register(0, "perf", cam, ms.covered)
         vw.get(0)
         return vw
 
-    prep, fast = time_repeats(prepare, 1, warmup=1)  # warm-up: numba compilation
+    return time_repeats(prepare, 1, warmup=1)  # warm-up: numba compilation
+
+
+def _operators(fast, ms, prep: dict) -> dict:
+    """The precomputation's cost: seconds and bytes per view, bytes per covered pixel."""
     st = fast.stats()
+    covered = int(ms.covered.sum())
+    return {"prepare_seconds": prep, "bytes_per_view": st["bytes_per_view_max"],
+            "covered_pixels": covered, "bytes_per_covered_pixel": st["bytes_per_view_max"] / max(covered, 1)}
 
-    # 2. the objective alone
-    objective_cmp = objective_alone(fast, gm, ms, knn, cfg["objective_pixels"], reps, cfg["budget_s"], echo)
 
-    # 3. render grid on the random scene
+def _grid_agreement(d: int, npix: int, feats0: torch.Tensor, knn: torch.Tensor, sample, fast, raster,
+                    objective, with_loss: bool) -> tuple[dict, torch.Tensor]:
+    """The same features [N, D] and sample through both paths: the rendered [Np, D] difference
+    and (``with_loss``: once per Np, the loss has Np^2 pairs) both losses -> (entry, fast render)."""
+    from trase.smoothing import smooth_features
+
+    with torch.no_grad():
+        f = smooth_features(feats0, knn, None)
+        r_fast = fast.render(0, f, sample.pixels)
+        r_rast = raster.render(0, f, sample.pixels)
+    entry = {"dim": d, "n_pixels_target": npix, "n_pixels": int(sample.pixels.shape[0]),
+             "max_abs_rendered_diff": float((r_fast - r_rast).abs().max()) if r_fast.numel() else 0.0}
+    if with_loss:
+        with torch.no_grad():
+            l_fast = float(objective(r_fast, sample)[0])
+            l_rast = float(objective(r_rast, sample)[0])
+        entry.update(loss_fast=l_fast, loss_raster=l_rast, loss_abs_diff=abs(l_fast - l_rast))
+    return entry, r_fast
+
+
+def _add_step_figures(entry: dict, t_obj: dict, prep: dict) -> None:
+    """Step times and speed-ups from the render timings and the (shared) objective timing, and
+    the steps after which the fast path's precomputation has paid for itself."""
+    entry["objective_s"] = t_obj
+    fr, rr = entry["fastpath_render_s"]["median"], entry["rasterizer_render_s"]["median"]
+    ob = t_obj["median"]
+    entry["render_speedup"] = rr / max(fr, 1e-12)
+    entry["step_fastpath_s"] = fr + ob  # smoothing + render + loss + backward (Adam: negligible)
+    entry["step_rasterizer_s"] = rr + ob
+    entry["step_speedup"] = (rr + ob) / max(fr + ob, 1e-12)
+    gain = rr - fr
+    entry["break_even_steps"] = math.ceil(prep["median"] / gain) if gain > 0 else None
+
+
+def _grid_row(d: int, npix: int, entry: dict, t_obj: dict) -> list[str]:
+    """One (D, Np) row of the render grid table."""
+    return [f"D={d} Np={npix}", fmt(entry["fastpath_render_s"]), fmt(entry["rasterizer_render_s"]),
+            f"{entry['render_speedup']:.1f}x", fmt(t_obj), f"{entry['step_speedup']:.2f}x",
+            f"{entry['loss_abs_diff']:.1e}" if "loss_abs_diff" in entry else "-",
+            f"{entry['max_abs_rendered_diff']:.1e}", str(entry["break_even_steps"])]
+
+
+def _render_grid(cfg: dict, gm, cam, ms, knn: torch.Tensor, objective, fast, prep: dict, operators: dict,
+                 reps: int, echo) -> list[dict]:
+    """Part 3: the path-dependent part of a step per (D, Np) through each path, the fused
+    objective once per Np -> one entry per (D, Np)."""
+    from trase.fastpath import RasterizerPath
+    from trase.features import build_sample, init_features
+
+    n, w, h = cfg["gaussians"], cfg["width"], cfg["height"]
     echo(f"render grid: random scene, {n} gaussians, {w}x{h} view, {N_MASKS} masks (M'={M_PRIME})")
     raster = RasterizerPath(gm, None, backend="numba")
     raster.register(0, "perf", cam, ms.covered)
-    covered = int(ms.covered.sum())
-    operators = {"prepare_seconds": prep, "bytes_per_view": st["bytes_per_view_max"],
-                 "covered_pixels": covered, "bytes_per_covered_pixel": st["bytes_per_view_max"] / max(covered, 1)}
-    echo(f"precomputed weights: {st['bytes_per_view_max'] / 2**20:.1f} MiB per view "
-         f"({operators['bytes_per_covered_pixel']:.0f} B per covered pixel, {covered} pixels), "
+    echo(f"precomputed weights: {operators['bytes_per_view'] / 2**20:.1f} MiB per view "
+         f"({operators['bytes_per_covered_pixel']:.0f} B per covered pixel, {operators['covered_pixels']} pixels), "
          f"computed in {fmt(prep)}")
-
     rows, results = [], []
     objective_s: dict[int, dict] = {}
     for d in cfg["dims"]:
         feats0 = init_features(n, d, torch.Generator().manual_seed(0))
         for npix in cfg["n_pixels"]:
             sample = build_sample(ms, "random", M_PRIME, npix, np.random.default_rng(npix), view=0)
-            # the same features and sample through both paths: loss and rendered difference
             first_d = npix not in objective_s
-            with torch.no_grad():
-                f = smooth_features(feats0, knn, None)
-                r_fast = fast.render(0, f, sample.pixels)
-                r_rast = raster.render(0, f, sample.pixels)
-            entry = {"dim": d, "n_pixels_target": npix, "n_pixels": int(sample.pixels.shape[0]),
-                     "max_abs_rendered_diff": float((r_fast - r_rast).abs().max()) if r_fast.numel() else 0.0}
-            if first_d:  # the loss (Np^2 pairs) once per Np
-                with torch.no_grad():
-                    l_fast = float(objective(r_fast, sample)[0])
-                    l_rast = float(objective(r_rast, sample)[0])
-                entry.update(loss_fast=l_fast, loss_raster=l_rast, loss_abs_diff=abs(l_fast - l_rast))
+            entry, r_fast = _grid_agreement(d, npix, feats0, knn, sample, fast, raster, objective, first_d)
             for name, path in (("fastpath", fast), ("rasterizer", raster)):
                 t, _ = time_repeats(render_step(path, feats0, knn, sample.pixels), reps, warmup=1,
                                     budget_s=cfg["budget_s"])
@@ -323,24 +408,35 @@ def run(quick: bool = False, echo: Callable[[str], None] = print) -> dict:
             if first_d:
                 objective_s[npix] = time_repeats(objective_step(objective, r_fast, sample), reps, warmup=1,
                                                  budget_s=cfg["budget_s"])[0]
-            t_obj = entry["objective_s"] = objective_s[npix]
-            fr, rr = entry["fastpath_render_s"]["median"], entry["rasterizer_render_s"]["median"]
-            ob = t_obj["median"]
-            entry["render_speedup"] = rr / max(fr, 1e-12)
-            entry["step_fastpath_s"] = fr + ob  # smoothing + render + loss + backward (Adam: negligible)
-            entry["step_rasterizer_s"] = rr + ob
-            entry["step_speedup"] = (rr + ob) / max(fr + ob, 1e-12)
-            gain = rr - fr
-            entry["break_even_steps"] = math.ceil(prep["median"] / gain) if gain > 0 else None
+            _add_step_figures(entry, objective_s[npix], prep)
             results.append(entry)
-            rows.append([f"D={d} Np={npix}", fmt(entry["fastpath_render_s"]), fmt(entry["rasterizer_render_s"]),
-                         f"{entry['render_speedup']:.1f}x", fmt(t_obj), f"{entry['step_speedup']:.2f}x",
-                         f"{entry['loss_abs_diff']:.1e}" if "loss_abs_diff" in entry else "-",
-                         f"{entry['max_abs_rendered_diff']:.1e}", str(entry["break_even_steps"])])
+            rows.append(_grid_row(d, npix, entry, objective_s[npix]))
     echo(table(rows, ["setting", "fast path render", "rasterizer render", "render x", "objective (fused)",
                       "step x", "|loss diff|", "max |render diff|", "break-even"]))
     echo("render = smoothing + render of the Np pixels + backward; objective = TRASE loss forward + backward "
          "(the same for both paths); step x = (rasterizer render + objective) / (fast render + objective)")
+    return results
+
+
+def run(quick: bool = False, echo: Callable[[str], None] = print) -> dict:
+    """The suite: parts 1, 1b, 2 and 3 (see the module docs) -> every figure, JSON-ready."""
+    from trase.objectives import get_objective
+    from trase.smoothing import knn_indices
+
+    cfg = QUICK if quick else DEFAULT
+    reps = cfg["repeats"]
+    n, w, h = cfg["gaussians"], cfg["width"], cfg["height"]
+    echo(f"feature step, fast path vs rasterizer (numba); median of up to {reps} repeats after 1 warm-up, "
+         f"spread = max - min; torch threads {torch.get_num_threads()}")
+    gm, cam = make_gaussians(n, w, h)
+    ms = make_masks(w, h)
+    knn = knn_indices(gm.means.detach(), 16)
+    objective = get_objective("trase")
+    step, step_real, step_threads = _whole_steps(cfg, gm, cam, ms, reps, echo)  # 1 and 1b
+    prep, fast = _prepare_weights(gm, cam, ms)
+    operators = _operators(fast, ms, prep)
+    objective_cmp = objective_alone(fast, gm, ms, knn, cfg["objective_pixels"], reps, cfg["budget_s"], echo)  # 2
+    results = _render_grid(cfg, gm, cam, ms, knn, objective, fast, prep, operators, reps, echo)  # 3
     t1 = step["threads"][str(step_threads[0])]
     tr = step_real["threads"][str(step_threads[0])]
     summary = {"step_speedup": t1["step_speedup"], "ratio_bound": t1["ratio_bound"],

@@ -111,45 +111,27 @@ class ClassicalGenerator:
         h, w = img.shape[:2]
         min_area = self.min_area if self.min_area is not None else min_area_for(h, w)
         maps, groups = self._layers(img, min_area)
-        layers = [lm.reshape(-1) for lm in maps]
-        areas = [np.bincount(lm).astype(np.int64) for lm in layers]
+        layers = [lm.reshape(-1) for lm in maps]  # [H*W] each
+        areas = [np.bincount(lm).astype(np.int64) for lm in layers]  # [L_i] each
+        pair = _PairIoU(layers, areas)
+        best = _stability(groups, areas, pair)
+        kept = self._dedup(_candidates(areas, best, min_area, h * w), pair, len(layers))
+        if len(kept) > self.max_masks:
+            # over the cap (textured images: one segment per brick or checker square): keep
+            # the largest, so whole objects survive and texture tiles go first
+            kept = sorted(kept, key=lambda t: -int(areas[t[0]][t[1]]))[: self.max_masks]
 
-        # stability: mean best IoU with the neighbouring layers of the same group
-        best = {}
-        pair_cache = {}
+        masks = _rasterize_kept(kept, layers, areas, h, w)
+        score = np.array([s for _, _, s in kept], np.float32)
+        order = np.argsort(-masks.reshape(len(kept), h * w).sum(1), kind="stable")  # by area
+        info = {"key": key, "min_area": int(min_area), "settings": self.settings()}
+        return MaskSet.from_masks(masks[order], score=score[order], generator=self.name, info=info)
 
-        def pair(i, j):
-            if (i, j) not in pair_cache:
-                pair_cache[(i, j)] = _pair_iou(layers[i], layers[j], areas[i], areas[j])
-            return pair_cache[(i, j)]
-
-        for i in range(len(layers)):
-            same = [j for j in range(len(layers)) if groups[j] == groups[i]]
-            pos = same.index(i)
-            neigh = [same[q] for q in (pos - 1, pos + 1) if 0 <= q < len(same)]
-            if not neigh:
-                neigh = [j for j in range(len(layers)) if j != i]
-            acc = np.zeros(areas[i].shape[0])
-            if not neigh:  # a single scale: nothing to compare with
-                best[i] = np.ones_like(acc)
-                continue
-            for j in neigh:
-                a, _, iou = pair(i, j)
-                m = np.zeros_like(acc)
-                np.maximum.at(m, a, iou)
-                acc += m
-            best[i] = acc / len(neigh)
-
-        # candidates, best score first (ties: larger area, then coarser layer)
-        cand = []
-        for i, ar in enumerate(areas):
-            ok = np.flatnonzero((ar >= min_area) & (ar < h * w))
-            for lab in ok:
-                cand.append((-float(best[i][lab]), -int(ar[lab]), -i, int(lab)))
-        cand.sort()
-
-        # greedy dedup across layers (segments of one layer are disjoint, IoU 0)
-        dup_partner: dict[tuple[int, int], dict[int, np.ndarray]] = {}
+    def _dedup(self, cand: list[tuple], pair: _PairIoU, n_layers: int) -> list[tuple[int, int, float]]:
+        """Greedy dedup across layers, best candidate first: a kept segment takes every segment
+        of the other layers whose IoU with it exceeds ``dedup_iou`` (segments of one layer are
+        disjoint, IoU 0) -> kept (layer, label, score)."""
+        dup_partner: dict[tuple[int, int], dict[int, list]] = {}
 
         def partners(i, j):  # for each label of layer i: labels of layer j with IoU > dedup
             if (i, j) not in dup_partner:
@@ -169,26 +151,75 @@ class ClassicalGenerator:
                 continue
             kept.append((i, lab, -negscore))
             taken.add((i, lab))
-            for j in range(len(layers)):
+            for j in range(n_layers):
                 if j != i:
                     for other in partners(i, j).get(lab, ()):
                         taken.add((j, other))
-        if len(kept) > self.max_masks:
-            # over the cap (textured images: one segment per brick or checker square): keep
-            # the largest, so whole objects survive and texture tiles go first
-            kept = sorted(kept, key=lambda t: -int(areas[t[0]][t[1]]))[: self.max_masks]
+        return kept
 
-        masks = np.zeros((len(kept), h * w), bool)
-        for i in sorted({i for i, _, _ in kept}):  # one scatter per layer, not one pass per mask
-            row_of = np.full(areas[i].shape[0], -1, np.int64)
-            for n, (j, lab, _) in enumerate(kept):
-                if j == i:
-                    row_of[lab] = n
-            rows = row_of[layers[i]]
-            pix = np.flatnonzero(rows >= 0)
-            masks[rows[pix], pix] = True
-        masks = masks.reshape(len(kept), h, w)
-        score = np.array([s for _, _, s in kept], np.float32)
-        order = np.argsort(-masks.reshape(len(kept), h * w).sum(1), kind="stable")  # by area
-        info = {"key": key, "min_area": int(min_area), "settings": self.settings()}
-        return MaskSet.from_masks(masks[order], score=score[order], generator=self.name, info=info)
+
+class _PairIoU:
+    """``_pair_iou`` of two layers, computed once per ordered pair: stability and dedup both
+    read it."""
+
+    def __init__(self, layers: list[np.ndarray], areas: list[np.ndarray]) -> None:
+        self.layers, self.areas = layers, areas
+        self.cache: dict[tuple[int, int], tuple] = {}
+
+    def __call__(self, i: int, j: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        if (i, j) not in self.cache:
+            self.cache[(i, j)] = _pair_iou(self.layers[i], self.layers[j], self.areas[i], self.areas[j])
+        return self.cache[(i, j)]
+
+
+def _stability(groups: list[int], areas: list[np.ndarray], pair: _PairIoU) -> dict[int, np.ndarray]:
+    """Per layer i, per label: the mean best IoU with the neighbouring layers of the same group
+    (every other layer when alone in its group; 1 when there is no other layer) -> {i: [L_i]}."""
+    n_layers = len(areas)
+    best = {}
+    for i in range(n_layers):
+        same = [j for j in range(n_layers) if groups[j] == groups[i]]
+        pos = same.index(i)
+        neigh = [same[q] for q in (pos - 1, pos + 1) if 0 <= q < len(same)]
+        if not neigh:
+            neigh = [j for j in range(n_layers) if j != i]
+        acc = np.zeros(areas[i].shape[0])
+        if not neigh:  # a single scale: nothing to compare with
+            best[i] = np.ones_like(acc)
+            continue
+        for j in neigh:
+            a, _, iou = pair(i, j)
+            m = np.zeros_like(acc)
+            np.maximum.at(m, a, iou)
+            acc += m
+        best[i] = acc / len(neigh)
+    return best
+
+
+def _candidates(areas: list[np.ndarray], best: dict[int, np.ndarray], min_area: int,
+                n_pixels: int) -> list[tuple[float, int, int, int]]:
+    """Segments neither too small nor the whole image, best score first (ties: larger area, then
+    coarser layer), as sortable (-score, -area, -layer, label)."""
+    cand = []
+    for i, ar in enumerate(areas):
+        ok = np.flatnonzero((ar >= min_area) & (ar < n_pixels))
+        for lab in ok:
+            cand.append((-float(best[i][lab]), -int(ar[lab]), -i, int(lab)))
+    cand.sort()
+    return cand
+
+
+def _rasterize_kept(kept: list[tuple[int, int, float]], layers: list[np.ndarray], areas: list[np.ndarray],
+                    h: int, w: int) -> np.ndarray:
+    """The kept (layer, label) segments as [len(kept), H, W] bool masks, in ``kept`` order; one
+    scatter per layer, not one pass per mask."""
+    masks = np.zeros((len(kept), h * w), bool)
+    for i in sorted({i for i, _, _ in kept}):
+        row_of = np.full(areas[i].shape[0], -1, np.int64)
+        for n, (j, lab, _) in enumerate(kept):
+            if j == i:
+                row_of[lab] = n
+        rows = row_of[layers[i]]
+        pix = np.flatnonzero(rows >= 0)
+        masks[rows[pix], pix] = True
+    return masks.reshape(len(kept), h, w)

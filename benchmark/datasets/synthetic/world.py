@@ -210,21 +210,22 @@ def build_world(seed: int = 0, span: float = 1.0) -> World:
     if not 0.0 < span <= 1.0:
         raise ValueError(f"motion span must be in (0, 1], got {span}")
     rng = np.random.default_rng(seed)
+    poses = _motions(rng.uniform(0, 2 * math.pi, 4), span)  # the phases: the seed's first draws
+    return World(_objects(rng, poses), seed, span)
 
-    def jitter(c, amount=0.12):
-        return np.clip(np.asarray(c, float) + rng.uniform(-amount, amount, 3), 0.05, 0.95)
 
-    def light():
-        v = np.array([0.4, -0.5, 0.75]) + rng.uniform(-0.15, 0.15, 3)
-        return v / np.linalg.norm(v)
+def _static(c, S, R=None) -> Callable[[float], Pose]:
+    """The pose of an object that does not move: rotation R (default identity), centre c, scale S."""
+    R = np.eye(3) if R is None else R
+    c, S = np.asarray(c, float), np.asarray(S, float)
+    return lambda t: (R, c, S)
 
-    ph = rng.uniform(0, 2 * math.pi, 4)
+
+def _motions(ph: np.ndarray, span: float) -> dict[str, Callable[[float], Pose]]:
+    """The moving objects' poses (written for span 1) with the seed's 4 phases ``ph``, in
+    sequence time: motion time is span * t."""
     I3 = np.eye(3)
     ones = np.ones(3)
-
-    def static(c, S, R=I3):
-        c, S = np.asarray(c, float), np.asarray(S, float)
-        return lambda t: (R, c, S)
 
     def ball_pose(t):
         x = -0.30 - 0.09 * math.sin(2 * math.pi * t + ph[0])
@@ -251,38 +252,50 @@ def build_world(seed: int = 0, span: float = 1.0) -> World:
     def spanned(pose):
         return pose if span == 1.0 else (lambda t: pose(span * t))
 
-    ball_pose, ring_pose, blob_pose, pillar_pose, cube_pose = (
-        spanned(p) for p in (ball_pose, ring_pose, blob_pose, pillar_pose, cube_pose))
+    return {"ball": spanned(ball_pose), "ring": spanned(ring_pose), "blob": spanned(blob_pose),
+            "pillar": spanned(pillar_pose), "cube": spanned(cube_pose)}
 
-    objs = [
+
+def _objects(rng: np.random.Generator, poses: dict[str, Callable[[float], Pose]]) -> list[SceneObject]:
+    """The fixed layout: room, crate, ball, ring, blob, pillar, cube, can. ``rng`` draws their
+    colours, texture offsets and light directions in exactly this order (argument by argument),
+    which the generated scenes' bytes depend on."""
+
+    def jitter(c, amount=0.12):
+        return np.clip(np.asarray(c, float) + rng.uniform(-amount, amount, 3), 0.05, 0.95)
+
+    def light():
+        v = np.array([0.4, -0.5, 0.75]) + rng.uniform(-0.15, 0.15, 3)
+        return v / np.linalg.norm(v)
+
+    return [
         SceneObject(1, "room", Room(), "static", False,
-                    static([0.0, -1.0, 1.5], [3.5, 4.0, 1.5]),
+                    _static([0.0, -1.0, 1.5], [3.5, 4.0, 1.5]),
                     room_texture(jitter([0.75, 0.72, 0.65]), jitter([0.35, 0.33, 0.3]),
                                  jitter([0.7, 0.45, 0.35]), jitter([0.85, 0.85, 0.8], 0.05),
                                  [3.5, 4.0, 1.5], rng.uniform(0, 1, 3)),
                     np.array([0.3, 0.5, 0.81])),
         SceneObject(3, "crate", Box(), "static", False,
-                    static([0.55, 0.55, 0.35], [0.42, 0.42, 0.35], rot("z", 0.35)),
+                    _static([0.55, 0.55, 0.35], [0.42, 0.42, 0.35], rot("z", 0.35)),
                     stripes(jitter([0.65, 0.45, 0.25]), jitter([0.45, 0.28, 0.12]), 3.0, 0, rng.uniform()),
                     light()),
-        SceneObject(4, "ball", Sphere(), "rigid", True, ball_pose,
+        SceneObject(4, "ball", Sphere(), "rigid", True, poses["ball"],
                     bands(jitter([0.9, 0.2, 0.2]), jitter([0.95, 0.9, 0.3]), 3.0), light()),
-        SceneObject(5, "ring", Torus(0.3), "rigid", True, ring_pose,
+        SceneObject(5, "ring", Torus(0.3), "rigid", True, poses["ring"],
                     bands(jitter([0.2, 0.4, 0.9]), jitter([0.85, 0.85, 0.9]), 4.0), light()),
-        SceneObject(6, "blob", Sphere(), "deforming", True, blob_pose,
+        SceneObject(6, "blob", Sphere(), "deforming", True, poses["blob"],
                     checker(jitter([0.25, 0.8, 0.3]), jitter([0.1, 0.45, 0.15]), 3.0, rng.uniform(0, 1, 3)),
                     light()),
-        SceneObject(7, "pillar", Cylinder(), "rigid", False, pillar_pose,
+        SceneObject(7, "pillar", Cylinder(), "rigid", False, poses["pillar"],
                     stripes(jitter([0.8, 0.8, 0.8]), jitter([0.3, 0.3, 0.5]), 4.0, 2, rng.uniform()),
                     light()),
-        SceneObject(8, "cube", Box(), "rigid", False, cube_pose,
+        SceneObject(8, "cube", Box(), "rigid", False, poses["cube"],
                     checker(jitter([0.9, 0.6, 0.1]), jitter([0.3, 0.1, 0.5]), 2.0, rng.uniform(0, 1, 3)),
                     light()),
         SceneObject(9, "can", Cylinder(), "static", False,
-                    static([-1.45, -0.15, 0.25], [0.16, 0.16, 0.25]),
+                    _static([-1.45, -0.15, 0.25], [0.16, 0.16, 0.25]),
                     bands(jitter([0.6, 0.2, 0.7]), jitter([0.9, 0.9, 0.9]), 2.0), light()),
     ]
-    return World(objs, seed, span)
 
 
 def render(world: World, cam, t: float, rays=None):
