@@ -211,33 +211,55 @@ def _clip(run_dir: Path) -> tuple[str, str]:
     return tag, ""
 
 
-def make_report(run_dir: str | Path) -> Path:
-    """Write ``report.html`` and ``report/*.png`` into ``run_dir``; returns the HTML path."""
-    run_dir = Path(run_dir)
-    record = load_results(run_dir / "results.json")
-    png_dir = run_dir / "report"
+def _frame_tiles(record: dict, run_dir: Path) -> tuple[list[str], int]:
+    """(HTML figures of the shown test frames: overlay and clusters, count of missing images);
+    each overlay also written to ``report/overlay_<frame>.png``."""
     frames = record.get("frames", [])
     step = max(1, len(frames) // MAX_FRAMES_SHOWN)
-    shown = frames[::step][:MAX_FRAMES_SHOWN]
     per_frame = {f["frame"]: f for f in record.get("per_frame", [])}
     tiles, missing_images = [], 0
-    for f in shown:
+    for f in frames[::step][:MAX_FRAMES_SHOWN]:
         gt = read_mask(f["gt"])
         pred_path = run_dir / f["pred"]
         pred = read_mask(pred_path) if pred_path.exists() else np.zeros_like(gt)
         if not Path(f["image"]).exists():
             missing_images += 1
-        ov = overlay(_read_rgb(Path(f["image"]), gt.shape), pred, gt)
-        data = _png(ov)
-        atomic_write_bytes(png_dir / f"overlay_{f['frame']}.png", data)
+        data = _png(overlay(_read_rgb(Path(f["image"]), gt.shape), pred, gt))
+        atomic_write_bytes(run_dir / "report" / f"overlay_{f['frame']}.png", data)
         iou = per_frame.get(f["frame"], {}).get("iou")
         caption = f"{f['frame']}  IoU {'n/a' if iou is None else f'{iou:.3f}'}"
         cluster_png = run_dir / "clusters" / f"{f['frame']}.png"
         extra = _img_tag(cluster_png.read_bytes(), "clusters") if cluster_png.exists() else ""
         tiles.append(f"<figure>{_img_tag(data, caption)}{extra}<figcaption>{html.escape(caption)}"
                      "</figcaption></figure>")
+    return tiles, missing_images
+
+
+def _notes(record: dict, missing_images: int) -> list[str]:
+    """What to read beside the score: missing images, the oracle, the geometry's ceiling."""
+    notes = []
+    if missing_images:
+        notes.append(f"{missing_images} test image(s) not found: grey backdrop shown.")
+    if record.get("oracle"):
+        o = record["oracle"]
+        notes.append(f"Oracle cluster selection (upper bound, not the method's score): "
+                     f"mIoU {_fmt(o.get('miou'))}, mAcc {_fmt(o.get('macc'))}.")
+    if record.get("ceiling"):
+        c = record["ceiling"]
+        notes.append(f"Geometry ceiling (every gaussian labelled from the training views' instance maps, "
+                     f"same rendering rule; what this geometry allows): mIoU {_fmt(c.get('miou'))}.")
+        notes += _ceiling_objects_notes(c)
+    return notes
+
+
+def make_report(run_dir: str | Path) -> Path:
+    """Write ``report.html`` and ``report/*.png`` into ``run_dir``; returns the HTML path."""
+    run_dir = Path(run_dir)
+    record = load_results(run_dir / "results.json")
+    frames = record.get("frames", [])
+    tiles, missing_images = _frame_tiles(record, run_dir)
     plot = _iou_plot(record)
-    atomic_write_bytes(png_dir / "per_frame_iou.png", plot)
+    atomic_write_bytes(run_dir / "report" / "per_frame_iou.png", plot)
     clip, clip_note = _clip(run_dir)
 
     m = record["metrics"]
@@ -252,18 +274,7 @@ def make_report(run_dir: str | Path) -> Path:
     overrides = " ".join(f"--set {o}" for o in run.get("overrides", [])) or "none"
     run_line = (f"Run {run.get('name', '?')} ({run.get('kind', '?')}; overrides: {overrides}). "
                 f"Protocol: {protocol_label(protocol(record))}.")
-    notes = []
-    if missing_images:
-        notes.append(f"{missing_images} test image(s) not found: grey backdrop shown.")
-    if record.get("oracle"):
-        o = record["oracle"]
-        notes.append(f"Oracle cluster selection (upper bound, not the method's score): "
-                     f"mIoU {_fmt(o.get('miou'))}, mAcc {_fmt(o.get('macc'))}.")
-    if record.get("ceiling"):
-        c = record["ceiling"]
-        notes.append(f"Geometry ceiling (every gaussian labelled from the training views' instance maps, "
-                     f"same rendering rule; what this geometry allows): mIoU {_fmt(c.get('miou'))}.")
-        notes += _ceiling_objects_notes(c)
+    notes = _notes(record, missing_images)
     page = f"""<!doctype html><html><head><meta charset="utf-8"><title>{html.escape(title)}</title>
 <style>body{{font-family:sans-serif;max-width:1100px;margin:auto}}figure{{display:inline-block;margin:4px}}
 figure img{{display:block;max-width:260px}}table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:2px 8px}}
