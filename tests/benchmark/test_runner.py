@@ -133,31 +133,31 @@ def test_paper_preset_takes_the_registry_schedule():
     from tests.benchmark.settings_helpers import resolved_dict
 
     spec = get_dataset("hypernerf")
-    cfg = resolved_dict(get_method("trase"), spec, "real", {"geometry": {"preset": "paper"}})
+    cfg = resolved_dict(get_method("trase"), spec, "real", {"preset": "paper"})
     train = cfg["geometry"]["train"]
     assert (train["warm_up"], train["densify_until"]) == (spec.warm_up, spec.densify_until) == (1500, 9000)
     # one click rule under every preset: the rendered feature's nearest cluster
     assert cfg["method"]["prompts"]["click_rule"] == "feature"
-    assert resolved_dict(get_method("trase"), spec, "real", {"geometry": {"preset": "cpu"}})["method"]["prompts"][
+    assert resolved_dict(get_method("trase"), spec, "real", {"preset": "cpu"})["method"]["prompts"][
         "click_rule"] == "feature"
     assert train["iterations"] == 20_000 and train["image_downscale"] == 1.0
     # one preset for the whole run: the paper's geometry comes with the paper's method settings
     assert cfg["method"]["preset"] == "paper" and cfg["method"]["features"]["iterations"] == 10_000
-    assert resolved_dict(get_method("trase"), spec, "real", {"geometry": {"preset": "cpu-v1"}})["method"]["preset"] == "cpu"
+    assert resolved_dict(get_method("trase"), spec, "real", {"preset": "cpu-v1"})["method"]["preset"] == "cpu"
     multi = get_dataset("technicolor")
     for preset, mono_its, multi_its, mono_prune in (("cpu", 4000, 4000, 0.1), ("cpu-v4", 4000, 2000, 0.1),
                                                     ("cpu-v3", 4000, 2000, 0.005),
                                                     ("cpu-v2", 2000, 2000, 0.005), ("cpu-v1", 2000, 2000, 0.005)):
-        cfg = resolved_dict(get_method("trase"), spec, "real", {"geometry": {"preset": preset}})
+        cfg = resolved_dict(get_method("trase"), spec, "real", {"preset": preset})
         assert cfg["geometry"]["train"]["iterations"] == mono_its and cfg["method"]["preset"] == "cpu"
         assert cfg["geometry"]["train"]["min_opacity"] == mono_prune
-        cfg = resolved_dict(get_method("trase"), multi, "real", {"geometry": {"preset": preset}})
+        cfg = resolved_dict(get_method("trase"), multi, "real", {"preset": preset})
         assert cfg["geometry"]["train"]["iterations"] == multi_its
         assert cfg["geometry"]["train"]["min_opacity"] == 0.005  # multi-view rigs: no change since cpu-v2
     with pytest.raises(ConfigError, match="method.preset=paper: the method's preset follows the run's"):
-        resolved_dict(get_method("trase"), spec, "real", {"geometry": {"preset": "cpu"}, "method": {"preset": "paper"}})
+        resolved_dict(get_method("trase"), spec, "real", {"preset": "cpu", "method": {"preset": "paper"}})
     with pytest.raises(ConfigError, match="preset=gpu: choose auto, paper, cpu-v1, cpu-v2, cpu-v3, cpu-v4, cpu"):
-        resolved_dict(get_method("trase"), spec, "real", {"geometry": {"preset": "gpu"}})
+        resolved_dict(get_method("trase"), spec, "real", {"preset": "gpu"})
 
 
 def test_cpu_preset_training_resolution_follows_the_images():
@@ -172,11 +172,11 @@ def test_cpu_preset_training_resolution_follows_the_images():
     assert cpu_train_downscale((960, 536)) == 2.0  # HyperNeRF
     assert cpu_train_downscale((1352, 1014)) == 4.0  # Neu3D
     spec = get_dataset("hypernerf")
-    cfg = resolved_dict(get_method("trase"), spec, "synthetic", {"geometry": {"preset": "cpu"}}, (160, 120))
+    cfg = resolved_dict(get_method("trase"), spec, "synthetic", {"preset": "cpu"}, (160, 120))
     train = cfg["geometry"]["train"]
     assert train["image_downscale"] == 1.0 and train["iterations"] == 4000
     assert (train["position_lr_max_steps"], train["deform_lr_max_steps"]) == (20_000, 20_000)  # no annealing in 4000 steps
-    cfg = resolved_dict(get_method("trase"), spec, "real", {"geometry": {"preset": "cpu"}}, (960, 536))
+    cfg = resolved_dict(get_method("trase"), spec, "real", {"preset": "cpu"}, (960, 536))
     assert cfg["geometry"]["train"]["image_downscale"] == 2.0
 
 

@@ -27,7 +27,7 @@ FAST = ["geometry.train.iterations=60", "method.features.iterations=40"]
 def test_capture_config_follows_the_rig_and_checks_the_capture_section():
     m = get_method("trase")
     mono = capture_dict(m, True, CaptureOptions().to_dict(), {})
-    multi = capture_dict(m, False, CaptureOptions().to_dict(), parse_overrides(["geometry.preset=paper"]))
+    multi = capture_dict(m, False, CaptureOptions().to_dict(), parse_overrides(["preset=paper"]))
     assert (mono["method"]["features"]["n_masks"], multi["method"]["features"]["n_masks"]) == (25, 50)
     assert multi["method"]["features"]["n_pixels"] == 10000 and multi["method"]["filter_threshold"] == 0.9
     # Deformable-3DGS's own schedule under the paper preset (no benchmark's per-dataset one)
