@@ -7,7 +7,8 @@ results of golden_pipeline.py apply only where the instruction sets match):
 - ``stage_keys``: the cache keys of the golden pipeline cases' stages, with fixed input
   fingerprints (recorded after the redesign: keys hash resolved values, not the preset's name);
 - ``gt_cases``: the scores of the ground-truth-geometry golden cases, compared within
-  GT_TOLERANCE (features differ in their last bits between instruction sets).
+  GT_TOLERANCE (CEILING_TOLERANCE for the geometry's ceiling): features differ in their last
+  bits between instruction sets, and 40 feature steps leave clusters a click can tip.
 
     python -m tests.benchmark.golden_portable --write   # re-record (only for an intended change)
 """
@@ -24,7 +25,10 @@ METHODS = ("cgc", "opengaussian", "trase", "trase-all", "trase-hard")
 DATASETS = ("nerfds", "hypernerf", "neu3d", "immersive", "technicolor")
 PRESETS = ("paper", "cpu", "cpu-v4", "cpu-v3", "cpu-v2", "cpu-v1")
 SIZES = ((160, 120), (1352, 1014), None)
-GT_TOLERANCE = 0.02  # scores; instruction sets moved them by <= 0.0016 (znver3 against znver5)
+# instruction sets moved the scores by <= 0.0016 and the ceiling not at all (znver3/AVX2 against
+# znver5/AVX-512); a broken stage moves them by tenths
+GT_TOLERANCE = 0.05
+CEILING_TOLERANCE = 0.01
 GT_FIELDS = ("miou", "official_miou", "oracle_miou", "ceiling_miou", "n_gaussians")
 # devices pinned: "auto" resolves to the machine's (a GPU's configs hash otherwise)
 ON_CPU = {"geometry": {"train": {"device": "cpu"}}, "method": {"features": {"device": "cpu"}}}
