@@ -11,8 +11,8 @@ from pathlib import Path
 import pytest
 
 from tests.benchmark.golden_pipeline import machine_isa, recordings
-from tests.benchmark.golden_portable import GOLDEN as PORTABLE
 from tests.benchmark.golden_portable import CEILING_TOLERANCE, GT_TOLERANCE, gt_cases
+from tests.benchmark.golden_portable import GOLDEN as PORTABLE
 
 ROOT = Path(__file__).resolve().parents[2]
 
