@@ -16,6 +16,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from benchmark.config import flatten
 from benchmark.errors import UserError
 from benchmark.results import load_results, total_seconds
 
@@ -186,17 +187,6 @@ def paper_config(method_name: str, dataset: str, variant: str, overrides: list[s
     return merge(cfg, parse_overrides(overrides))
 
 
-def _flatten(d: dict, prefix: str = "") -> dict:
-    out = {}
-    for k, v in d.items():
-        key = f"{prefix}{k}"
-        if isinstance(v, dict) and v:
-            out.update(_flatten(v, key + "."))
-        else:
-            out[key] = v
-    return out
-
-
 def differences(name: str, dataset: str, df: pd.DataFrame) -> list[str]:
     """What still separates the measured table from the paper's: the data, then every setting
     whose value differs from the paper protocol's (``paper_config`` with the study's and the
@@ -214,8 +204,8 @@ def differences(name: str, dataset: str, df: pd.DataFrame) -> list[str]:
         rows = df[df["variant"] == v.label]
         if not len(rows):
             continue
-        here = _flatten(rows.iloc[0]["_config"])
-        ref = _flatten(paper_config(v.method, dataset, rows.iloc[0]["data"], list(study.protocol) + list(v.overrides)))
+        here = flatten(rows.iloc[0]["_config"])
+        ref = flatten(paper_config(v.method, dataset, rows.iloc[0]["data"], list(study.protocol) + list(v.overrides)))
         unused = here.get("geometry.source") != "reconstruct"
         for key in sorted(set(here) | set(ref)):
             if key.split(".")[-1] in BOOKKEEPING or here.get(key) == ref.get(key):

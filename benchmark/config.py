@@ -71,6 +71,18 @@ def merge(base: dict, overrides: dict, path: str = "") -> dict:
     return out
 
 
+def flatten(d: dict, prefix: str = "") -> dict:
+    """A nested config as {dotted name: value}, the names ``--set`` takes (an empty section is a
+    value)."""
+    out = {}
+    for k, v in d.items():
+        if isinstance(v, dict) and v:
+            out.update(flatten(v, f"{prefix}{k}."))
+        else:
+            out[prefix + k] = v
+    return out
+
+
 def typed(cls, data: dict, where: str):
     """The dataclass ``cls`` built from config section ``data``, every value checked against its
     annotation first, so a wrong type stops the run at resolution with the setting's name

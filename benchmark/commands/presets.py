@@ -48,7 +48,7 @@ def presets(dataset, method_name, preset, rig, image_size, overrides, show_all, 
 def resolve_rows(dataset: str | None, method_name: str, preset: str | None, rig: str | None,
                  image_size: tuple[int, int] | None, overrides: list[str]) -> list[tuple[str, object, str]]:
     """(setting, value, where declared) of every setting a run would resolve."""
-    from benchmark.config import parse_overrides
+    from benchmark.config import flatten, parse_overrides
     from benchmark.datasets import get_dataset
     from benchmark.methods import get_method
     from benchmark.pipeline.settings import capture_settings, run_settings
@@ -63,7 +63,7 @@ def resolve_rows(dataset: str | None, method_name: str, preset: str | None, rig:
         settings = run_settings(method, get_dataset(dataset), "synthetic", ov, image_size)
     else:
         settings = capture_settings(method, rig != "multi-view", {}, ov, image_size)
-    flat = _flatten(settings.to_dict())
+    flat = flatten(settings.to_dict())
     run_level = "the run (benchmark.pipeline.settings)"
     return [(k, v, _short(_source(settings.sources, k, run_level))) for k, v in flat.items()]
 
@@ -74,16 +74,6 @@ def _source(sources: dict[str, str], key: str, otherwise: str) -> str:
     while key not in sources and "." in key:
         key = key.rsplit(".", 1)[0]
     return sources.get(key, otherwise)
-
-
-def _flatten(d: dict, prefix: str = "") -> dict:
-    out = {}
-    for k, v in d.items():
-        if isinstance(v, dict) and v:
-            out.update(_flatten(v, f"{prefix}{k}."))
-        else:
-            out[prefix + k] = v
-    return out
 
 
 def _short(source: str) -> str:

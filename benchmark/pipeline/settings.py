@@ -14,7 +14,7 @@ import sys
 from typing import Any
 
 from benchmark.cache import config_hash
-from benchmark.config import ConfigError, merge, typed
+from benchmark.config import ConfigError, flatten, merge, typed
 from benchmark.datasets.registry import get_dataset
 from lazyspecs.presets import Context, Derived, When
 from trase.reconstruction_config import ReconstructionConfig
@@ -141,7 +141,7 @@ def _resolve(method, ctx: Context, overrides: dict, masks: dict, extra: dict) ->
     settings.sources = {**{f"geometry.train.{k}": v for k, v in geometry.sources.items()},
                         **{f"method.{k}": v for k, v in resolved.sources.items()},
                         **{".".join(p): f"the run seed ({seed})" for p in SEED_PATHS},
-                        **{k: "--set" for k in _dotted(plain)}}
+                        **{k: "--set" for k in flatten(plain)}}
     # the same run without its seed (an explicit seed of one section stays), and without --set
     group = _with_devices(merge(apply_seed(base, 0), plain), settings)
     default = _with_devices(merge(base, {}), settings)
@@ -243,14 +243,6 @@ def apply_seed(cfg: dict, seed: int) -> dict:
 
 def without_seed(overrides: dict) -> dict:
     return {k: v for k, v in overrides.items() if k != "seed"}
-
-
-def _dotted(d: dict, prefix: str = "") -> list[str]:
-    """The dotted names of a nested dict's values."""
-    out = []
-    for k, v in d.items():
-        out += _dotted(v, f"{prefix}{k}.") if isinstance(v, dict) and v else [prefix + k]
-    return out
 
 
 def _get(d: dict, path: tuple[str, ...]):
