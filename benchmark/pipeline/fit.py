@@ -4,7 +4,6 @@ the trained features."""
 
 from __future__ import annotations
 
-import dataclasses
 import shutil
 from pathlib import Path
 
@@ -12,18 +11,14 @@ import numpy as np
 
 from benchmark.cache import StageRecord
 from benchmark.pipeline.context import SequenceRun, jsonable
-
-
-def _plain(value):
-    """A settings object as the JSON-able dict a cache key hashes."""
-    return dataclasses.asdict(value) if dataclasses.is_dataclass(value) else value
+from benchmark.pipeline.settings import key_config
 
 
 def _features(ctx: SequenceRun) -> StageRecord:
     """Learned per-gaussian features: keyed only on the settings that change them."""
     method, settings = ctx.method, ctx.settings.method
     masks_rec, geo_rec = ctx.records["masks"], ctx.records["geometry"]
-    fcfg = {"method": method.name, **{k: _plain(getattr(settings, k)) for k in method.FEATURE_FIELDS}}
+    fcfg = {"method": method.name, **{k: key_config(getattr(settings, k)) for k in method.FEATURE_FIELDS}}
     key = ctx.cache.key("features", fcfg, {"masks": masks_rec.key, "geometry": geo_rec.key})
 
     def work(d: Path) -> dict:
@@ -40,8 +35,7 @@ def _features(ctx: SequenceRun) -> StageRecord:
 def run(ctx: SequenceRun) -> list[StageRecord]:
     method, settings = ctx.method, ctx.settings.method
     geo_rec = ctx.records["geometry"]
-    fit_cfg = {"method": method.name, **_plain(settings)}
-    fit_cfg.pop("preset", None)  # the key hashes resolved values, not the preset's name
+    fit_cfg = {"method": method.name, **key_config(settings)}
     feat_rec = _features(ctx)
     key = ctx.cache.key("fit", fit_cfg, {"features": feat_rec.key, "geometry": geo_rec.key})
 

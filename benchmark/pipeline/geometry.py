@@ -9,13 +9,14 @@ from pathlib import Path
 from benchmark.cache import StageRecord
 from benchmark.config import ConfigError
 from benchmark.pipeline.context import SequenceRun, load_geometry, synthetic_truth
+from benchmark.pipeline.settings import key_config
 
 SOURCES = ("reconstruct", "ground-truth", "import")
 
 
 def run(ctx: SequenceRun) -> list[StageRecord]:
     geometry, scene = ctx.settings.geometry, ctx.scene
-    keyed = geometry.cache_config()  # resolved values, not the preset's name
+    keyed = key_config(geometry)
     key = ctx.cache.key("geometry", keyed, {"scene": ctx.scene_key})
 
     def work(d: Path) -> dict:

@@ -54,11 +54,13 @@ class GeometrySettings:
     model_dir: str | None = None  # for source=import: a Deformable-3DGS/TRASE model directory
     train: ReconstructionConfig = dataclasses.field(default_factory=ReconstructionConfig)
 
-    def cache_config(self) -> dict:
-        """What the geometry stage's key hashes: resolved values, not the preset's name."""
-        d = dataclasses.asdict(self)
-        d.pop("preset")
-        return d
+
+def key_config(settings) -> dict:
+    """What a stage's cache key hashes of a settings section: its resolved values without the
+    preset's name, so two presets with the same values share the stage."""
+    d = dataclasses.asdict(settings)
+    d.pop("preset", None)
+    return d
 
 
 @dataclasses.dataclass
@@ -252,5 +254,5 @@ def _get(d: dict, path: tuple[str, ...]):
 
 
 __all__ = ["GEOMETRY_PRESETS", "SEED_PATHS", "CaptureMaskSettings", "GeometrySettings", "MaskSettings",
-           "PromptProtocol", "RunSettings", "apply_seed", "capture_settings", "run_seed", "run_settings",
-           "take_preset", "without_seed"]
+           "PromptProtocol", "RunSettings", "apply_seed", "capture_settings", "key_config", "run_seed",
+           "run_settings", "take_preset", "without_seed"]
