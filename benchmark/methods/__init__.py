@@ -42,13 +42,6 @@ METHODS.add("cgc", "benchmark.methods.baselines:CGCMethod", "Contrastive Gaussia
 METHODS.add("opengaussian", "benchmark.methods.baselines:OpenGaussianMethod", "OpenGaussian-style intra/inter-mask objective")
 
 
-def _tier(preset: str) -> str:
-    """paper or cpu: what a method that does not declare ``preset`` resolves instead."""
-    from trase.reconstruction_presets import RECONSTRUCTION_PRESETS
-
-    return RECONSTRUCTION_PRESETS.preset(preset).tier if preset in RECONSTRUCTION_PRESETS else preset
-
-
 def register_method(name: str) -> Callable:
     """Class decorator: name a Method class (``cls.name``) and register it (``get_method``)."""
 
@@ -121,11 +114,15 @@ class Method:
             raise MethodError(f"method {self.name!r} declares no presets")
         return self.presets.config_cls
 
-    def resolve_settings(self, preset: str, ctx: Context, tier: str | None = None) -> Resolved:
-        """The method's settings under the run's ``preset`` (a preset the method does not
-        declare resolves its ``tier``, paper or cpu) in ``ctx``, with where each was declared."""
+    def resolve_settings(self, preset: str, ctx: Context) -> Resolved:
+        """The method's settings under the run's ``preset`` in ``ctx``, with where each was
+        declared. A run preset the method does not declare (an earlier CPU geometry preset)
+        resolves its tier, paper or cpu, as the reconstruction's presets name it."""
+        from trase.reconstruction_presets import RECONSTRUCTION_PRESETS
+
         if self.presets is None:
             raise MethodError(f"method {self.name!r} declares no presets")
+        tier = RECONSTRUCTION_PRESETS.preset(preset).tier if preset in RECONSTRUCTION_PRESETS else None
         return self.presets.resolve(preset, ctx, tier)
 
     def settings(self, preset: str, dataset: str | None = None, monocular: bool | None = None):
@@ -135,7 +132,7 @@ class Method:
 
         if monocular is None:
             monocular = get_dataset(dataset).monocular if dataset is not None else True
-        return self.resolve_settings(preset, Context(dataset=dataset, monocular=monocular), _tier(preset)).config
+        return self.resolve_settings(preset, Context(dataset=dataset, monocular=monocular)).config
 
     def check_settings(self, settings) -> None:
         """Raise ConfigError for settings that cannot work together (the run checks them once,

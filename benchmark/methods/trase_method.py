@@ -31,10 +31,10 @@ class TraseMethod(Method):
     # -- settings --------------------------------------------------------------------
     presets = TRASE_PRESETS  # benchmark.methods.trase_presets: paper and cpu, per benchmark and rig
 
-    def resolve_settings(self, preset: str, ctx: Context, tier: str | None = None) -> Resolved:
+    def resolve_settings(self, preset: str, ctx: Context) -> Resolved:
         """The declared settings with this method's objective (``objective``, or the one given
         to the constructor) and its parameters on top of the declared ones."""
-        r = super().resolve_settings(preset, ctx, tier)
+        r = super().resolve_settings(preset, ctx)
         features = r.config.features
         features.objective = self.objective
         features.objective_params = {**features.objective_params, **self.objective_params}

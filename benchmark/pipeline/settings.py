@@ -125,10 +125,10 @@ def capture_settings(method, monocular: bool, capture: dict, overrides: dict,
 def _resolve(method, ctx: Context, overrides: dict, masks: dict, extra: dict) -> RunSettings:
     overrides = dict(overrides)
     seed = run_seed(overrides)
-    preset, auto_preset = take_preset(overrides)
     ctx = dataclasses.replace(ctx, device=_device_here())
+    preset, auto_preset = take_preset(overrides, ctx.device)
     geometry = GEOMETRY_PRESETS.resolve(preset, ctx)
-    resolved = method.resolve_settings(preset, ctx, GEOMETRY_PRESETS.preset(preset).tier)
+    resolved = method.resolve_settings(preset, ctx)
     asked = overrides.get("method", {}).get("preset") if isinstance(overrides.get("method"), dict) else None
     if asked is not None and asked != resolved.config.preset:
         raise ConfigError(f"--set method.preset={asked}: the method's preset follows the run's "
@@ -179,10 +179,10 @@ def _typed(method, cfg: dict, preset: str) -> RunSettings:
 
 
 # -- the preset -----------------------------------------------------------------------------
-def take_preset(overrides: dict) -> tuple[str, str]:
-    """(the run's preset, what auto gives here), taken out of ``overrides``: ``--set preset=P``,
-    or its old spelling ``--set geometry.preset=P`` (with a notice); auto -> paper with a GPU,
-    cpu without. Two spellings that disagree are an error."""
+def take_preset(overrides: dict, device: str) -> tuple[str, str]:
+    """(the run's preset, what auto gives on ``device``), taken out of ``overrides``: ``--set
+    preset=P``, or its old spelling ``--set geometry.preset=P`` (with a notice); auto -> paper
+    with a GPU, cpu without. Two spellings that disagree are an error."""
     top = overrides.pop("preset", None)
     geometry = overrides.get("geometry")
     old = geometry.pop("preset", None) if isinstance(geometry, dict) else None
@@ -195,7 +195,7 @@ def take_preset(overrides: dict) -> tuple[str, str]:
             raise ConfigError(f"--set preset={top} and --set geometry.preset={old} disagree: give one "
                               "(geometry.preset is the old name of preset)")
     asked = top if top is not None else old if old is not None else "auto"
-    auto = "paper" if _device_here() == "cuda" else "cpu"
+    auto = "paper" if device == "cuda" else "cpu"
     preset = auto if asked == "auto" else asked
     if preset not in GEOMETRY_PRESETS:
         raise ConfigError(f"--set preset={preset}: choose auto, {', '.join(GEOMETRY_PRESETS.names())}")
