@@ -135,7 +135,8 @@ TRASE_PRESETS.declare("cpu", when=MONOCULAR, render_rule="visible")
 
 def trase_settings(preset: str, dataset: str | None, monocular: bool = True) -> TraseSettings:
     """TRASE's settings under ``preset`` for benchmark ``dataset`` (None: a capture of one's
-    own on this rig)."""
+    own on this rig), read from the table without importing the method (torch): for light
+    commands such as ``datasets``. A run resolves them through ``Method.resolve_settings``."""
     from benchmark.datasets.registry import get_dataset
 
     if dataset is not None:

@@ -41,5 +41,7 @@ def test_the_table_hides_defaults_unless_asked_and_a_capture_takes_its_rig():
     assert "default (FeatureConfig)" not in short and "default (FeatureConfig)" in full
     assert "more settings keep their config class's default" in short
     assert "masks.dir" in full  # a capture: masks from files are possible
+    rows = {line.split()[0]: line.split()[1] for line in short.splitlines() if line.startswith("method.features.n_")}
+    assert rows == {"method.features.n_pixels": "2000", "method.features.n_masks": "50.0"}  # the multi-view rig's M'
     bad = CliRunner().invoke(presets, ["--preset", "cpu", "--image-size", "big"])
     assert bad.exit_code != 0 and "give WxH" in bad.output
