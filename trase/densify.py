@@ -179,5 +179,8 @@ class DensifyStrategy:
             vis = in_view(mt, gaussians.rotations.detach(), gaussians.scales.detach(), camera)
             gn = lstsq_screen_grad_norm(grad, mt, camera) if grad is not None else None
         if gn is not None:
-            self.grad_accum[vis] += gn[vis]
-            self.denom[vis] += 1
+            # masked adds without a boolean index (which waits for the device to count it):
+            # the same sums, x + 0 = x for the gaussians out of view
+            vis = vis.to(self.grad_accum.device)
+            self.grad_accum += torch.where(vis, gn.to(self.grad_accum.dtype), 0.0)
+            self.denom += vis.to(self.denom.dtype)

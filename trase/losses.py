@@ -92,7 +92,17 @@ def dssim_l1_loss(pred: torch.Tensor, target: torch.Tensor, lambda_dssim: float 
 def psnr(pred: torch.Tensor, target: torch.Tensor, max_value: float = 1.0) -> float:
     """Peak signal-to-noise ratio in dB over all pixels and channels (inf for identical)."""
     _check_pair(pred, target, "psnr")
-    mse = float(((pred.detach().double() - target.detach().double()) ** 2).mean())
+    return psnr_of_mse(float(mean_squared_error(pred, target)), max_value)
+
+
+def mean_squared_error(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """[] float64 on the inputs' device, no gradient: read it later to keep a GPU loop free of
+    host synchronisations (``psnr_of_mse`` turns it into dB)."""
+    return ((pred.detach().double() - target.detach().double()) ** 2).mean()
+
+
+def psnr_of_mse(mse: float, max_value: float = 1.0) -> float:
+    """dB of a mean squared error (inf for 0)."""
     if mse == 0.0:
         return math.inf
     return 10.0 * math.log10(max_value * max_value / mse)

@@ -46,7 +46,7 @@ from trase.densify import DensifyStrategy, in_view, scene_extent
 from trase.devices import resolve_device
 from trase.gaussians import GaussianModel
 from trase.io import read_torch
-from trase.losses import l1_loss, opacity_entropy, psnr, ssim
+from trase.losses import l1_loss, mean_squared_error, opacity_entropy, psnr, psnr_of_mse, ssim
 from trase.reconstruction_config import ReconstructionConfig, expon_lr, time_noise_scale
 from trase.training_images import ImageCache, load_image
 from trase.training_log import ProgressBar, TrainLog
@@ -139,9 +139,25 @@ class _Trainer:
     view_stack: list[int]  # views left in the current random pass (popped from the end)
     ema_loss: float = 0.0  # smoothed loss and training PSNR (dB), for the log
     ema_psnr: float = 0.0
+    # (iteration, loss [], squared error []) of the steps not yet folded into the smoothed
+    # values: read from the device only when the log or a checkpoint needs them (``fold``)
+    pending: list = dataclasses.field(default_factory=list)
+
+    def fold(self) -> None:
+        """The pending steps' loss and PSNR folded into ema_loss / ema_psnr, in order: one
+        transfer from the device for all of them."""
+        if not self.pending:
+            return
+        values = torch.stack([torch.stack([loss.double(), mse]) for _, loss, mse in self.pending]).cpu().tolist()
+        for (it, _, _), (lv, mse) in zip(self.pending, values):
+            pv = psnr_of_mse(mse)
+            self.ema_loss = lv if it == 1 else 0.4 * lv + 0.6 * self.ema_loss
+            self.ema_psnr = pv if it == 1 else 0.4 * pv + 0.6 * self.ema_psnr
+        self.pending.clear()
 
     def state_dict(self, it: int) -> dict:
         """The trainer-state file's contents (keys and order as ever: old files still load)."""
+        self.fold()
         return {
             "iteration": it,
             "active_sh_degree": self.gaussians.active_sh_degree,
@@ -272,6 +288,7 @@ def _train(tr: _Trainer, data: ImageCache, bg: torch.Tensor, cfg: Reconstruction
             with torch.no_grad():
                 _record(tr, it, step)
                 if it % cfg.log_interval == 0 or it == cfg.iterations:
+                    tr.fold()
                     n = tr.gaussians.num_gaussians
                     bar.update(it, f"loss {tr.ema_loss:.4f}  psnr {tr.ema_psnr:.2f} dB  N={n}")
                     log.write(it, tr.ema_loss, tr.ema_psnr, n, time.perf_counter() - t0, time.process_time() - c0)
@@ -352,11 +369,9 @@ def _forward_backward(tr: _Trainer, it: int, data: ImageCache, bg: torch.Tensor,
 
 
 def _record(tr: _Trainer, it: int, step: _Step) -> None:
-    """Fold this step's loss and training PSNR into the smoothed values the log shows."""
-    lv = float(step.loss)
-    pv = psnr(step.out.color.clamp(0, 1), step.gt)
-    tr.ema_loss = lv if it == 1 else 0.4 * lv + 0.6 * tr.ema_loss
-    tr.ema_psnr = pv if it == 1 else 0.4 * pv + 0.6 * tr.ema_psnr
+    """Keep this step's loss and squared error (on the device) for the smoothed values the log
+    shows (``_Trainer.fold``)."""
+    tr.pending.append((it, step.loss.detach(), mean_squared_error(step.out.color.clamp(0, 1), step.gt)))
 
 
 def _optimizer_step(tr: _Trainer, use_deform: bool) -> None:

@@ -6,11 +6,17 @@ screen-space gradient).
 
 Known differences from the CPU backends, all from gsplat's own kernels: alpha is clamped at
 0.999 (not 0.99), the screen extent differs slightly, and ties in depth may order differently.
-SH colour is evaluated here in torch (same 3DGS formula as the CPU path) and passed to gsplat
-together with the features as plain channels; depth uses gsplat's "ED" (alpha-normalised).
+A colour-only render of SH coefficients (every reconstruction step) hands the coefficients to
+gsplat, whose fused kernel evaluates them with 3DGS's constants and clamp: in torch the same
+formula is ~80 small operations forward and twice that backward, which at a few thousand
+gaussians cost more than the render (a step is bound by launches there). With features beside
+the colour, SH is evaluated in torch (same formula) and passed with the features as plain
+channels. Depth uses gsplat's "ED" (alpha-normalised).
 """
 
 from __future__ import annotations
+
+import math
 
 import torch
 
@@ -26,15 +32,21 @@ def rasterize_gsplat(means, quats, scales, opacities, camera, colors, sh_degree,
             "rasterize: backend 'gsplat' needs the gsplat package (pip install gsplat) on a CUDA machine"
         ) from exc
     dev, dt = means.device, means.dtype
-    parts = channel_parts(colors, sh_degree, features, means, camera, dt)
-    if not parts:
-        parts.append(means.new_zeros(means.shape[0], 1))  # gsplat needs at least one channel
-    chans = torch.cat(parts, dim=1)
+    gsplat_sh = colors is not None and colors.ndim == 3 and features is None
+    if gsplat_sh:
+        chans = colors.to(dt)  # [N, K, 3] SH coefficients, evaluated by gsplat
+        degree = sh_degree if sh_degree is not None else round(math.sqrt(colors.shape[1])) - 1
+    else:
+        parts = channel_parts(colors, sh_degree, features, means, camera, dt)
+        if not parts:
+            parts.append(means.new_zeros(means.shape[0], 1))  # gsplat needs at least one channel
+        chans = torch.cat(parts, dim=1)  # [N, C]
+        degree = None
     viewmat = torch.as_tensor(camera.w2c, dtype=dt, device=dev)[None]
     K = torch.as_tensor(camera.K, dtype=dt, device=dev)[None]
     img, alpha, meta = rasterization(
         means, quats, scales, opacities, chans, viewmat, K, camera.width, camera.height,
-        near_plane=near, sh_degree=None, render_mode="RGB+ED", packed=False,
+        near_plane=near, sh_degree=degree, render_mode="RGB+ED", packed=False,
     )
     img, alpha = img[0], alpha[0, ..., 0]  # [H, W, C+1], [H, W]
     color = feats = None

@@ -20,10 +20,19 @@ from .scenes import camera, grads, loss_of, scene
 def _stand_in(means, quats, scales, opacities, colors, viewmats, Ks, width, height, near_plane,
               sh_degree, render_mode, packed):
     """gsplat.rasterization's contract for one camera: image [1, H, W, C + 1] (channels, then
-    expected depth), alpha [1, H, W, 1], meta with means2d [1, N, 2] in the graph and radii [1, N, 2]."""
-    assert render_mode == "RGB+ED" and sh_degree is None and not packed
+    expected depth), alpha [1, H, W, 1], meta with means2d [1, N, 2] in the graph and radii [1, N, 2].
+    With ``sh_degree``, ``colors`` are SH coefficients [N, K, 3] evaluated toward the camera
+    centre (gsplat takes it from the inverse view matrix) plus 0.5, clamped at 0."""
+    assert render_mode == "RGB+ED" and not packed
     assert viewmats.shape == (1, 4, 4) and Ks.shape == (1, 3, 3)
     from trase.camera import Camera
+    from trase.render.sh import eval_sh
+
+    if sh_degree is not None:
+        assert colors.ndim == 3 and (sh_degree + 1) ** 2 <= colors.shape[1]
+        campos = torch.inverse(viewmats)[0, :3, 3]
+        dirs = torch.nn.functional.normalize(means - campos, dim=1)
+        colors = (eval_sh(sh_degree, colors, dirs) + 0.5).clamp_min(0.0)
 
     cam = Camera(K=Ks[0].detach().double().numpy(), w2c=viewmats[0].detach().double().numpy(),
                  width=width, height=height)
@@ -46,7 +55,9 @@ def fake_gsplat(monkeypatch):
 
 
 @pytest.mark.parametrize("kw", [{"n": 120, "d": 4, "seed": 0}, {"n": 90, "d": 0, "sh_degree": 2, "seed": 1},
-                                {"n": 60, "d": 6, "seed": 2, "sh_degree": None}])
+                                {"n": 60, "d": 6, "seed": 2, "sh_degree": None},
+                                {"n": 80, "d": 0, "sh_degree": 3, "seed": 3},
+                                {"n": 70, "d": 2, "sh_degree": 1, "seed": 4}])
 def test_adapter_returns_what_the_reference_returns(fake_gsplat, kw):
     cam = camera()
     bg = torch.tensor([0.1, 0.4, 0.8])
@@ -71,6 +82,24 @@ def test_adapter_returns_what_the_reference_returns(fake_gsplat, kw):
     assert set(g_ref) == set(g_ada)
     for k in g_ref:
         assert (g_ref[k] - g_ada[k]).abs().max() <= 1e-5 * g_ref[k].abs().max(), k
+
+
+def test_colour_only_sh_is_evaluated_by_gsplat(monkeypatch):
+    """A colour-only render hands the SH coefficients to gsplat (its fused kernel); with
+    features beside the colour they are evaluated here and passed as plain channels."""
+    seen = []
+
+    def spy(*args, **kw):
+        seen.append((kw["sh_degree"], args[4].ndim))
+        return _stand_in(*args, **kw)
+
+    monkeypatch.setitem(sys.modules, "gsplat", types.SimpleNamespace(rasterization=spy))
+    cam = camera()
+    for d in (0, 3):
+        sc = scene(n=40, d=d, sh_degree=2, seed=5)
+        rasterize_gsplat(sc["means"], sc["quats"], sc["scales"], sc["opacities"], cam, sc["colors"], 2,
+                         sc.get("features"), None, 0.01)
+    assert seen == [(2, 3), (None, 2)]
 
 
 def test_features_only_and_no_gradient(fake_gsplat):
