@@ -31,3 +31,16 @@ def gsplat_missing(device: torch.device | str) -> str | None:
     if torch.device(device).type == "cuda" and importlib.util.find_spec("gsplat") is None:
         return "device cuda draws with gsplat, which is not installed (pip install -e '.[gpu]')"
     return None
+
+
+def reset_peak_memory(device: torch.device | str) -> None:
+    """Start counting ``peak_memory_mib`` afresh (nothing to do off a GPU)."""
+    if torch.device(device).type == "cuda":
+        torch.cuda.reset_peak_memory_stats(device)
+
+
+def peak_memory_mib(device: torch.device | str) -> float | None:
+    """The most GPU memory torch held since ``reset_peak_memory`` (MiB), or None off a GPU."""
+    if torch.device(device).type != "cuda":
+        return None
+    return round(torch.cuda.max_memory_allocated(device) / 2**20, 1)

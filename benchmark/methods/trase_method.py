@@ -49,6 +49,7 @@ class TraseMethod(Method):
               progress: bool = True) -> tuple[np.ndarray, dict]:
         """Train per-gaussian features [N, D] on frozen geometry -> (features, info)."""
         import masks as masklib
+        from trase.devices import peak_memory_mib, reset_peak_memory, resolve_device
         from trase.features import train_features
 
         work_dir = Path(work_dir)
@@ -61,8 +62,11 @@ class TraseMethod(Method):
                 raise MethodError(f"{p}: masks of training view {view.name} not found")
             return masklib.load(p)
 
+        device = resolve_device(fcfg.device)
+        reset_peak_memory(device)
         res = train_features(gaussians, deformation, scene.train, load_masks, fcfg,
                              cache_dir=work_dir / "pixel_weights", progress=progress)
+        peak = peak_memory_mib(device)
         feats = res.features.detach().cpu().numpy().astype(np.float32)
         info = {
             "timings": {"features_prepare": res.timings["prepare"], "features_train": res.timings["train"],
@@ -70,6 +74,7 @@ class TraseMethod(Method):
             "path": res.path_stats,
             "loss_tail": res.history[-5:],
             "objective": fcfg.objective,
+            **({"peak_gpu_mib": peak} if peak is not None else {}),
         }
         return feats, info
 
@@ -96,6 +101,7 @@ class TraseMethod(Method):
             "path": learn_info.get("path", {}),
             "loss_tail": learn_info.get("loss_tail", []),
             "objective": learn_info.get("objective"),
+            **({"peak_gpu_mib": learn_info["peak_gpu_mib"]} if "peak_gpu_mib" in learn_info else {}),
         }
         timings = {**learn_info.get("timings", {}), "clustering": t_cluster}
         return FittedModel(feats, cl.labels, keep, timings, stats, config, gaussians, deformation)

@@ -20,9 +20,12 @@ def run(ctx: SequenceRun) -> list[StageRecord]:
     key = ctx.cache.key("geometry", keyed, {"scene": ctx.scene_key})
 
     def work(d: Path) -> dict:
+        from trase.devices import peak_memory_mib, reset_peak_memory, resolve_device
         from trase.reconstruct import evaluate_psnr, reconstruct
 
         src = geometry.source
+        device = resolve_device(geometry.train.device) if src == "reconstruct" else "cpu"
+        reset_peak_memory(device)
         if src == "ground-truth":
             shutil.copyfile(synthetic_truth(scene).geometry_path, d / "geometry.npz")
         elif src == "import":
@@ -36,7 +39,9 @@ def run(ctx: SequenceRun) -> list[StageRecord]:
             raise ConfigError(f"--set geometry.source={src}: choose {', '.join(SOURCES)}")
         gaussians, deformation = load_geometry(d)
         psnr = evaluate_psnr(gaussians, deformation, scene.test) if scene.test else None
+        peak = peak_memory_mib(device)
         return {"source": src, "n_gaussians": int(gaussians.num_gaussians),
-                "test_psnr": None if psnr is None else round(float(psnr), 3)}
+                "test_psnr": None if psnr is None else round(float(psnr), 3),
+                **({"peak_gpu_mib": peak} if peak is not None else {})}
 
     return [ctx.cache.run("geometry", key, work, keyed)]

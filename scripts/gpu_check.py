@@ -1,0 +1,317 @@
+"""The GPU path's whole check in one command, for a machine lent for a few minutes.
+
+    python3 scripts/gpu_check.py all --out DIR [--before TREE] [--budget SECONDS] [--tiny]
+
+In order, each step under its own time limit and written to DIR/gpu_check.json as soon as it
+ends (a step cut short keeps what the earlier ones measured):
+
+1. the machine (GPU, torch, CUDA, numba, gsplat versions); gsplat's CUDA sources compiled for
+   this GPU only (TORCH_CUDA_ARCH_LIST from its compute capability, MAX_JOBS = its cores),
+   while the CPU makes the built-in scene and compiles the numba kernels beside it;
+2. the CUDA tests (tests/trase/render/test_cuda_backends.py, tests/trase/test_cuda_training.py);
+3. one reconstruction iteration (perf gpu's step: deformation network, render, L1 + D-SSIM,
+   backward, both Adam steps) at a launch-bound size (5k gaussians, 160x120) and at the
+   paper's (100k, 960x536), timed and profiled (kernel launches and operators per step, the
+   operators with the most GPU time), with the code of ``--before TREE`` (an older checkout)
+   and of this tree, one after the other on the same GPU (and this tree's with TF32 matrix
+   products at the large size, a diagnostic);
+4. ``trase-bench run --method trase --dataset hypernerf`` with the defaults (on a GPU: the
+   paper preset), in the time left but 100 s: its results, per-stage seconds, peak GPU
+   memory and the gaussian count over the reconstruction (its train log);
+5. ``trase-bench perf gpu --quick`` with each tree, as time allows.
+
+``--tiny`` checks the script itself on a CPU: tiny sizes, the torch rasterizer for the
+profile, and a few iterations of the run (its figures mean nothing). ``profile`` is the
+step-3 worker, run with PYTHONPATH set to the tree under test.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import statistics
+import subprocess
+import sys
+import tarfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+CUDA_TESTS = ["tests/trase/render/test_cuda_backends.py", "tests/trase/test_cuda_training.py"]
+SIZES = [(5_000, 160, 120), (100_000, 960, 536)]
+TINY_SIZES = [(500, 64, 48)]
+TINY_RUN = ["--sequence", "synthetic-tiny", "--set", "preset=paper", "--set", "geometry.train.iterations=40",
+            "--set", "geometry.train.warm_up=20", "--set", "geometry.train.densify_from=5",
+            "--set", "geometry.train.densify_until=30", "--set", "geometry.train.densify_interval=10",
+            "--set", "method.features.iterations=20", "--set", "prompts.click_sets=1"]
+
+
+# -- the worker: one reconstruction iteration, timed and profiled ---------------------------
+def profile(sizes: list[tuple[int, int, int]], device: str, repeats: int, tf32: bool = False) -> dict:
+    """perf gpu's reconstruction iteration at each size with whatever trase is importable:
+    median wall time over ``repeats`` steps, then a profile of 3 steps. ``tf32``: matrix
+    products in TF32 (a diagnostic; no preset uses it)."""
+    import torch
+
+    torch.backends.cuda.matmul.allow_tf32 = tf32
+    from torch.profiler import ProfilerActivity
+    from torch.profiler import profile as torch_profile
+
+    from benchmark.perf.raster import make_scene
+    from trase.deformation import DeformMLP, deformed
+    from trase.gaussians import GaussianModel
+    from trase.losses import l1_loss, ssim
+    from trase.reconstruct import ReconstructionConfig, _make_optimizers
+    from trase.render import rasterize
+
+    cuda = device == "cuda"
+    sync = torch.cuda.synchronize if cuda else (lambda: None)
+    rows = []
+    for n, w, h in sizes:
+        sc, cam = make_scene(n, w, h, 0)
+        g = GaussianModel.from_points(sc["means"].numpy(), sc["colors"].numpy(), sh_degree=3).to(device)
+        g.active_sh_degree = 3
+        deform = DeformMLP.preset("paper").to(device)
+        opt_g, opt_d = _make_optimizers(g, deform, ReconstructionConfig.paper())
+        gt = torch.rand(h, w, 3, device=device)
+        bg = torch.zeros(3, device=device)
+        backend = "auto" if cuda else "torch"
+
+        def step():
+            m, q, s = deformed(g, deform, 0.5)
+            out = rasterize(m, q, s, g.opacities, cam, colors=g.sh_for_render(), sh_degree=3, background=bg,
+                            backend=backend)
+            loss = 0.8 * l1_loss(out.color, gt) + 0.2 * (1.0 - ssim(out.color, gt))
+            loss.backward()
+            opt_g.step()
+            opt_d.step()
+            opt_g.zero_grad(set_to_none=True)
+            opt_d.zero_grad(set_to_none=True)
+
+        for _ in range(3):
+            step()
+        sync()
+        times = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            step()
+            sync()
+            times.append(time.perf_counter() - t0)
+        if cuda:
+            torch.cuda.reset_peak_memory_stats()
+            step()
+            sync()
+        activities = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if cuda else [])
+        with torch_profile(activities=activities) as prof:
+            for _ in range(3):
+                step()
+            sync()
+        events = prof.events()
+        aten_top = [e for e in events if e.name.startswith("aten::")
+                    and (e.cpu_parent is None or not e.cpu_parent.name.startswith("aten::"))]
+        launches = [e for e in events if e.name in ("cudaLaunchKernel", "cuLaunchKernel", "cudaLaunchKernelExC",
+                                                   "cuLaunchKernelEx")]
+        key = "device_time_total" if cuda else "cpu_time_total"
+        table = sorted(prof.key_averages(), key=lambda a: getattr(a, key, 0.0), reverse=True)
+        top = [{"name": a.key[:80], "calls": a.count, "device_ms": round(getattr(a, "device_time_total", 0.0) / 3e3, 3),
+                "cpu_ms": round(a.cpu_time_total / 3e3, 3)} for a in table[:15]]
+        rows.append({"gaussians": n, "width": w, "height": h, "median_ms": round(1e3 * statistics.median(times), 3),
+                     "min_ms": round(1e3 * min(times), 3),
+                     "peak_gpu_mib": round(torch.cuda.max_memory_allocated() / 2**20, 1) if cuda else None,
+                     "aten_ops_per_step": len(aten_top) / 3, "kernel_launches_per_step": len(launches) / 3,
+                     "top_per_step": top})
+        del g, deform, opt_g, opt_d
+        if cuda:
+            torch.cuda.empty_cache()
+    import trase
+
+    return {"device": torch.cuda.get_device_name() if cuda else "cpu", "repeats": repeats,
+            "trase_from": str(Path(trase.__file__).parent), "tf32": tf32, "sizes": rows}
+
+
+# -- the orchestrator ----------------------------------------------------------------------
+class Check:
+    """The check's state: DIR/gpu_check.json rewritten after every step, logs under DIR/logs."""
+
+    def __init__(self, out: Path, budget: float) -> None:
+        self.out, self.t0, self.budget = out, time.monotonic(), budget
+        self.logs = out / "logs"
+        self.logs.mkdir(parents=True, exist_ok=True)
+        self.result: dict = {"started": time.strftime("%Y-%m-%d %H:%M:%S"), "steps": {}}
+
+    def left(self) -> float:
+        return self.budget - (time.monotonic() - self.t0)
+
+    def save(self) -> None:
+        self.result["elapsed_s"] = round(time.monotonic() - self.t0, 1)
+        (self.out / "gpu_check.json").write_text(json.dumps(self.result, indent=1, default=str))
+
+    def sh(self, name: str, cmd: list[str], timeout: float, env: dict | None = None) -> dict:
+        """Run ``cmd`` (output to logs/NAME.log) under ``timeout``; its rc and seconds."""
+        log = self.logs / f"{name}.log"
+        t = time.monotonic()
+        print(f"[{time.monotonic() - self.t0:6.1f} s] {name}: {' '.join(cmd)[:160]} (limit {timeout:.0f} s)", flush=True)
+        with open(log, "w") as f:
+            try:
+                rc = subprocess.run(cmd, cwd=REPO, stdout=f, stderr=subprocess.STDOUT, timeout=max(timeout, 1),
+                                    env={**os.environ, **(env or {})}).returncode
+            except subprocess.TimeoutExpired:
+                rc = "timeout"
+        rec = {"rc": rc, "seconds": round(time.monotonic() - t, 1), "log_tail": log.read_text()[-1500:]}
+        print(f"[{time.monotonic() - self.t0:6.1f} s] {name}: rc {rc} in {rec['seconds']} s", flush=True)
+        self.result["steps"][name] = rec
+        self.save()
+        return rec
+
+
+def _py(tree: Path | None = None) -> dict:
+    """The environment a child python needs to import ``tree``'s packages (this repo's by default)."""
+    path = [str(tree or REPO)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]
+    return {"PYTHONPATH": os.pathsep.join(path), "PYTHONUNBUFFERED": "1"}
+
+
+def _cli(*args: str) -> list[str]:
+    return [sys.executable, "-m", "benchmark.cli", *args]
+
+
+def machine() -> dict:
+    import torch
+
+    info = {"python": sys.version.split()[0], "torch": torch.__version__, "cuda": torch.version.cuda,
+            "gpu": torch.cuda.get_device_name() if torch.cuda.is_available() else None, "cpus": os.cpu_count()}
+    for mod in ("numba", "gsplat"):
+        try:
+            info[mod] = __import__(mod).__version__
+        except Exception as exc:  # noqa: BLE001 - a missing package is a fact to report
+            info[mod] = f"missing ({type(exc).__name__})"
+    return info
+
+
+def run_all(args) -> int:
+    out = Path(args.out).resolve()
+    if out.exists():
+        shutil.rmtree(out)
+    out.mkdir(parents=True)
+    chk = Check(out, args.budget)
+    chk.result["machine"] = machine()
+    chk.save()
+    cuda = chk.result["machine"]["gpu"] is not None
+    sizes = TINY_SIZES if args.tiny else SIZES
+    size_arg = ",".join(f"{n}x{w}x{h}" for n, w, h in sizes)
+
+    # 1. the scene and the numba kernels on the CPU, beside gsplat's build
+    background = [subprocess.Popen(cmd, cwd=REPO, env={**os.environ, **_py()}, stdout=open(chk.logs / f"{name}.log", "w"),
+                                   stderr=subprocess.STDOUT)
+                  for name, cmd in (("synth", _cli("synth", "--dataset", "hypernerf")),
+                                    ("precompile", [sys.executable, "-m", "trase.precompile"]))]
+    if cuda:
+        import torch
+
+        major, minor = torch.cuda.get_device_capability()
+        env = {"TORCH_CUDA_ARCH_LIST": f"{major}.{minor}", "MAX_JOBS": str(os.cpu_count() or 8)}
+        chk.sh("build_gsplat", [sys.executable, "-c", "import torch, gsplat; from gsplat.cuda._backend import _C; "
+                                "print('gsplat', gsplat.__version__, 'built:', _C is not None)"],
+               min(240, chk.left()), env)
+    for p in background:
+        p.wait(timeout=max(chk.left() - 30, 1))
+    chk.result["steps"]["scene_and_kernels_s"] = round(time.monotonic() - chk.t0, 1)
+
+    # 2. the CUDA tests
+    chk.sh("cuda_tests", [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-rs", *CUDA_TESTS],
+           min(150, chk.left() - 60), _py())
+
+    # 3. a reconstruction iteration, before and after (and after with TF32 matrix products, to
+    # see how much of the large step is the network's FP32 products)
+    device = "cuda" if cuda else "cpu"
+    trees = ([("before", Path(args.before).resolve())] if args.before else []) + [("after", REPO)]
+    variants = [(label, tree, size_arg, []) for label, tree in trees]
+    variants.append(("after_tf32", REPO, ",".join(f"{n}x{w}x{h}" for n, w, h in sizes[-1:]), ["--tf32"]))
+    for label, tree, sz, flags in variants:
+        js = out / "logs" / f"profile_{label}.json"
+        rec = chk.sh(f"profile_{label}", [sys.executable, str(REPO / "scripts" / "gpu_check.py"), "profile",
+                                          "--sizes", sz, "--device", device, "--json", str(js),
+                                          "--repeats", "3" if args.tiny else "10", *flags],
+                     min(120, chk.left() - 60), _py(tree))
+        if js.is_file():
+            rec["profile"] = json.loads(js.read_text())
+            chk.save()
+
+    # 4. the default run, keeping time for perf gpu after it
+    runs = out / "runs"
+    extra = TINY_RUN if args.tiny else []
+    rec = chk.sh("run_hypernerf", _cli("run", "--method", "trase", "--dataset", "hypernerf", "--runs", str(runs),
+                                       *extra), chk.left() - (100 if cuda else 15), _py())
+    rec["results"] = _run_figures(runs)
+    chk.save()
+
+    # 5. perf gpu (reconstruction iteration and feature steps at 100k gaussians) with each tree
+    if cuda:
+        for label, tree in trees:
+            if chk.left() < 40:
+                break
+            js = out / "logs" / f"perf_gpu_{label}.json"
+            rec = chk.sh(f"perf_gpu_{label}", _cli("perf", "gpu", "--quick", "--json", str(js)),
+                         min(90, chk.left() - 10), _py(tree))
+            if js.is_file():
+                rec["perf"] = json.loads(js.read_text())
+                chk.save()
+    _pack(out, runs)
+    print(json.dumps({k: v.get("rc") if isinstance(v, dict) else v for k, v in chk.result["steps"].items()}), flush=True)
+    return 0
+
+
+def _run_figures(runs: Path) -> dict:
+    """The run's figures from its results.json, and its reconstruction's train log in brief."""
+    found = sorted(runs.glob("trase/hypernerf/*/*/results.json"))
+    fig: dict = {}
+    if found:
+        res = json.loads(found[-1].read_text())
+        fig["results"] = res
+    logs = sorted(runs.glob(".cache/geometry/*/model/train_log.csv"))
+    if logs:
+        lines = logs[-1].read_text().splitlines()
+        fig["train_log_every_500"] = [lines[0]] + [ln for ln in lines[1:] if int(ln.split(",")[0]) % 500 == 0]
+        fig["train_log_last"] = lines[-1]
+    return fig
+
+
+def _pack(out: Path, runs: Path) -> None:
+    """logs/ and the run's files (its cache's logs, not its models) in one archive; the bulky
+    parts left out so the archive travels."""
+    with tarfile.open(out / "logs.tar.gz", "w:gz") as tar:
+        tar.add(out / "logs", arcname="logs")
+        for p in sorted(runs.rglob("*")):
+            if p.is_file() and p.suffix in (".json", ".csv", ".txt", ".log", ".md") and p.stat().st_size < 4_000_000:
+                tar.add(p, arcname=str(Path("runs") / p.relative_to(runs)))
+    for p in sorted(runs.glob(".cache/geometry/*/model/train_log.csv"))[-1:]:
+        shutil.copyfile(p, out / "train_log.csv")
+    shutil.rmtree(out / "logs")
+    shutil.rmtree(runs, ignore_errors=True)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    a = sub.add_parser("all", help="the whole check")
+    a.add_argument("--out", required=True)
+    a.add_argument("--before", default=None, help="an older checkout to time beside this one")
+    a.add_argument("--budget", type=float, default=520.0, help="seconds for everything")
+    a.add_argument("--tiny", action="store_true", help="check the script on a CPU (figures mean nothing)")
+    p = sub.add_parser("profile", help="(worker) time and profile a reconstruction iteration")
+    p.add_argument("--sizes", required=True, help="NxWxH,...")
+    p.add_argument("--device", default="cuda")
+    p.add_argument("--repeats", type=int, default=10)
+    p.add_argument("--json", required=True)
+    p.add_argument("--tf32", action="store_true", help="TF32 matrix products (a diagnostic)")
+    args = ap.parse_args(argv)
+    if args.cmd == "all":
+        return run_all(args)
+    sizes = [tuple(int(x) for x in s.split("x")) for s in args.sizes.split(",")]
+    Path(args.json).write_text(json.dumps(profile(sizes, args.device, args.repeats, args.tf32), indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
