@@ -131,6 +131,85 @@ def profile(sizes: list[tuple[int, int, int]], device: str, repeats: int, tf32: 
             "trase_from": str(Path(trase.__file__).parent), "tf32": tf32, "sizes": rows}
 
 
+# -- the worker: the default run's reconstruction, watched ---------------------------------
+DIAG_VARIANTS = ("default", "torch-sh", "tf32", "cap")
+
+
+def diagnose(seconds: float, variant: str, every: int = 100) -> dict:
+    """The geometry stage of ``trase-bench run --method trase --dataset hypernerf`` (its
+    resolved settings, on this machine's default device) for ``seconds``, with the model's
+    state every ``every`` iterations: what grows or diverges, and when. Variants: ``torch-sh``
+    evaluates SH in torch (the adapter before gsplat took it over), ``tf32`` runs the matrix
+    products in TF32, ``cap`` caps the gaussians at two per pixel of a training image."""
+    import dataclasses
+    import tempfile
+
+    import torch
+
+    import trase.reconstruct as rec
+    from benchmark.datasets import get_dataset, load_scene
+    from benchmark.datasets.synthetic.cache import ensure_synthetic
+    from benchmark.methods import get_method
+    from benchmark.pipeline.settings import run_settings
+    from trase.losses import psnr_of_mse
+
+    scene_dir = ensure_synthetic("hypernerf")
+    scene = load_scene("hypernerf", scene_dir, gt_dir=scene_dir / "gt_masks")
+    cam = scene.train[0].camera
+    settings = run_settings(get_method("trase"), get_dataset("hypernerf"), "synthetic", {}, (cam.width, cam.height))
+    cfg = settings.geometry.train
+    if variant == "cap":
+        cfg = dataclasses.replace(cfg, max_gaussians=2 * cam.width * cam.height)
+    torch.backends.cuda.matmul.allow_tf32 = variant == "tf32"
+    if variant == "torch-sh":
+        import trase.render.gsplat_backend as gb
+        from trase.render.channels import gaussian_colors
+
+        plain = gb.rasterize_gsplat
+
+        def with_torch_sh(means, quats, scales, opacities, camera, colors, sh_degree, *rest):
+            if colors is not None and colors.ndim == 3:
+                colors, sh_degree = gaussian_colors(colors, sh_degree, means, camera), None
+            return plain(means, quats, scales, opacities, camera, colors, sh_degree, *rest)
+
+        gb.rasterize_gsplat = with_torch_sh
+    rows: list[dict] = []
+    t0 = time.perf_counter()
+    record = rec._record
+
+    def watched(tr, it, step):
+        record(tr, it, step)
+        if it % every:
+            return
+        with torch.no_grad():
+            g, d = tr.gaussians, tr.deform
+            s = g.scales.max(dim=1).values
+            offsets = d(g.means.detach(), float(step.camera.time)) if it >= cfg.warm_up else None
+            finite = all(bool(torch.isfinite(p).all()) for p in (g.means, g.sh_dc, g.sh_rest, g.log_scales, g.quats,
+                                                                  g.opacity_logits, *d.parameters()))
+            mse = float(((step.out.color.clamp(0, 1) - step.gt) ** 2).mean())
+            rows.append({
+                "it": it, "s": round(time.perf_counter() - t0, 2), "n": g.num_gaussians, "loss": round(float(step.loss), 5),
+                "psnr": round(psnr_of_mse(mse), 2), "finite": finite,
+                "scale_max": float(s.max()), "scale_p99": float(s.quantile(0.99)) if s.numel() < 16_000_000 else None,
+                "large": int((s > 0.1 * tr.strategy.extent).sum()),
+                "opacity_mean": round(float(g.opacities.mean()), 4),
+                "d_xyz_max": None if offsets is None else float(offsets[0].abs().max()),
+                "d_xyz_p99": None if offsets is None else float(offsets[0].abs().amax(dim=1).quantile(0.99)),
+                "d_scale_max": None if offsets is None else float(offsets[2].max()),
+                "deform_norm": round(float(sum(float(p.norm()) ** 2 for p in d.parameters()) ** 0.5), 3),
+                "visible": int((step.out.radii > 0).sum()),
+            })
+
+    rec._record = watched
+    with tempfile.TemporaryDirectory(prefix="gpu-diag-") as tmp:
+        gaussians, deform = rec.reconstruct(scene.train, scene.points, scene.point_colors, cfg, Path(tmp) / "model",
+                                            resume=False, progress=False, max_seconds=seconds)
+        test_psnr = rec.evaluate_psnr(gaussians, deform, scene.test) if scene.test else None
+    return {"variant": variant, "config": dataclasses.asdict(cfg), "seconds": seconds, "test_psnr": test_psnr,
+            "rows": rows}
+
+
 # -- the orchestrator ----------------------------------------------------------------------
 class Check:
     """The check's state: DIR/gpu_check.json rewritten after every step, logs under DIR/logs."""
@@ -204,7 +283,8 @@ def run_all(args) -> int:
     # 1. the scene and the numba kernels on the CPU, beside gsplat's build
     background = [subprocess.Popen(cmd, cwd=REPO, env={**os.environ, **_py()}, stdout=open(chk.logs / f"{name}.log", "w"),
                                    stderr=subprocess.STDOUT)
-                  for name, cmd in (("synth", _cli("synth", "--dataset", "hypernerf")),
+                  for name, cmd in (("scene", [sys.executable, "-c", "from benchmark.datasets.synthetic.cache import "
+                                               "ensure_synthetic; print(ensure_synthetic('hypernerf'))"]),
                                     ("precompile", [sys.executable, "-m", "trase.precompile"]))]
     if cuda:
         import torch
@@ -262,6 +342,47 @@ def run_all(args) -> int:
     return 0
 
 
+def diagnose_all(args) -> int:
+    """gsplat built (beside the scene and the numba kernels), then each variant of ``diagnose``
+    in its own process, all at once on the GPU (their quality over iterations is the figure;
+    their speeds share the GPU and mean little); one JSON."""
+    out = Path(args.out).resolve()
+    out.mkdir(parents=True, exist_ok=True)
+    chk = Check(out, args.seconds + 200)
+    chk.result["machine"] = machine()
+    chk.save()
+    scene = subprocess.Popen([sys.executable, "-c", "from benchmark.datasets.synthetic.cache import ensure_synthetic; "
+                              "print(ensure_synthetic('hypernerf'))"], cwd=REPO, env={**os.environ, **_py()})
+    pre = subprocess.Popen([sys.executable, "-m", "trase.precompile"], cwd=REPO, env={**os.environ, **_py()})
+    if chk.result["machine"]["gpu"]:
+        import torch
+
+        major, minor = torch.cuda.get_device_capability()
+        chk.sh("build_gsplat", [sys.executable, "-c", "import torch, gsplat.cuda._backend as b; print(b._C)"], 240,
+               {"TORCH_CUDA_ARCH_LIST": f"{major}.{minor}", "MAX_JOBS": str(os.cpu_count() or 8)})
+    scene.wait()
+    pre.wait()
+    procs = {}
+    for v in args.variants.split(","):
+        log = open(chk.logs / f"diag_{v}.log", "w")
+        procs[v] = subprocess.Popen([sys.executable, str(REPO / "scripts" / "gpu_check.py"), "diagnose", "--seconds",
+                                     str(args.seconds), "--variant", v, "--json", str(out / f"diag_{v}.json")],
+                                    cwd=REPO, env={**os.environ, **_py()}, stdout=log, stderr=subprocess.STDOUT)
+    for v, p in procs.items():
+        try:
+            rc = p.wait(timeout=args.seconds + 90)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            rc = "timeout"
+        js = out / f"diag_{v}.json"
+        chk.result["steps"][f"diag_{v}"] = {"rc": rc, "log_tail": (chk.logs / f"diag_{v}.log").read_text()[-1500:],
+                                           **({"diag": json.loads(js.read_text())} if js.is_file() else {})}
+        js.unlink(missing_ok=True)
+        chk.save()
+    shutil.rmtree(chk.logs)
+    return 0
+
+
 def _run_figures(runs: Path) -> dict:
     """The run's figures from its results.json, and its reconstruction's train log in brief."""
     found = sorted(runs.glob("trase/hypernerf/*/*/results.json"))
@@ -305,9 +426,22 @@ def main(argv=None) -> int:
     p.add_argument("--repeats", type=int, default=10)
     p.add_argument("--json", required=True)
     p.add_argument("--tf32", action="store_true", help="TF32 matrix products (a diagnostic)")
+    d = sub.add_parser("diagnose", help="(worker) the default run's reconstruction, watched")
+    d.add_argument("--seconds", type=float, required=True)
+    d.add_argument("--variant", choices=DIAG_VARIANTS, default="default")
+    d.add_argument("--json", required=True)
+    dg = sub.add_parser("diagnose-all", help="diagnose's variants side by side on one GPU")
+    dg.add_argument("--out", required=True)
+    dg.add_argument("--seconds", type=float, default=150.0)
+    dg.add_argument("--variants", default="default,torch-sh,cap")
     args = ap.parse_args(argv)
     if args.cmd == "all":
         return run_all(args)
+    if args.cmd == "diagnose":
+        Path(args.json).write_text(json.dumps(diagnose(args.seconds, args.variant), indent=1))
+        return 0
+    if args.cmd == "diagnose-all":
+        return diagnose_all(args)
     sizes = [tuple(int(x) for x in s.split("x")) for s in args.sizes.split(",")]
     Path(args.json).write_text(json.dumps(profile(sizes, args.device, args.repeats, args.tf32), indent=1))
     return 0

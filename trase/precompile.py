@@ -115,12 +115,13 @@ def _run_stages(root: Path) -> None:
         cfg = dataclasses.replace(
             ReconstructionConfig.cpu(monocular=monocular), iterations=4, warm_up=2, densify_from=1,
             densify_interval=2, densify_until=4, opacity_entropy_from=1, checkpoint_interval=4,
-            densify_statistic="lstsq" if monocular else "means2d", deform_visible_only=not monocular)
+            densify_statistic="lstsq" if monocular else "means2d", deform_visible_only=not monocular,
+            device="cpu")  # the numba kernels are the CPU's (on a GPU machine "auto" would pick gsplat)
         gaussians, deform = reconstruct(views, points, colors, cfg, root / f"geometry{int(monocular)}",
                                         resume=False, progress=False)
     evaluate_psnr(gaussians, deform, views)
     for fastpath, threads in ((True, 1), (False, 1), (True, 2), (False, 2)):
-        cfg = FeatureConfig.preset("cpu", iterations=2, fastpath=fastpath, torch_threads=threads)
+        cfg = FeatureConfig.preset("cpu", iterations=2, fastpath=fastpath, torch_threads=threads, device="cpu")
         train_features(gaussians, deform, views, _masks_for, cfg, cache_dir=root / f"features{int(fastpath)}{threads}",
                        progress=False)
     sel = np.zeros(gaussians.num_gaussians, bool)

@@ -20,6 +20,15 @@ def test_the_miniature_runs_and_a_second_call_compiles_nothing(capsys):
     assert "trase kernels: all cached" in capsys.readouterr().out
 
 
+def test_the_miniature_stays_on_the_cpu_where_torch_sees_a_gpu(monkeypatch):
+    """It warms the numba kernels: on a GPU machine ("auto" = cuda) it must not train there
+    (it once did, and failed on a mixed-device render beside a run)."""
+    import torch
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    assert compile_kernels()["seconds"] > 0
+
+
 @pytest.mark.slow
 def test_a_fresh_process_finds_every_kernel_cached_after_precompile(tmp_path):
     """In an empty numba cache the first process compiles the kernels; the next one, running
