@@ -45,10 +45,10 @@ def test_pipeline_end_to_end(data_root, tmp_path, capsys):
     r = load_results(path)
     assert r["run"]["kind"] == "run" and r["run"]["overrides"] == FAST  # made with --set: not a main run
     assert run_dir.name == r["run"]["name"] == "c" + r["config_hash"][:8]
-    assert r["metrics"]["official"]["metric_version"] == "official/bin1"
+    assert r["metrics"]["official"]["metric_version"] == "official/script1"
     assert r["storage"]["total_mib"] > 0 and r["storage"]["features_bytes"] == r["n_gaussians"] * 32 * 4
     assert r["variant"] == "synthetic"
-    assert r["metrics"]["metric_version"] == "v1/bin1"
+    assert r["metrics"]["metric_version"] == "v1/bin2"
     assert 0.0 <= r["metrics"]["miou"] <= 1.0
     assert r["metrics"]["n_frames"] == len(r["per_frame"]) == len(r["frames"]) > 0
     assert set(r["stages"]) == {"masks", "geometry", "features", "fit", "prompts", "evaluate", "ceiling"}

@@ -80,6 +80,43 @@ def test_binarize_rules():
         binarize(np.zeros((2, 2, 2, 2)))
 
 
+def test_binarize_reads_0_1_and_refuses_what_it_cannot_tell():
+    # 0/1 is binary in any integer type (it used to threshold at 128 and read as empty)
+    assert binarize(np.array([[0, 1, 1]], np.uint8)).tolist() == [[False, True, True]]
+    assert binarize(np.array([[0, 1]], np.uint16)).tolist() == [[False, True]]
+    # 0/255 is binary even in 16 bits, where half the range is 32768
+    assert binarize(np.array([[0, 255]], np.uint16)).tolist() == [[False, True]]
+    # grey levels reaching half the range: thresholded (anti-aliased edges)
+    assert binarize(np.array([[0, 1, 127, 128, 255]], np.uint8)).tolist() == [[False, False, False, True, True]]
+    assert not binarize(np.zeros((2, 2), np.uint8)).any()  # empty stays empty
+    # neither 0/1 nor 0/255 and below half the range: an error, never an empty mask
+    with pytest.raises(ScoringError, match=r"m.png: values reach only 3, below 128"):
+        binarize(np.array([[0, 3]], np.uint8), name="m.png")
+    red = np.zeros((1, 2, 3), np.uint8)
+    red[0, 0] = (255, 0, 0)
+    with pytest.raises(ScoringError, match="channel mean values reach only 85"):
+        binarize(red)
+    with pytest.raises(ScoringError, match="below 32768"):
+        binarize(np.array([[0, 100, 255]], np.uint16))
+    alpha_only = np.zeros((1, 2, 4), np.uint8)
+    alpha_only[0, 0, 3] = 255
+    with pytest.raises(ScoringError, match="only in the alpha channel"):
+        binarize(alpha_only)
+    with pytest.raises(ScoringError, match="negative"):
+        binarize(np.array([[0, -1]], np.int16))
+    with pytest.raises(ScoringError, match=r"expected \[0, 1\]"):
+        binarize(np.array([[0.0, 2.0]]))
+    assert binarize(np.array([[0.0, 255.0]])).tolist() == [[False, True]]
+
+
+def test_png_0_1_ground_truth_under_v1(tmp_path):
+    gt = np.zeros((4, 4), np.uint8)
+    gt[:2] = 1
+    _write(tmp_path / "gt" / "00000.png", gt)
+    _write(tmp_path / "pred" / "00000.png", gt * 255)
+    assert score_directories(tmp_path / "pred", tmp_path / "gt").miou == 1.0
+
+
 def test_png_0_255_and_rgb_inputs(tmp_path):
     gt = np.zeros((6, 8), np.uint8)
     gt[2:5, 3:7] = 255
