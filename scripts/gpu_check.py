@@ -257,6 +257,19 @@ def _cli(*args: str) -> list[str]:
     return [sys.executable, "-m", "benchmark.cli", *args]
 
 
+def _gsplat_build_env() -> dict:
+    """gsplat compiled for this GPU only, on every core. Set in this process's environment too:
+    every child that imports gsplat must see the same flags, or torch's JIT loader takes the
+    build as stale and compiles it again (for every architecture; three processes waited
+    ~110 s on that in one check)."""
+    import torch
+
+    major, minor = torch.cuda.get_device_capability()
+    env = {"TORCH_CUDA_ARCH_LIST": f"{major}.{minor}", "MAX_JOBS": str(os.cpu_count() or 8)}
+    os.environ.update(env)
+    return env
+
+
 def machine() -> dict:
     import torch
 
@@ -289,10 +302,7 @@ def run_all(args) -> int:
                                                "ensure_synthetic; print(ensure_synthetic('hypernerf'))"]),
                                     ("precompile", [sys.executable, "-m", "trase.precompile"]))]
     if cuda:
-        import torch
-
-        major, minor = torch.cuda.get_device_capability()
-        env = {"TORCH_CUDA_ARCH_LIST": f"{major}.{minor}", "MAX_JOBS": str(os.cpu_count() or 8)}
+        env = _gsplat_build_env()
         chk.sh("build_gsplat", [sys.executable, "-c", "import torch, gsplat.cuda._backend as b; print(b._C)"],
                min(240, chk.left()), env)
     for p in background:
@@ -356,11 +366,8 @@ def diagnose_all(args) -> int:
                               "print(ensure_synthetic('hypernerf'))"], cwd=REPO, env={**os.environ, **_py()})
     pre = subprocess.Popen([sys.executable, "-m", "trase.precompile"], cwd=REPO, env={**os.environ, **_py()})
     if chk.result["machine"]["gpu"]:
-        import torch
-
-        major, minor = torch.cuda.get_device_capability()
         chk.sh("build_gsplat", [sys.executable, "-c", "import torch, gsplat.cuda._backend as b; print(b._C)"], 240,
-               {"TORCH_CUDA_ARCH_LIST": f"{major}.{minor}", "MAX_JOBS": str(os.cpu_count() or 8)})
+               _gsplat_build_env())
     scene.wait()
     pre.wait()
     procs = {}
