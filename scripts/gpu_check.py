@@ -260,8 +260,8 @@ def _cli(*args: str) -> list[str]:
 def _gsplat_build_env() -> dict:
     """gsplat compiled for this GPU only, on every core. Set in this process's environment too:
     every child that imports gsplat must see the same flags, or torch's JIT loader takes the
-    build as stale and compiles it again (for every architecture; three processes waited
-    ~110 s on that in one check)."""
+    build as stale and compiles it again, for every architecture (the likely cause of the ~110 s
+    three diagnose processes spent before their first iteration in one check)."""
     import torch
 
     major, minor = torch.cuda.get_device_capability()
