@@ -52,7 +52,9 @@ TINY_RUN = ["--sequence", "synthetic-tiny", "--set", "preset=paper", "--set", "g
 def profile(sizes: list[tuple[int, int, int]], device: str, repeats: int, tf32: bool = False) -> dict:
     """perf gpu's reconstruction iteration at each size with whatever trase is importable:
     median wall time over ``repeats`` steps, then a profile of 3 steps. ``tf32``: matrix
-    products in TF32 (a diagnostic; no preset uses it)."""
+    products in TF32 (a diagnostic; no preset uses it). The step is written out here, not
+    imported from benchmark.perf.gpu: the harness must be the same for the checkout before and
+    this one, so it lives outside both."""
     import torch
 
     torch.backends.cuda.matmul.allow_tf32 = tf32
