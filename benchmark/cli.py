@@ -22,6 +22,8 @@ COMMANDS.add("edit", "benchmark.commands.edit:edit",
              "Edit a scene: remove, extract, recolour a selection, compose objects of two scenes.")
 COMMANDS.add("fit", "benchmark.commands.fit:fit",
              "Fit the method to a capture of one's own (nerfies, COLMAP, transforms json).")
+COMMANDS.add("evaluate", "benchmark.commands.evaluate:evaluate",
+             "Score a method's predicted masks made elsewhere into runs (kind external).")
 COMMANDS.add("figures", "benchmark.commands.figures:figures",
              "The figures page (docs/figures.md): five formats x seeds, measured and written from their data.")
 COMMANDS.add("leaderboard", "benchmark.commands.leaderboard:leaderboard",

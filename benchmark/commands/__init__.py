@@ -2,8 +2,8 @@
 
 An option's name means one thing in every command:
 
-* ``--runs DIR``: the folder of runs, what ``run`` writes into and ``runs``, ``leaderboard``
-  and ``report`` read (default ``runs``);
+* ``--runs DIR``: the folder of runs, what ``run`` and ``evaluate`` write into and ``runs``,
+  ``leaderboard`` and ``report`` read (default ``runs``);
 * ``--run DIR``: one run's folder (``render``, ``edit`` and ``view`` also open a fitted capture
   or an edited scene with it);
 * ``--out``: where this command writes its own output, a file or a folder as its help says;

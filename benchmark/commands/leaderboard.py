@@ -17,10 +17,10 @@ from benchmark.results.leaderboard import FORMATS, render_all
 @click.option("--run", "run_dirs", multiple=True, type=click.Path(),
               help="Use exactly these runs (a run directory or its results.json; repeatable) instead of "
                    "the main runs under --runs. See `trase-bench runs`.")
-@click.option("--kind", "kinds", multiple=True, type=click.Choice(["main", "run", "ablation"]),
+@click.option("--kind", "kinds", multiple=True, type=click.Choice(["main", "run", "ablation", "external"]),
               help="Kinds of run taken from --runs (repeatable; default: main, i.e. made with the "
-                   "method's defaults). Ablation variants enter only when asked for, one per row "
-                   "(several variants of one method: pick with --run).")
+                   "method's defaults, and external, scored by `trase-bench evaluate`). Ablation variants "
+                   "enter only when asked for, one per row (several variants of one method: pick with --run).")
 @click.option("--format", "fmt", type=click.Choice(FORMATS), default="markdown", show_default=True)
 @click.option("--variant", type=click.Choice(["all", "synthetic", "real"]), default="all",
               show_default=True, help="Which data variant's tables to show.")
@@ -30,13 +30,19 @@ def leaderboard(runs_dir: str, run_dirs: tuple[str, ...], kinds: tuple[str, ...]
                 no_published: bool, out: str | None) -> None:
     """Leaderboard in the paper's Table 1 layout plus per-sequence tables.
 
-    By default each method's main run under --runs (made without --set); --run picks runs
-    explicitly. Two runs with different configs for one method and sequence are refused. Every
-    measured row names its protocol; cells use the official metric (v1 beside where it
-    differs). Synthetic and real results are separate tables; published numbers are labelled
-    rows beside real results only.
+    By default each method's main run under --runs (made without --set) and the external
+    predictions scored by `trase-bench evaluate`; --run picks runs explicitly. Two runs with
+    different configs for one method and sequence are refused. Every measured row names its
+    protocol; cells use the official metric (v1 beside where it differs). Synthetic and real
+    results are separate tables; published numbers are labelled rows beside real results only.
     """
-    from benchmark.results.runs import find_runs, load_run, one_config_per_row, select_runs
+    from benchmark.results.runs import (
+        TABLE_KINDS,
+        find_runs,
+        load_run,
+        one_config_per_row,
+        select_runs,
+    )
 
     warn = lambda m: click.echo(m, err=True)
     if run_dirs:
@@ -44,13 +50,13 @@ def leaderboard(runs_dir: str, run_dirs: tuple[str, ...], kinds: tuple[str, ...]
             raise click.UsageError("--kind chooses runs under --runs; with --run the runs are given")
         records = [load_run(Path(p)) for p in run_dirs]
     else:
-        records = select_runs(find_runs(Path(runs_dir), warn=warn), kinds or ("main",))
+        records = select_runs(find_runs(Path(runs_dir), warn=warn), kinds or TABLE_KINDS)
     records = one_config_per_row(records)
     variants = ("synthetic", "real") if variant == "all" else (variant,)
     text = render_all(records, fmt, variants=variants, published=not no_published)
     if not records:
         shown = "; showing the published rows only" if "real" in variants and not no_published else ""
-        warn(f"note: no {'/'.join(kinds or ('main',))} runs under {runs_dir}{shown}")
+        warn(f"note: no {'/'.join(kinds or TABLE_KINDS)} runs under {runs_dir}{shown}")
     if out:
         from benchmark.io import atomic_write_text
 

@@ -19,7 +19,8 @@ from benchmark.results.report import make_report
 @click.option("--method", default=None)
 @click.option("--dataset", default=None)
 @click.option("--sequence", default=None)
-@click.option("--name", default=None, help="The run's name (see `trase-bench runs`); default: the main run.")
+@click.option("--name", default=None, help="The run's name (see `trase-bench runs`); default: the main run "
+              "(or the external one).")
 @click.option("--runs", "runs_dir", type=click.Path(file_okay=False), default="runs", show_default=True,
               help="The folder of runs that --method/--dataset/--sequence/--name look in.")
 def report(run_dir: str | None, method: str | None, dataset: str | None, sequence: str | None, name: str | None,
@@ -51,7 +52,7 @@ def report(run_dir: str | None, method: str | None, dataset: str | None, sequenc
         run = load_run(seq_dir / name)
     else:
         runs = [d for d in sorted(seq_dir.glob("*")) if (d / "results.json").is_file()] if seq_dir.is_dir() else []
-        mains = [r for r in (load_run(d) for d in runs) if r["run"]["kind"] == "main"]
+        mains = [r for r in (load_run(d) for d in runs) if r["run"]["kind"] in ("main", "external")]
         if not mains:
             raise UserError(f"{seq_dir}: no main run of {method} on {dataset}/{sequence}; run "
                             f"`trase-bench run --method {method} --dataset {dataset}` or pass --name "

@@ -9,7 +9,7 @@ import click
 
 from benchmark.commands import old_spelling
 
-KIND_CHOICES = ["all", "main", "run", "ablation"]
+KIND_CHOICES = ["all", "main", "run", "ablation", "external"]
 
 
 @click.command()
@@ -17,7 +17,8 @@ KIND_CHOICES = ["all", "main", "run", "ablation"]
 @click.option("--runs", "runs_dir", type=click.Path(file_okay=False), default="runs", show_default=True,
               help="The folder of runs (searched recursively).")
 @click.option("--kind", type=click.Choice(KIND_CHOICES), default="all", show_default=True,
-              help="main: made with the method's defaults; run: with --set overrides; ablation: study variants.")
+              help="main: made with the method's defaults; run: with --set overrides; ablation: study variants; "
+                   "external: predictions scored by `trase-bench evaluate`.")
 @click.option("--json", "as_json", is_flag=True, help="One JSON object per run instead of a table.")
 def runs(runs_dir: str, kind: str, as_json: bool) -> None:
     """List runs: method, dataset, sequence, name, kind, run seed, mIoU (official metric),

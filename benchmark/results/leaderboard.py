@@ -4,10 +4,11 @@ Layout follows the paper's Table 1: one row per method, a (mIoU, mAcc) column pa
 benchmark, the best value of each column in bold, and a time column. Per-sequence tables
 follow the supplementary. Rules:
 
-* the caller chooses the runs (``benchmark.results.runs``: by default each method's main run), and a
-  cell is one run: two configs for one (method, dataset, sequence) are refused before this;
+* the caller chooses the runs (``benchmark.results.runs``: by default each method's main run and
+  the external runs), and a cell is one run: two configs for one (method, dataset, sequence) are refused before this;
 * every measured row carries its protocol (geometry, features preset, masks, prompts, render
-  rule, metric) as a footnote marker;
+  rule, metric) as a footnote marker; external predictions (``trase-bench evaluate``) say that
+  their prompts and geometry were not the benchmark's, and have no time;
 * cells use the official metric, the one the published rows were made with; the project's
   ``v1`` is shown beside a cell where it differs;
 * real and synthetic results never share a table (``variant``);
@@ -105,7 +106,7 @@ def measured_frame(records: list[dict]) -> pd.DataFrame:
             "macc": r["metrics"]["official"]["macc"],
             "miou_v1": r["metrics"]["miou"],
             "macc_v1": r["metrics"]["macc"],
-            "seconds": total_seconds(r),
+            "seconds": math.nan if r["run"]["kind"] == "external" else total_seconds(r),  # not timed here
             "source": "measured",
             "protocol": protocol_label(protocol(r)),
         }

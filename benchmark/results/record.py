@@ -24,7 +24,7 @@ SCHEMA = "trase-bench/results/3"
 LEGACY_SCHEMAS = ("trase-bench/results/1", "trase-bench/results/2")  # readable, never tabulated
 REQUIRED = ("schema", "method", "dataset", "sequence", "variant", "metrics", "run", "config", "config_hash")
 REQUIRED_METRICS = ("miou", "macc", "pooled_iou", "metric_version", "n_frames", "official")
-RUN_KINDS = ("main", "run", "ablation")
+RUN_KINDS = ("main", "run", "ablation", "external")
 VERSIONED_PACKAGES = ("trase-bench", "torch", "numpy", "scipy", "scikit-learn", "numba",
                       "opencv-contrib-python-headless")
 

@@ -220,8 +220,8 @@ def _frame_tiles(record: dict, run_dir: Path) -> tuple[list[str], int]:
     tiles, missing_images = [], 0
     for f in frames[::step][:MAX_FRAMES_SHOWN]:
         gt = read_mask(f["gt"])
-        pred_path = run_dir / f["pred"]
-        pred = read_mask(pred_path) if pred_path.exists() else np.zeros_like(gt)
+        pred_path = run_dir / f["pred"] if f.get("pred") else None  # None: an external run's missing frame
+        pred = read_mask(pred_path) if pred_path is not None and pred_path.exists() else np.zeros_like(gt)
         if not Path(f["image"]).exists():
             missing_images += 1
         data = _png(overlay(_read_rgb(Path(f["image"]), gt.shape), pred, gt))
@@ -235,9 +235,27 @@ def _frame_tiles(record: dict, run_dir: Path) -> tuple[list[str], int]:
     return tiles, missing_images
 
 
+def _external_notes(record: dict) -> list[str]:
+    """Where an external run's masks came from and what was missing, as sentences; [] for a
+    run of the benchmark's own."""
+    ext = record.get("external")
+    if not ext:
+        return []
+    where = f"{ext['layout']} layout" + (f", {ext['iteration_dir']}" if ext.get("iteration_dir") else "")
+    out = [(f"Predictions made outside the benchmark: {len(ext['files'])} mask file(s) read from "
+            f"{ext['masks_dir']} ({where}), their checksums in results.json.")]
+    if ext.get("missing"):
+        out.append(f"No prediction for {len(ext['missing'])} test frame(s) ({', '.join(ext['missing'])}): v1 scores "
+                   "them as empty, the official metric skips them.")
+    if ext.get("extra"):
+        out.append(f"Ignored by the official metric (no ground-truth file of that name): {', '.join(ext['extra'])}.")
+    return out
+
+
 def _notes(record: dict, missing_images: int) -> list[str]:
-    """What to read beside the score: missing images, the oracle, the geometry's ceiling."""
-    notes = []
+    """What to read beside the score: missing images, the oracle, the geometry's ceiling, an
+    external run's source."""
+    notes = _external_notes(record)
     if missing_images:
         notes.append(f"{missing_images} test image(s) not found: grey backdrop shown.")
     if record.get("oracle"):
@@ -252,22 +270,48 @@ def _notes(record: dict, missing_images: int) -> list[str]:
     return notes
 
 
-def make_report(run_dir: str | Path) -> Path:
-    """Write ``report.html`` and ``report/*.png`` into ``run_dir``; returns the HTML path."""
-    run_dir = Path(run_dir)
-    record = load_results(run_dir / "results.json")
-    frames = record.get("frames", [])
-    tiles, missing_images = _frame_tiles(record, run_dir)
-    plot = _iou_plot(record)
-    atomic_write_bytes(run_dir / "report" / "per_frame_iou.png", plot)
-    clip, clip_note = _clip(run_dir)
+def _is_external(record: dict) -> bool:
+    return (record.get("run") or {}).get("kind") == "external"
 
-    m = record["metrics"]
+
+def _clip_section(record: dict, run_dir: Path) -> str:
+    """The clip of the run's selection; none for external predictions (no model to render)."""
+    if _is_external(record):
+        return ""
+    clip, clip_note = _clip(run_dir)
+    return f"""<h2>Clip</h2><p>The selected objects tinted over the test views in time order
+(<code>trase-bench render --run {html.escape(str(run_dir))} --mode selection --selected</code>).
+{html.escape(clip_note)}</p>{clip}"""
+
+
+def _method_sections(record: dict, run_dir: Path) -> str:
+    """Prompts, seeds and stages of a run of the benchmark's own; none for external predictions,
+    whose prompts and stages were their maker's."""
+    if _is_external(record):
+        return ""
     stage_rows = "".join(
         f"<tr><td>{html.escape(name)}</td><td>{s.get('seconds', 0):.1f}</td>"
         f"<td>{s.get('peak_rss_mb', 0):.0f}</td><td>{'cached' if s.get('skipped') else 'run'}</td></tr>"
         for name, s in record.get("stages", {}).items()
     )
+    return f"""<h2>Prompts</h2><p>White rings: the run's clicks, labelled with the cluster each chose; dots: the other
+click sets (the same objects elsewhere in their first frames). Ground truth in blue.</p>
+{''.join(_click_tiles(record, record.get("frames", [])))}
+<table><tr><th>click set</th><th>clicks (frame (u,v))</th><th>cluster per click</th><th>chosen</th><th>mIoU</th></tr>
+{_click_set_rows(record)}</table>
+<h2>Seeds</h2>{_seed_section(record, run_dir)}
+<h2>Stages</h2><table><tr><th>stage</th><th>seconds</th><th>peak RSS MiB</th><th></th></tr>{stage_rows}</table>
+<p>{record.get('n_gaussians', 'n/a')} gaussians; model {(record.get('storage') or {}).get('total_mib', 0):.1f} MiB (gaussians, features and deformation, float32).</p>"""
+
+
+def make_report(run_dir: str | Path) -> Path:
+    """Write ``report.html`` and ``report/*.png`` into ``run_dir``; returns the HTML path."""
+    run_dir = Path(run_dir)
+    record = load_results(run_dir / "results.json")
+    tiles, missing_images = _frame_tiles(record, run_dir)
+    plot = _iou_plot(record)
+    atomic_write_bytes(run_dir / "report" / "per_frame_iou.png", plot)
+    m = record["metrics"]
     official = m.get("official", {})
     title = f"{record['method']} on {record['dataset']} / {record['sequence']} ({record['variant']} data)"
     run = record.get("run") or {}
@@ -286,20 +330,11 @@ pre{{background:#f6f6f6;padding:8px;overflow:auto;font-size:12px}}</style></head
 &middot; {m['n_frames']} test frames</p>
 <p>{html.escape(run_line)}</p>
 <p>{' '.join(html.escape(n) for n in notes)}</p>
-<h2>Clip</h2><p>The selected objects tinted over the test views in time order
-(<code>trase-bench render --run {html.escape(str(run_dir))} --mode selection --selected</code>).
-{html.escape(clip_note)}</p>{clip}
+{_clip_section(record, run_dir)}
 <h2>Test views</h2><p>green: correct object pixels, red: false positives, blue: missed.</p>
 {''.join(tiles)}
 <h2>Per-frame scores</h2>{_img_tag(plot, 'per-frame IoU')}
-<h2>Prompts</h2><p>White rings: the run's clicks, labelled with the cluster each chose; dots: the other
-click sets (the same objects elsewhere in their first frames). Ground truth in blue.</p>
-{''.join(_click_tiles(record, frames))}
-<table><tr><th>click set</th><th>clicks (frame (u,v))</th><th>cluster per click</th><th>chosen</th><th>mIoU</th></tr>
-{_click_set_rows(record)}</table>
-<h2>Seeds</h2>{_seed_section(record, run_dir)}
-<h2>Stages</h2><table><tr><th>stage</th><th>seconds</th><th>peak RSS MiB</th><th></th></tr>{stage_rows}</table>
-<p>{record.get('n_gaussians', 'n/a')} gaussians; model {(record.get('storage') or {}).get('total_mib', 0):.1f} MiB (gaussians, features and deformation, float32).</p>
+{_method_sections(record, run_dir)}
 <h2>Config</h2><pre>{html.escape(json.dumps(record.get('config', {}), indent=2))}</pre>
 <h2>Versions</h2><pre>{html.escape(json.dumps(record.get('versions', {}), indent=2))}</pre>
 </body></html>

@@ -14,7 +14,10 @@ Kinds of run (``results["run"]``):
   row of a method;
 * run: made with ``--set`` overrides that change the config; shown only when selected;
 * ablation: a variant of an ablation study (``trase-bench ablate``), kept under
-  ``<runs>/ablations/<study>/``; never in a leaderboard unless selected.
+  ``<runs>/ablations/<study>/``; never in a leaderboard unless selected;
+* external: a method's predicted masks made outside the benchmark and scored by
+  ``trase-bench evaluate`` (``benchmark.external``); shown beside the main runs, with the
+  protocol ``EXTERNAL_PROTOCOL``.
 """
 
 from __future__ import annotations
@@ -33,6 +36,8 @@ from benchmark.results.record import (
 )
 
 NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._=+-]{0,79}$")
+EXTERNAL_PROTOCOL = "external predictions: prompts and geometry not controlled by the benchmark"
+TABLE_KINDS = ("main", "external")  # what a leaderboard shows unless told otherwise
 
 
 class RunError(UserError):
@@ -88,7 +93,8 @@ def check_free(directory: Path, config_hash: str) -> None:
 # -- protocol ---------------------------------------------------------------------------------
 def protocol(record: dict) -> dict:
     """What a number was measured under, from the run's config and metric: the labels a table
-    prints beside it."""
+    prints beside it. An external run's prompts and geometry are its maker's: its protocol says
+    so (``EXTERNAL_PROTOCOL``) beside the scene and the metric."""
     cfg = record.get("config") or {}
     geo, mcfg = cfg.get("geometry", {}), cfg.get("method", {})
     src = geo.get("source", "?")
@@ -109,6 +115,8 @@ def protocol(record: dict) -> dict:
         device = section.get("device", "cpu")
         return "" if device == "cpu" else f", on {device}"
 
+    if (record.get("run") or {}).get("kind") == "external":
+        return {"external": EXTERNAL_PROTOCOL} | scene | {"metric": official.get("metric_version", "?")}
     return scene | {
         "geometry": (f"{src} ({geo.get('preset')} preset{on(geo.get('train') or {})})" if src == "reconstruct"
                      else src),
@@ -121,7 +129,7 @@ def protocol(record: dict) -> dict:
 
 
 def protocol_label(p: dict) -> str:
-    return "; ".join(f"{k} {v}" for k, v in p.items())
+    return "; ".join(v if k == "external" else f"{k} {v}" for k, v in p.items())
 
 
 class ProtocolLegend:
@@ -194,8 +202,8 @@ def row_key(record: dict) -> tuple[str, str, str]:
     return record["method"], record["dataset"], record["sequence"]
 
 
-def select_runs(records: list[dict], kinds: tuple[str, ...] = ("main",)) -> list[dict]:
-    """The runs of the given kinds (default: the main runs)."""
+def select_runs(records: list[dict], kinds: tuple[str, ...] = TABLE_KINDS) -> list[dict]:
+    """The runs of the given kinds (default: the main runs and external predictions)."""
     bad = set(kinds) - set(RUN_KINDS)
     if bad:
         raise RunError(f"unknown run kind {min(bad)!r}; choose from {', '.join(RUN_KINDS)}")

@@ -88,6 +88,9 @@ def _open_run(run: Path, cache: Path | None) -> SceneFolder:
     from trase.edit import EditableModel
 
     rec = read_json(run / "results.json", "results.json")
+    if (rec.get("run") or {}).get("kind") == "external":
+        raise UserError(f"{run / 'results.json'}: external predictions (trase-bench evaluate) come without a "
+                        "model: nothing to render, edit or view")
     stages = rec.get("stages", {})
     for need in ("geometry", "fit"):
         if need not in stages:
