@@ -12,7 +12,7 @@ from benchmark.cache import StageRecord
 from benchmark.io import atomic_directory
 from benchmark.pipeline.context import SequenceRun, jsonable
 from benchmark.pipeline.prompts import load_prompts
-from benchmark.scoring import read_mask, score_masks
+from benchmark.scoring import metric_version, read_mask, read_official_ground_truth, score_masks
 
 OUTPUT_DIRS = ("pred", "clusters")  # copied into the run's directory
 N_SHOWN = 8  # test views rendered with cluster colours (and cluster id maps for benchmark.results.stability)
@@ -85,7 +85,10 @@ def evaluate(method, fitted, scene, prompts, directory: Path) -> dict:
             cv2.imwrite(str(d / f"{n}.png"), rgb[..., ::-1])
         if fitted.gaussians is not None:  # for agreement between seeds (benchmark.results.stability)
             save_cluster_maps(d, fitted, {n: scene.test[names.index(n)].camera for n in shown})
-    official = score_masks(dict(zip(names, preds)), dict(zip(names, gts)), "official")
+    # the official metric reads the ground truth as stored, as the public script does (its
+    # accuracy compares a 0/1 prediction with the stored values); its IoU equals the binarised one's
+    stored = [read_official_ground_truth(p) for p in scene.gt_masks]
+    official = score_masks(dict(zip(names, preds)), dict(zip(names, stored)), "official")
     per_click = fitted.stats.get("click_clusters")  # methods that choose clusters by clicks
     first = {"set": 0, "clicks": _click_list(prompts), "miou": official.miou}
     if per_click is not None:
@@ -119,7 +122,9 @@ def run(ctx: SequenceRun) -> list[StageRecord]:
     from benchmark.methods import FittedModel
 
     fit_rec, prompts_rec = ctx.records["fit"], ctx.records["prompts"]
-    key = ctx.cache.key("evaluate", {"method": ctx.method.name},
+    # the metrics' rules are part of the key: a stage scored by older rules is not reused
+    key = ctx.cache.key("evaluate", {"method": ctx.method.name,
+                                     "metrics": [metric_version("v1"), metric_version("official")]},
                         {"fit": fit_rec.key, "prompts": prompts_rec.key, "gt": ctx.gt_key})
 
     def work(d: Path) -> dict:

@@ -289,9 +289,9 @@ def test_a_run_s_own_masks_through_evaluate_give_its_numbers(tiny_run, tmp_path,
     assert got["checksums"] == rec["checksums"]  # the same ground truth, the same mask bytes
     for key in ("miou", "macc", "pooled_iou"):
         assert got["metrics"][key] == rec["metrics"][key]
-    for key in ("miou", "pooled_iou"):
+    for key in ("miou", "macc", "pooled_iou"):  # both read the ground truth as stored
         assert got["metrics"]["official"][key] == rec["metrics"]["official"][key]
-    # official mAcc compares with the stored ground truth (0/255 here), as `score` does on the run's masks
+    # and so does `score` on the run's masks
     capsys.readouterr()
     assert main(["score", str(tiny_run / "pred"), got["external"]["gt_dir"], "--metric", "official", "--json"]) == 0
     assert got["metrics"]["official"]["macc"] == json.loads(capsys.readouterr().out)["macc"]
