@@ -14,7 +14,7 @@ from benchmark.pipeline.context import SequenceRun, jsonable
 from benchmark.pipeline.prompts import load_prompts
 from benchmark.scoring import read_mask, score_masks
 
-OUTPUT_DIRS = ("pred", "clusters")  # copied into the run's directory
+OUTPUT_DIRS = ("pred", "clusters", "command")  # copied into the run's directory, where the stage has them
 N_SHOWN = 8  # test views rendered with cluster colours (and cluster id maps for benchmark.results.stability)
 
 
@@ -137,5 +137,7 @@ def copy_outputs(rec: StageRecord, run_dir: Path) -> None:
     import shutil
 
     for name in OUTPUT_DIRS:
+        if not (rec.path / name).is_dir():  # clusters: not of a command method; command: only of one
+            continue
         with atomic_directory(run_dir / name) as d:
             shutil.copytree(rec.path / name, d, dirs_exist_ok=True)
