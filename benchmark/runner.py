@@ -30,6 +30,13 @@ from benchmark.results.runs import check_free, run_dir, run_info, run_name
 STAGES = (masks.run, geometry.run, fit.run, prompts.run, evaluate.run, ceiling.run)
 
 
+def stages_of(method) -> tuple:
+    """The method's own stages where it has them (a command method: benchmark.methods.command),
+    else STAGES."""
+    own = getattr(method, "pipeline_stages", None)
+    return tuple(own()) if own is not None else STAGES
+
+
 @dataclasses.dataclass
 class RunOptions:
     method: str
@@ -136,7 +143,7 @@ def prepare_sequence(opts: RunOptions, sequence: str | None, create: bool = True
     # runs that differ only in their seed share settings.group_hash: one row of a table, over seeds
     group = settings.group_hash
     name = run_name(group, opts.name, with_hash=bool(opts.study), seed=settings.seed)
-    out_dir = run_dir(opts.out_dir, opts.method, spec.key, scene.sequence, name)
+    out_dir = run_dir(opts.out_dir, method.name, spec.key, scene.sequence, name)
     return Prepared(spec, scene, scene_dir, variant, method, settings, chash, group, settings.is_default, name, out_dir)
 
 
@@ -147,7 +154,7 @@ def plan_sequence(opts: RunOptions, sequence: str | None) -> list[tuple[str, str
     check_free(p.out_dir, p.chash)
     ctx = p.context(PlanCache(opts.cache_root), False)
     plan = []
-    for stage in STAGES:
+    for stage in stages_of(p.method):
         for rec in stage(ctx):
             ctx.records[rec.stage] = rec
             plan.append((rec.stage, rec.key, rec.skipped))
@@ -167,7 +174,7 @@ def run_sequence(opts: RunOptions, sequence: str | None, reporter: Reporter, ind
         return path
 
     ctx = p.context(StageCache(opts.cache_root), opts.progress)
-    for stage in STAGES:
+    for stage in stages_of(p.method):
         for rec in stage(ctx):
             ctx.records[rec.stage] = rec
             reporter.stage(seq, rec)

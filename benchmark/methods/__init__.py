@@ -53,7 +53,12 @@ def register_method(name: str) -> Callable:
 
 
 def get_method(name: str, **kwargs) -> Method:
-    """Build a registered method; its module is imported on first use."""
+    """Build a registered method; its module is imported on first use. A name ending in
+    ``.toml`` is a method in its own environment, defined by that file (benchmark.methods.command)."""
+    if name.endswith(".toml"):
+        from benchmark.methods.command import load_command_method
+
+        return load_command_method(name, **kwargs)
     return METHODS.load(name)(**kwargs)
 
 

@@ -14,5 +14,6 @@ and adds its ``StageRecord``)::
 ``config`` resolves the run's config (presets, seeds, --set) once and checks its types;
 ``record`` turns the stage records into the typed results record (benchmark.results.RunRecord).
 ``trase-bench fit`` (benchmark.captures.fit) runs masks, geometry, features and fit on a
-capture of one's own.
+capture of one's own. A command method (benchmark.methods.command) runs masks and prompts, then
+its own stages in ``command``: its input folder, the command, the scores.
 """

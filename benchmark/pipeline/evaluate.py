@@ -14,7 +14,7 @@ from benchmark.pipeline.context import SequenceRun, jsonable
 from benchmark.pipeline.prompts import load_prompts
 from benchmark.scoring import metric_version, read_mask, read_official_ground_truth, score_masks
 
-OUTPUT_DIRS = ("pred", "clusters")  # copied into the run's directory
+OUTPUT_DIRS = ("pred", "clusters", "command")  # copied into the run's directory, where the stage has them
 N_SHOWN = 8  # test views rendered with cluster colours (and cluster id maps for benchmark.results.stability)
 
 
@@ -61,6 +61,21 @@ def score_click_sets(method, fitted, scene, prompts, gts: list[np.ndarray], name
             "note": "official mIoU per click set; set 0 gives the run's score"}
 
 
+# in every evaluate stage's key: a stage scored by older rules of a metric is not reused
+METRICS_KEY = {"metrics": [metric_version("v1"), metric_version("official")]}
+
+
+def score_predictions(names: list[str], preds: list, gt_paths: list[Path]):
+    """Masks [H, W] bool of the test frames ``names`` against their ground-truth files ->
+    (the binarised ground truths, v1 scores, official scores). The official metric reads the
+    ground truth as stored, as the public script does (its accuracy compares a 0/1 prediction
+    with the stored values; its IoU equals the binarised one's)."""
+    gts = [read_mask(p) for p in gt_paths]
+    stored = [read_official_ground_truth(p) for p in gt_paths]
+    by_name = dict(zip(names, preds))
+    return gts, score_masks(by_name, dict(zip(names, gts)), "v1"), score_masks(by_name, dict(zip(names, stored)), "official")
+
+
 def evaluate(method, fitted, scene, prompts, directory: Path) -> dict:
     """Predicted masks for every test view -> ``directory``/pred/*.png and clusters/, and the
     scores (v1 and official, as dicts), oracle, scores of the other click sets, model facts."""
@@ -73,8 +88,8 @@ def evaluate(method, fitted, scene, prompts, directory: Path) -> dict:
     if len(preds) != len(scene.test):
         raise RuntimeError(f"{method.name}.segment returned {len(preds)} masks for {len(scene.test)} test views")
     selected = list(fitted.stats.get("selected_clusters", []))
-    gts = [read_mask(p) for p in scene.gt_masks]
     names = [f"{i:05d}" for i in range(len(scene.test))]
+    gts, v1, official = score_predictions(names, preds, scene.gt_masks)
     with atomic_directory(directory / "pred") as d:
         for n, m in zip(names, preds):
             cv2.imwrite(str(d / f"{n}.png"), m.astype(np.uint8) * 255)
@@ -85,16 +100,12 @@ def evaluate(method, fitted, scene, prompts, directory: Path) -> dict:
             cv2.imwrite(str(d / f"{n}.png"), rgb[..., ::-1])
         if fitted.gaussians is not None:  # for agreement between seeds (benchmark.results.stability)
             save_cluster_maps(d, fitted, {n: scene.test[names.index(n)].camera for n in shown})
-    # the official metric reads the ground truth as stored, as the public script does (its
-    # accuracy compares a 0/1 prediction with the stored values); its IoU equals the binarised one's
-    stored = [read_official_ground_truth(p) for p in scene.gt_masks]
-    official = score_masks(dict(zip(names, preds)), dict(zip(names, stored)), "official")
     per_click = fitted.stats.get("click_clusters")  # methods that choose clusters by clicks
     first = {"set": 0, "clicks": _click_list(prompts), "miou": official.miou}
     if per_click is not None:
         first |= {"click_clusters": list(per_click), "selected": selected}
     out = {
-        "v1": score_masks(dict(zip(names, preds)), dict(zip(names, gts)), "v1").to_dict(),
+        "v1": v1.to_dict(),
         "official": official.to_dict(),
         "selected": selected,
         "click_clusters": per_click,
@@ -122,9 +133,7 @@ def run(ctx: SequenceRun) -> list[StageRecord]:
     from benchmark.methods import FittedModel
 
     fit_rec, prompts_rec = ctx.records["fit"], ctx.records["prompts"]
-    # the metrics' rules are part of the key: a stage scored by older rules is not reused
-    key = ctx.cache.key("evaluate", {"method": ctx.method.name,
-                                     "metrics": [metric_version("v1"), metric_version("official")]},
+    key = ctx.cache.key("evaluate", {"method": ctx.method.name, **METRICS_KEY},
                         {"fit": fit_rec.key, "prompts": prompts_rec.key, "gt": ctx.gt_key})
 
     def work(d: Path) -> dict:
@@ -142,5 +151,7 @@ def copy_outputs(rec: StageRecord, run_dir: Path) -> None:
     import shutil
 
     for name in OUTPUT_DIRS:
+        if not (rec.path / name).is_dir():  # clusters: not of a command method; command: only of one
+            continue
         with atomic_directory(run_dir / name) as d:
             shutil.copytree(rec.path / name, d, dirs_exist_ok=True)

@@ -154,6 +154,14 @@ def _click_set_rows(record: dict) -> str:
     return "".join(rows)
 
 
+def _model_line(record: dict) -> str:
+    """The model's size, or what stands for it where the benchmark never saw the model."""
+    if record.get("n_gaussians") is None:
+        return "The method's model is its own: the benchmark saw only its predicted masks."
+    return (f"{record['n_gaussians']} gaussians; model {(record.get('storage') or {}).get('total_mib', 0):.1f} MiB "
+            "(gaussians, features and deformation, float32).")
+
+
 def _seed_section(record: dict, run_dir: Path) -> str:
     """The other seeds of this config beside this run (its sequence directory), with the
     clustering agreement between them."""
@@ -301,7 +309,7 @@ click sets (the same objects elsewhere in their first frames). Ground truth in b
 {_click_set_rows(record)}</table>
 <h2>Seeds</h2>{_seed_section(record, run_dir)}
 <h2>Stages</h2><table><tr><th>stage</th><th>seconds</th><th>peak RSS MiB</th><th></th></tr>{stage_rows}</table>
-<p>{record.get('n_gaussians', 'n/a')} gaussians; model {(record.get('storage') or {}).get('total_mib', 0):.1f} MiB (gaussians, features and deformation, float32).</p>"""
+<p>{_model_line(record)}</p>"""
 
 
 def make_report(run_dir: str | Path) -> Path:

@@ -117,7 +117,7 @@ def protocol(record: dict) -> dict:
 
     if (record.get("run") or {}).get("kind") == "external":
         return {"external": EXTERNAL_PROTOCOL} | scene | {"metric": official.get("metric_version", "?")}
-    return scene | {
+    out = scene | {
         "geometry": (f"{src} ({geo.get('preset')} preset{on(geo.get('train') or {})})" if src == "reconstruct"
                      else src),
         "features": mcfg.get("preset", "?") + on(mcfg.get("features") or {}),
@@ -126,6 +126,11 @@ def protocol(record: dict) -> dict:
         "render": mcfg.get("render_rule", "alone"),
         "metric": official.get("metric_version", "?"),
     }
+    if "command" in mcfg:  # a method in its own environment (benchmark.methods.command)
+        out |= {"geometry": "the method's own (a command method)",
+                "features": f"the method's own (TOML sha256 {str(mcfg.get('toml_sha256', '?'))[:12]})",
+                "render": "the method's own"}
+    return out
 
 
 def protocol_label(p: dict) -> str:
