@@ -11,7 +11,8 @@ from benchmark.commands import old_spelling
 
 @click.command()
 @old_spelling("--out", "--runs")
-@click.option("--method", required=True, help="Registered method: trase, trase-hard, trase-all, cgc, opengaussian.")
+@click.option("--method", required=True, help="A method: trase, trase-hard, trase-all, cgc, opengaussian, or one from an installed "
+                   "package (trase-bench methods lists them).")
 @click.option("--dataset", required=True, help="nerfds, hypernerf, neu3d, immersive or technicolor.")
 @click.option("--sequence", "sequences", multiple=True,
               help="Sequence(s) to run (repeatable). Default: every sequence found under the data "
