@@ -15,6 +15,7 @@ and the stage cache keys their stages by them, so a new release of a plugin comp
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 
 # kind (as listings name it) -> (entry-point group, "module:REGISTRY", how a run names one)
@@ -71,4 +72,50 @@ def run_packages(method, settings) -> dict[str, str]:
     return {**mask_packages(settings), **feature_packages(method, settings)}
 
 
-__all__ = ["KINDS", "feature_packages", "mask_packages", "packages", "registry", "run_packages"]
+@dataclasses.dataclass(frozen=True)
+class Listed:
+    """One entry of a listing: name, where it comes from, one line about it; ``error`` for a
+    plugin that cannot be used."""
+
+    name: str
+    source: str  # "built-in" or "<package> <version>"
+    description: str
+    package: str | None = None
+    version: str | None = None
+    entry_point: str | None = None
+    error: str | None = None
+
+    def to_dict(self) -> dict:
+        return {k: v for k, v in dataclasses.asdict(self).items() if k != "name"}
+
+
+def listing(kind: str) -> tuple[list[Listed], list[str]]:
+    """Every entry of ``kind`` and the one-line warnings of its plugins. Built-in entries are
+    described by their registry line, unimported; each plugin is imported and checked (its
+    description: the first line of its docstring), and one that fails is a warning."""
+    if kind == "objective":
+        import baselines  # noqa: F401 (registers the baselines' objectives, as a run's methods do)
+    reg = registry(kind)
+    rows, warnings = [], list(reg.problems())
+    for entry in reg:
+        if entry.origin is None:
+            rows.append(Listed(entry.name, entry.source, entry.help or _doc_line(reg.load(entry.name))))
+            continue
+        o = entry.origin
+        try:
+            obj = reg.load(entry.name)
+        except reg.error as exc:  # the registry's one-line error
+            warnings.append(str(exc))
+            rows.append(Listed(entry.name, entry.source, "", o.package, o.version, o.entry_point, str(exc)))
+            continue
+        rows.append(Listed(entry.name, entry.source, _doc_line(obj), o.package, o.version, o.entry_point))
+    return rows, warnings
+
+
+def _doc_line(obj) -> str:
+    doc = (getattr(obj, "__doc__", None) or "").strip()
+    return doc.splitlines()[0].strip() if doc else "(no description: the class has no docstring)"
+
+
+__all__ = ["KINDS", "Listed", "feature_packages", "listing", "mask_packages", "packages", "registry",
+           "run_packages"]
