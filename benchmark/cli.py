@@ -30,6 +30,8 @@ COMMANDS.add("leaderboard", "benchmark.commands.leaderboard:leaderboard",
              "Leaderboards (markdown/latex/csv/html) from results files.")
 COMMANDS.add("masks", "benchmark.commands.masks:masks",
              "Per-image anything-masks for a sequence's training views.")
+COMMANDS.add("methods", "benchmark.commands.methods:methods",
+             "List the methods, built-in and from installed packages (--json for data).")
 COMMANDS.add("perf", "benchmark.commands.perf:perf",
              "Measured performance suites (rasterizer numba vs torch ...).")
 COMMANDS.add("prepare", "benchmark.commands.prepare:prepare",

@@ -23,7 +23,8 @@ from benchmark.pipeline import ceiling, evaluate, fit, geometry, masks, prompts
 from benchmark.pipeline.context import SequenceRun, scene_fingerprint
 from benchmark.pipeline.record import build_record
 from benchmark.pipeline.settings import RunSettings, run_settings
-from benchmark.results import write_results
+from benchmark.plugins import run_packages
+from benchmark.results import package_versions, write_results
 from benchmark.results.runs import check_free, run_dir, run_info, run_name
 
 # in order; each adds its stage records to the SequenceRun
@@ -183,7 +184,9 @@ def run_sequence(opts: RunOptions, sequence: str | None, reporter: Reporter, ind
     _, prompts_dict = prompts.load_prompts(ctx.records["prompts"])
     info = run_info(p.name, opts.overrides, p.is_default, opts.study, opts.study_variant, seed=p.settings.seed,
                     group=p.group)
-    write_results(path, build_record(ctx, info, p.spec.key, p.variant, p.scene_dir, p.chash, prompts_dict, p.out_dir))
+    record = build_record(ctx, info, p.spec.key, p.variant, p.scene_dir, p.chash, prompts_dict, p.out_dir).to_dict()
+    record["versions"] = {**package_versions(), **run_packages(p.method, p.settings)}  # plugins' packages too
+    write_results(path, record)
     reporter.finish()
     return path
 

@@ -64,8 +64,8 @@ def masks(dataset, sequence, generator_name, data_root, out, checkpoint, model_t
         gen = make_generator("sam", checkpoint=checkpoint or "", model_type=model_type, device=device)
     elif name == "synthetic":
         gen = make_generator("synthetic", seed=seed)
-    else:
-        gen = make_generator("classical")
+    else:  # classical, or a generator from an installed package
+        gen = make_generator(name)
     ids = _instance_maps(scene) if name == "synthetic" else None
     out_dir = Path(out) if out else Path(scene_dir) / "masks" / name
 

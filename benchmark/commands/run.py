@@ -11,8 +11,9 @@ from benchmark.commands import old_spelling
 
 @click.command()
 @old_spelling("--out", "--runs")
-@click.option("--method", required=True, help="Registered method: trase, trase-hard, trase-all, cgc, opengaussian; "
-                                               "or a command method's TOML file (docs/command-methods.md).")
+@click.option("--method", required=True, help="A method: trase, trase-hard, trase-all, cgc, opengaussian, one from an "
+                                               "installed package (trase-bench methods lists them), or a command "
+                                               "method's TOML file (docs/command-methods.md).")
 @click.option("--dataset", required=True, help="nerfds, hypernerf, neu3d, immersive or technicolor.")
 @click.option("--sequence", "sequences", multiple=True,
               help="Sequence(s) to run (repeatable). Default: every sequence found under the data "

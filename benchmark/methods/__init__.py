@@ -13,6 +13,10 @@ the scene's test views (``segment``)::
 A method declares its settings as presets (``presets``, a lazyspecs.presets.PresetTable of its
 typed settings class), beside the method. Method modules are imported lazily: ``METHODS`` names
 each method's class by its import path (lazyspecs), so listing methods stays cheap.
+
+Other packages add methods through the entry-point group ``trase_bench.methods`` (``name =
+module:MethodSubclass``; docs/methods.md): the same registry reads them the first time a name
+is not a built-in one, and ``trase-bench methods`` lists both with where each comes from.
 """
 
 from __future__ import annotations
@@ -26,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from benchmark.errors import UserError
-from lazyspecs import Registry
+from lazyspecs import Registry, describe
 from lazyspecs.presets import Context, PresetTable, Resolved, build
 
 
@@ -34,7 +38,28 @@ class MethodError(UserError):
     """Unknown method or bad method input; one line naming the problem."""
 
 
-METHODS = Registry("method", MethodError)
+ENTRY_POINT_GROUP = "trase_bench.methods"  # where installed packages declare their methods
+RUN_TIERS = ("paper", "cpu")  # the method presets a run's preset resolves to (trase.reconstruction_presets tiers)
+
+
+def check_method_class(obj) -> str | None:
+    """What keeps a plugin's object from being run as a method (a phrase), or None."""
+    if not (isinstance(obj, type) and issubclass(obj, Method)):
+        return f"{describe(obj)} is not a subclass of benchmark.methods.Method"
+    if not isinstance(obj.presets, PresetTable):
+        return (f"class {obj.__qualname__} declares no presets (Method.presets: a lazyspecs.presets.PresetTable "
+                "of its settings class)")
+    missing = [t for t in RUN_TIERS if t not in obj.presets]
+    if missing:
+        return (f"class {obj.__qualname__} declares no {' or '.join(repr(t) for t in missing)} preset "
+                f"(every run resolves one of {', '.join(RUN_TIERS)})")
+    todo = [m for m in ("learn", "group", "segment") if getattr(obj, m) is getattr(Method, m)]
+    if todo:
+        return f"class {obj.__qualname__} does not implement {', '.join(todo)}"
+    return None
+
+
+METHODS = Registry("method", MethodError, group=ENTRY_POINT_GROUP, check=check_method_class)
 METHODS.add("trase", "benchmark.methods.trase_method:TraseMethod", "soft-mined contrastive objective (TRASE)")
 METHODS.add("trase-hard", "benchmark.methods.baselines:TraseHardMethod", "hard mining (the paper's ablation)")
 METHODS.add("trase-all", "benchmark.methods.baselines:TraseAllMethod", "all mining (the paper's ablation)")
@@ -53,13 +78,17 @@ def register_method(name: str) -> Callable:
 
 
 def get_method(name: str, **kwargs) -> Method:
-    """Build a registered method; its module is imported on first use. A name ending in
-    ``.toml`` is a method in its own environment, defined by that file (benchmark.methods.command)."""
+    """Build a registered method (built-in or from a package); its module is imported on first
+    use. The instance carries the name it was asked by (``method.name``), which keys its stages
+    and its runs. A name ending in ``.toml`` is a method in its own environment, defined by that
+    file (benchmark.methods.command)."""
     if name.endswith(".toml"):
         from benchmark.methods.command import load_command_method
 
         return load_command_method(name, **kwargs)
-    return METHODS.load(name)(**kwargs)
+    method = METHODS.load(name)(**kwargs)
+    method.name = name
+    return method
 
 
 @dataclasses.dataclass
@@ -112,7 +141,10 @@ class Method:
 
     name: str = ""
     presets: PresetTable | None = None  # the method's settings, declared as data
-    FEATURE_FIELDS: tuple[str, ...] = ()  # settings that change what ``learn`` produces (its cache key)
+    # the settings sections (dataclass fields of the settings) that change what ``learn``
+    # produces: the features stage's cache key; None: every setting (safe, but a change of a
+    # grouping or prompt setting then trains the features again)
+    FEATURE_FIELDS: tuple[str, ...] | None = None
 
     def settings_class(self) -> type:
         if self.presets is None:
@@ -169,4 +201,17 @@ class Method:
         return None
 
 
-__all__ = ["METHODS", "FittedModel", "Method", "MethodError", "get_method", "register_method"]
+def click_view(scene, prompts, click):
+    """The test view a click was made in (its own frame; else the prompts' first frame)."""
+    name = click.view or prompts.view
+    index = click.view_index if click.view_index >= 0 else prompts.view_index
+    for v in scene.test:
+        if v.name == name:
+            return v
+    if 0 <= index < len(scene.test):
+        return scene.test[index]
+    raise MethodError(f"prompt view {name!r} is not a test view of {scene.root}")
+
+
+__all__ = ["ENTRY_POINT_GROUP", "METHODS", "FittedModel", "Method", "MethodError", "check_method_class", "click_view",
+           "get_method", "register_method"]

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 import baselines  # noqa: F401 (registers the baseline objectives: TraseMethod(objective=...) takes any)
-from benchmark.methods import FittedModel, Method, MethodError, register_method
+from benchmark.methods import FittedModel, Method, MethodError, click_view, register_method
 from benchmark.methods.trase_presets import TRASE_PRESETS, TraseSettings
 from lazyspecs.presets import Context, Resolved
 
@@ -159,18 +159,6 @@ class TraseMethod(Method):
         sel = select_gaussians(fitted.labels, clusters, fitted.keep)
         thr, rule = float(fitted.config.alpha_threshold), str(fitted.config.render_rule)
         return render_masks(fitted.gaussians, fitted.deformation, sel, cams, thr, rule), clusters
-
-
-def click_view(scene, prompts, click):
-    """The test view a click was made in (its own frame; else the prompts' first frame)."""
-    name = click.view or prompts.view
-    index = click.view_index if click.view_index >= 0 else prompts.view_index
-    for v in scene.test:
-        if v.name == name:
-            return v
-    if 0 <= index < len(scene.test):
-        return scene.test[index]
-    raise MethodError(f"prompt view {name!r} is not a test view of {scene.root}")
 
 
 def with_objective(objective: str, **params) -> TraseMethod:

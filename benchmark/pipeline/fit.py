@@ -12,13 +12,23 @@ import numpy as np
 from benchmark.cache import StageRecord
 from benchmark.pipeline.context import SequenceRun, jsonable
 from benchmark.pipeline.settings import key_config
+from benchmark.plugins import feature_packages
+
+
+def _packages(method, settings) -> dict:
+    """The plugins that make the features, keyed with their versions (nothing for built-ins,
+    so their keys stay as they were)."""
+    found = feature_packages(method, settings)
+    return {"packages": found} if found else {}
 
 
 def _features(ctx: SequenceRun) -> StageRecord:
     """Learned per-gaussian features: keyed only on the settings that change them."""
     method, settings = ctx.method, ctx.settings.method
     masks_rec, geo_rec = ctx.records["masks"], ctx.records["geometry"]
-    fcfg = {"method": method.name, **{k: key_config(getattr(settings, k)) for k in method.FEATURE_FIELDS}}
+    fields = method.FEATURE_FIELDS
+    learned = {k: key_config(getattr(settings, k)) for k in fields} if fields is not None else {"settings": key_config(settings)}
+    fcfg = {"method": method.name, **learned, **_packages(method, ctx.settings)}
     key = ctx.cache.key("features", fcfg, {"masks": masks_rec.key, "geometry": geo_rec.key})
 
     def work(d: Path) -> dict:

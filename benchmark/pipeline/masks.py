@@ -11,6 +11,7 @@ from benchmark.cache import StageRecord
 from benchmark.config import ConfigError
 from benchmark.pipeline.context import SequenceRun, synthetic_truth
 from benchmark.pipeline.settings import MaskSettings
+from benchmark.plugins import mask_packages
 
 
 def make_mask_generator(settings: MaskSettings):
@@ -88,7 +89,9 @@ def run(ctx: SequenceRun) -> list[StageRecord]:
     # an RGBA image is composited over the reconstruction's background (imagefiles' rule), so
     # masks are cut from the picture the geometry trains on
     white = bool(ctx.settings.geometry.train.white_background)
-    key = ctx.cache.key("masks", mcfg, {"scene": ctx.scene_key, "background": "white" if white else "black"})
+    plugin = mask_packages(ctx.settings)  # a generator from another package: keyed by its version too
+    key = ctx.cache.key("masks", mcfg, {"scene": ctx.scene_key, "background": "white" if white else "black",
+                                        **({"packages": plugin} if plugin else {})})
 
     def work(d: Path) -> dict:
         instance_maps = synthetic_truth(ctx.scene).instance_maps if settings.generator == "synthetic" else None

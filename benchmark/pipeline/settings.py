@@ -156,7 +156,7 @@ def _with_devices(cfg: dict, settings: RunSettings) -> dict:
     """``cfg`` with its "auto" devices as ``settings`` resolved them."""
     cfg["geometry"]["train"]["device"] = settings.geometry.train.device
     features = getattr(settings.method, "features", None)
-    if features is not None and isinstance(cfg["method"].get("features"), dict):
+    if hasattr(features, "device") and isinstance(cfg["method"].get("features"), dict):
         cfg["method"]["features"]["device"] = features.device
     return cfg
 

@@ -62,3 +62,10 @@ def test_project_registries_resolve():
             assert callable(e.load()), e
     assert get_method("cgc").name == "cgc"
     assert get_objective("cgc").name == "cgc"  # the benchmark's methods brought the baselines in
+
+
+def test_a_decorator_naming_a_declared_entry_keeps_its_help_line():
+    reg = Registry("thing")
+    reg.add("mine", "json:dumps", "declared with a line")
+    reg.register("mine")(__import__("json").dumps)  # the module's own decorator, as it is imported
+    assert reg.entry("mine").help == "declared with a line"

@@ -18,7 +18,7 @@ from collections.abc import Callable
 import torch
 import torch.nn.functional as F
 
-from lazyspecs import Registry
+from lazyspecs import Registry, subclass_of
 
 TAU_POS = 0.75  # positive pairs with cosine below this are imperfect (public code)
 TAU_NEG = 0.5  # negative pairs with cosine above this are imperfect (public code)
@@ -220,8 +220,10 @@ class Objective(torch.nn.Module):
 
 
 # TRASE's own objective is declared here; other packages add theirs (``baselines`` registers
-# its objectives when imported: the library knows none of them).
-OBJECTIVES = Registry("objective", ObjectiveInputError)
+# its objectives when imported: the library knows none of them), installed packages through
+# the entry-point group ``trase_bench.objectives`` (``name = module:ObjectiveSubclass``).
+OBJECTIVES = Registry("objective", ObjectiveInputError, group="trase_bench.objectives",
+                      check=subclass_of("trase.objectives.base:Objective"))
 OBJECTIVES.add("trase", "trase.objectives.soft:SoftMining")
 
 
@@ -236,5 +238,8 @@ def register_objective(name: str) -> Callable:
 
 
 def get_objective(name: str, **kwargs) -> Objective:
-    """Build a registered objective (its module imported on first use)."""
-    return OBJECTIVES.load(name)(**kwargs)
+    """Build a registered objective (its module imported on first use); it carries the name
+    it was asked by."""
+    objective = OBJECTIVES.load(name)(**kwargs)
+    objective.name = name
+    return objective
