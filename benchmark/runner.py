@@ -19,7 +19,7 @@ from benchmark.cache import PlanCache, StageCache, StageRecord, config_hash
 from benchmark.config import ConfigError, parse_overrides
 from benchmark.errors import UserError
 from benchmark.io import sha256_files
-from benchmark.pipeline import ceiling, evaluate, fit, geometry, masks, prompts
+from benchmark.pipeline import ceiling, evaluate, fit, geometry, masks, prompts, tracks
 from benchmark.pipeline.context import SequenceRun, scene_fingerprint
 from benchmark.pipeline.record import build_record
 from benchmark.pipeline.settings import RunSettings, run_settings
@@ -28,7 +28,7 @@ from benchmark.results import package_versions, write_results
 from benchmark.results.runs import check_free, run_dir, run_info, run_name
 
 # in order; each adds its stage records to the SequenceRun
-STAGES = (masks.run, geometry.run, fit.run, prompts.run, evaluate.run, ceiling.run)
+STAGES = (masks.run, geometry.run, tracks.run, fit.run, prompts.run, evaluate.run, ceiling.run)
 
 
 def stages_of(method) -> tuple:

@@ -25,11 +25,11 @@ import numpy as np
 from benchmark.cache import StageCache, config_hash
 from benchmark.config import merge, parse_overrides, typed
 from benchmark.io import atomic_directory, atomic_write_bytes, atomic_write_json
-from benchmark.pipeline import fit, geometry, masks
+from benchmark.pipeline import fit, geometry, masks, tracks
 from benchmark.pipeline.context import SequenceRun, scene_fingerprint
 from benchmark.pipeline.settings import capture_settings
 
-FIT_STAGES = (masks.run, geometry.run, fit.run)
+FIT_STAGES = (masks.run, geometry.run, tracks.run, fit.run)
 FIT_FILE, VIEWS_FILE = "fit.json", "views.json"
 N_PREVIEWS = 4
 

@@ -145,6 +145,9 @@ class Method:
     # produces: the features stage's cache key; None: every setting (safe, but a change of a
     # grouping or prompt setting then trains the features again)
     FEATURE_FIELDS: tuple[str, ...] | None = None
+    # True: ``learn`` reads tracked masks (ids consistent across views, masks.tracked) from its
+    # masks folder; the run then tracks them (masks.tracking, default classical; none refused)
+    needs_tracks: bool = False
 
     def settings_class(self) -> type:
         if self.presets is None:

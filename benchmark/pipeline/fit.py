@@ -29,7 +29,11 @@ def _features(ctx: SequenceRun) -> StageRecord:
     fields = method.FEATURE_FIELDS
     learned = {k: key_config(getattr(settings, k)) for k in fields} if fields is not None else {"settings": key_config(settings)}
     fcfg = {"method": method.name, **learned, **_packages(method, ctx.settings)}
-    key = ctx.cache.key("features", fcfg, {"masks": masks_rec.key, "geometry": geo_rec.key})
+    inputs = {"masks": masks_rec.key, "geometry": geo_rec.key}
+    tracks_rec = ctx.records.get("tracks")  # tracked masks: their folder holds the masks and the ids
+    if tracks_rec is not None:
+        masks_rec, inputs = tracks_rec, {**inputs, "tracks": tracks_rec.key}
+    key = ctx.cache.key("features", fcfg, inputs)
 
     def work(d: Path) -> dict:
         gaussians, deformation = ctx.geometry

@@ -10,7 +10,7 @@ import numpy as np
 from benchmark.cache import StageRecord
 from benchmark.config import ConfigError
 from benchmark.pipeline.context import SequenceRun, synthetic_truth
-from benchmark.pipeline.settings import MaskSettings
+from benchmark.pipeline.settings import TRACKING_FIELDS, MaskSettings
 from benchmark.plugins import mask_packages
 
 
@@ -72,7 +72,8 @@ def run(ctx: SequenceRun) -> list[StageRecord]:
     import masks as masklib
 
     settings = ctx.settings.masks
-    mcfg = dataclasses.asdict(settings)  # what the key hashes
+    # what the key hashes: the anything masks do not depend on tracking (the tracks stage's own)
+    mcfg = {k: v for k, v in dataclasses.asdict(settings).items() if k not in TRACKING_FIELDS}
     if settings.generator == "files":
         if not getattr(settings, "dir", None):
             raise ConfigError("masks.generator=files (trase-bench fit) needs --set masks.dir=PATH (a folder of mask files)")

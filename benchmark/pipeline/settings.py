@@ -35,11 +35,37 @@ GEOMETRY_PRESETS.declare("paper", when=A_BENCHMARK,
 SEED_PATHS = (("geometry", "train", "seed"), ("method", "features", "seed"), ("method", "clustering", "seed"))
 
 
+TRACKING = ("none", "synthetic", "files", "classical")  # masks.tracking (benchmark.pipeline.tracks)
+TRACKING_FIELDS = ("tracking", "tracks_dir")  # recorded only where tracking is on (untracked runs keep their hash)
+
+
 @dataclasses.dataclass
 class MaskSettings:
     generator: str = "classical"  # synthetic | classical | sam (benchmark runs); files (captures)
     checkpoint: str | None = None  # SAM checkpoint path (generator "sam")
     seed: int = 0
+    # ids consistent across views (masks.tracked): none | synthetic (the synthetic scene's
+    # instance maps) | files (tracks_dir, e.g. DEVA's output) | classical (the project's tracker)
+    tracking: str = "none"
+    tracks_dir: str | None = None  # tracking "files": the folder of per-frame id images
+
+    def __post_init__(self) -> None:
+        if self.tracking not in TRACKING:
+            raise ConfigError(f"--set masks.tracking={self.tracking}: choose {', '.join(TRACKING)}")
+        if self.tracking == "files" and not self.tracks_dir:
+            raise ConfigError("masks.tracking=files needs --set masks.tracks_dir=PATH (a folder of per-frame id "
+                              "images, e.g. DEVA's Annotations)")
+        if self.tracks_dir and self.tracking != "files":
+            raise ConfigError(f"--set masks.tracks_dir: read only with masks.tracking=files (it is {self.tracking})")
+
+
+def recorded_masks(masks: dict) -> dict:
+    """The masks section as a run records and hashes it: the tracking fields only where tracking
+    is on, so every untracked run keeps the config hash, name and stage keys it had before
+    tracking existed (as plugins' packages are keyed only where a plugin is used)."""
+    if masks.get("tracking", "none") == "none" and masks.get("tracks_dir") is None:
+        return {k: v for k, v in masks.items() if k not in TRACKING_FIELDS}
+    return dict(masks)
 
 
 @dataclasses.dataclass
@@ -90,7 +116,7 @@ class RunSettings:
 
     def to_dict(self) -> dict:
         """The record's form (results.json, the run's name)."""
-        out = {"masks": dataclasses.asdict(self.masks), "geometry": dataclasses.asdict(self.geometry),
+        out = {"masks": recorded_masks(dataclasses.asdict(self.masks)), "geometry": dataclasses.asdict(self.geometry),
                "method": dataclasses.asdict(self.method)}
         if self.prompts is not None:
             out["prompts"] = dataclasses.asdict(self.prompts)
@@ -105,9 +131,14 @@ def run_settings(method, spec, variant: str, overrides: dict, image_size: tuple[
     seed (``--set seed=S``, written into every seeded section), then ``overrides`` (an explicit
     ``method.features.seed`` still wins). ``image_size`` (W, H) of the benchmark images picks
     the cpu presets' training resolution."""
-    masks = {"generator": "synthetic" if variant == "synthetic" else "classical", "checkpoint": None, "seed": 0}
+    masks = {"generator": "synthetic" if variant == "synthetic" else "classical", "checkpoint": None, "seed": 0,
+             **_tracking(method)}
     ctx = Context(dataset=spec.key, monocular=spec.monocular, image_size=image_size)
-    return _resolve(method, ctx, overrides, masks, {"prompts": dataclasses.asdict(PromptProtocol())})
+    settings = _resolve(method, ctx, overrides, masks, {"prompts": dataclasses.asdict(PromptProtocol())})
+    if settings.masks.tracking == "synthetic" and variant != "synthetic":
+        raise ConfigError("masks.tracking=synthetic reads a synthetic scene's instance maps; this scene is real "
+                          "(choose classical, or files with masks.tracks_dir)")
+    return settings
 
 
 def capture_settings(method, monocular: bool, capture: dict, overrides: dict,
@@ -117,9 +148,15 @@ def capture_settings(method, monocular: bool, capture: dict, overrides: dict,
     preset, masks by the classical generator (or SAM with --set masks.generator=sam
     masks.checkpoint=PATH, or masks made elsewhere with masks.generator=files masks.dir=PATH),
     and the ``capture`` section (benchmark.captures.CaptureOptions)."""
-    masks = {"generator": "classical", "checkpoint": None, "seed": 0, "dir": None}
+    masks = {"generator": "classical", "checkpoint": None, "seed": 0, "dir": None, **_tracking(method)}
     ctx = Context(dataset=None, monocular=monocular, image_size=image_size)
     return _resolve(method, ctx, overrides, masks, {"capture": dict(capture)})
+
+
+def _tracking(method) -> dict:
+    """The tracking fields' defaults: none, or the classical tracker for a method that needs
+    tracked masks (``Method.needs_tracks``)."""
+    return {"tracking": "classical" if getattr(method, "needs_tracks", False) else "none", "tracks_dir": None}
 
 
 def _resolve(method, ctx: Context, overrides: dict, masks: dict, extra: dict) -> RunSettings:
@@ -147,7 +184,7 @@ def _resolve(method, ctx: Context, overrides: dict, masks: dict, extra: dict) ->
     # the same run without its seed (an explicit seed of one section stays), and without --set
     group = _with_devices(merge(apply_seed(base, 0), plain), settings)
     default = _with_devices(merge(base, {}), settings)
-    settings.group_hash = config_hash(group)
+    settings.group_hash = config_hash({**group, "masks": recorded_masks(group["masks"])})
     settings.is_default = preset == auto_preset and group == default
     return settings
 
@@ -172,7 +209,11 @@ def _typed(method, cfg: dict, preset: str) -> RunSettings:
     if features is not None and hasattr(features, "device"):
         features.device = _resolve_device(features.device, "method.features.device")
     method.check_settings(method_settings)
-    return RunSettings(preset=preset, seed=cfg["seed"], masks=typed(masks_cls, cfg["masks"], "masks"),
+    masks = typed(masks_cls, cfg["masks"], "masks")
+    if getattr(method, "needs_tracks", False) and masks.tracking == "none":
+        raise ConfigError(f"method {method.name!r} learns from tracked masks: masks.tracking=none cannot work "
+                          "(choose classical, synthetic or files)")
+    return RunSettings(preset=preset, seed=cfg["seed"], masks=masks,
                        geometry=geometry, method=method_settings,
                        prompts=typed(PromptProtocol, cfg["prompts"], "prompts") if "prompts" in cfg else None,
                        capture=cfg.get("capture"))
@@ -253,6 +294,6 @@ def _get(d: dict, path: tuple[str, ...]):
     return d
 
 
-__all__ = ["GEOMETRY_PRESETS", "SEED_PATHS", "CaptureMaskSettings", "GeometrySettings", "MaskSettings",
-           "PromptProtocol", "RunSettings", "apply_seed", "capture_settings", "key_config", "run_seed",
+__all__ = ["GEOMETRY_PRESETS", "SEED_PATHS", "TRACKING", "CaptureMaskSettings", "GeometrySettings", "MaskSettings",
+           "PromptProtocol", "RunSettings", "apply_seed", "capture_settings", "key_config", "recorded_masks", "run_seed",
            "run_settings", "take_preset", "without_seed"]

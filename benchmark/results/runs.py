@@ -38,6 +38,13 @@ from benchmark.results.record import (
 NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._=+-]{0,79}$")
 EXTERNAL_PROTOCOL = "external predictions: prompts and geometry not controlled by the benchmark"
 TABLE_KINDS = ("main", "external")  # what a leaderboard shows unless told otherwise
+# masks.tracking -> the protocol's "tracks" label (absent where tracking is none): ids from the
+# synthetic scene's ground truth are a protocol of their own, never a tracker's
+TRACKS_PROTOCOL = {
+    "synthetic": "tracked from ground truth (synthetic instance maps)",
+    "files": "tracked ids from files (masks.tracks_dir)",
+    "classical": "tracked by the classical tracker (mask overlap after warping by the geometry)",
+}
 
 
 class RunError(UserError):
@@ -122,6 +129,7 @@ def protocol(record: dict) -> dict:
                      else src),
         "features": mcfg.get("preset", "?") + on(mcfg.get("features") or {}),
         "masks": (cfg.get("masks") or {}).get("generator", "?"),
+        **tracks_protocol(cfg.get("masks") or {}),
         "prompts": prompts,
         "render": mcfg.get("render_rule", "alone"),
         "metric": official.get("metric_version", "?"),
@@ -131,6 +139,15 @@ def protocol(record: dict) -> dict:
                 "features": f"the method's own (TOML sha256 {str(mcfg.get('toml_sha256', '?'))[:12]})",
                 "render": "the method's own"}
     return out
+
+
+def tracks_protocol(masks: dict) -> dict:
+    """{"tracks": label} of a run's masks section where it tracked ids across views, else {}
+    (records from before tracking, and untracked runs, have no tracking field)."""
+    tracking = masks.get("tracking", "none")
+    if tracking in (None, "none"):
+        return {}
+    return {"tracks": TRACKS_PROTOCOL.get(tracking, tracking)}
 
 
 def protocol_label(p: dict) -> str:
