@@ -234,3 +234,40 @@ def test_a_run_with_synthetic_tracking_is_labelled_tracked_from_ground_truth(tmp
     capsys.readouterr()
     assert main(["runs", "--runs", str(out)]) == 0
     assert "tracked from ground truth" in capsys.readouterr().out
+
+
+def test_a_method_that_needs_tracks_reads_them_from_its_masks_dir(tiny_scene, tmp_path):
+    """The stages as a run chains them, with a method whose learn reads the tracked masks."""
+    import masks as masklib
+    from benchmark.cache import StageCache
+    from benchmark.methods.trase_method import TraseMethod
+    from benchmark.pipeline import fit, geometry, masks, tracks
+    from benchmark.pipeline.context import SequenceRun, scene_fingerprint
+
+    seen = {}
+
+    class Needy(TraseMethod):
+        needs_tracks = True
+
+        def learn(self, scene, gaussians, deformation, masks_dir, config, work_dir, progress=False):
+            seen["info"] = load_tracks_info(masks_dir)
+            seen["ids"] = [load_ids(ids_path(masks_dir, v.name)) for v in scene.train]
+            seen["masks"] = [masklib.load(masklib.mask_path(masks_dir, v.name)).n for v in scene.train]
+            return np.zeros((gaussians.num_gaussians, 2), np.float32), {}
+
+    method = Needy()
+    method.name = "needy"
+    settings = _settings(method, **{"geometry.source": "ground-truth"})
+    assert settings.masks.tracking == "classical"
+    ctx = SequenceRun(StageCache(tmp_path / "cache"), tiny_scene, settings, method, False,
+                      scene_fingerprint(tiny_scene), "gt")
+    for stage in (masks.run, geometry.run, tracks.run):
+        for rec in stage(ctx):
+            ctx.records[rec.stage] = rec
+    feats = fit._features(ctx)
+    assert seen["info"]["source"] == "classical" and seen["info"]["n_tracks"] == max(int(i.max()) for i in seen["ids"])
+    assert all(n > 0 for n in seen["masks"])
+    assert feats.key == fit._features(ctx).key  # keyed by the tracks too, and cached
+    untracked = _settings(**{"geometry.source": "ground-truth"})
+    assert tracks.run(SequenceRun(StageCache(tmp_path / "cache"), tiny_scene, untracked, method, False,
+                                  scene_fingerprint(tiny_scene), "gt")) == []
