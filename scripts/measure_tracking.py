@@ -17,7 +17,7 @@ import time
 from pathlib import Path
 
 
-def measure(dataset: str, seed: int, size: str, root: Path) -> dict:
+def measure(dataset: str, seed: int, size: str, root: Path, **tracker) -> dict:
     import masks as masklib
     from benchmark.datasets import load_scene
     from benchmark.datasets.synthetic import generate
@@ -40,7 +40,7 @@ def measure(dataset: str, seed: int, size: str, root: Path) -> dict:
         (gdir / "geometry.npz").symlink_to(truth.geometry_path)
         gaussians, deformation = load_geometry(gdir)
         t0 = time.perf_counter()
-        info = track_classical(scene.train, gaussians, deformation, out, truth=truth)
+        info = track_classical(scene.train, gaussians, deformation, out, truth=truth, **tracker)
         seconds = time.perf_counter() - t0
     return {"dataset": dataset, "seed": seed, "size": size, "views": len(scene.train), "seconds": round(seconds, 2),
             **info}
@@ -52,9 +52,13 @@ def main(argv=None) -> int:
     ap.add_argument("--size", default="small")
     ap.add_argument("--root", type=Path, default=Path("synthetic-scenes"))
     ap.add_argument("--datasets", default="nerfds,hypernerf,neu3d,immersive,technicolor")
+    ap.add_argument("--memory", type=int, default=None, help="earlier views a lost track is sought in (default: the stage's)")
+    ap.add_argument("--no-parts", action="store_true", help="segments inside a track start their own")
     args = ap.parse_args(argv)
+    tracker = {**({"memory": args.memory} if args.memory is not None else {}),
+               **({"part_of_share": None} if args.no_parts else {})}
     for d in args.datasets.split(","):
-        print(json.dumps(measure(d, args.seed, args.size, args.root)), flush=True)
+        print(json.dumps(measure(d, args.seed, args.size, args.root, **tracker)), flush=True)
     return 0
 
 

@@ -52,7 +52,7 @@ PART_OF = MIN_KEPT
 CLASSICAL = {"iou_threshold": IOU_THRESHOLD, "min_kept": MIN_KEPT, "memory": MEMORY, "part_of": PART_OF,
              "order": "time, then view name",
              "min_area": "the mask generators' minimum area (SAM's 100 px at 536x960, scaled)",
-             "version": 3}
+             "version": 4}
 
 # where a DEVA output folder keeps its per-frame images: Annotations/ (demo_automatic.py and
 # demo_with_text.py), object_mask/ (Gaussian Grouping's copy of it), else the folder itself
@@ -211,7 +211,8 @@ def time_order(views) -> list:
     return sorted(views, key=lambda v: (float(v.camera.time), v.name))
 
 
-def track_classical(views, gaussians, deformation, out: Path, truth=None, progress: bool = False) -> dict:
+def track_classical(views, gaussians, deformation, out: Path, truth=None, memory: int = MEMORY,
+                    part_of_share: float | None = PART_OF) -> dict:
     """Track ids for the anything masks in ``out`` (one file per view, as the masks stage wrote
     them): per view in time order, segments (``segments_from_masks``), then the previous view's
     ids warped into this one (``trase.warp.backward_warp``), segments matched to the warped
@@ -219,7 +220,9 @@ def track_classical(views, gaussians, deformation, out: Path, truth=None, progre
     matched in the same way against the tracks of up to MEMORY earlier views (most recent first)
     that no segment of this view continues; a segment unmatched after that which lies in one
     track of the previous view (PART_OF of its known pixels) is a part of it and takes its id;
-    any other starts a new track. ``truth`` (a synthetic scene's): the agreement with its instance maps is recorded."""
+    any other starts a new track. ``truth`` (a synthetic scene's): the agreement with its
+    instance maps is recorded. ``memory`` and ``part_of_share`` (None: no parts) change the last
+    two steps for measurements (scripts/measure_tracking.py); the stage uses the constants."""
     import masks as masklib
     from masks.generate import read_instance_map
     from masks.generators.base import min_area_for
@@ -237,7 +240,7 @@ def track_classical(views, gaussians, deformation, out: Path, truth=None, progre
     from trase.warp import backward_warp, view_geometry
 
     n_tracks = 0
-    recent: list[tuple] = []  # (view geometry, ids) of the last MEMORY views, most recent last
+    recent: list[tuple] = []  # (view geometry, ids) of the previous view and up to `memory` before it
     continued = resumed = joined = started = 0
     maps = {}
     for v in time_order(views):
@@ -269,10 +272,10 @@ def track_classical(views, gaussians, deformation, out: Path, truth=None, progre
             else:
                 resumed += len(match)
         free = np.flatnonzero(track_of[1:] == 0)
-        if last is not None and free.shape[0]:
+        if last is not None and free.shape[0] and part_of_share is not None:
             inter, known, _ = last
             area = np.bincount(seg.ravel(), minlength=n_seg + 1)[1:]
-            parts = part_of(inter[free], known[free], area[free], PART_OF)
+            parts = part_of(inter[free], known[free], area[free], part_of_share)
             for s, t in parts.items():
                 track_of[free[s] + 1] = t + 1
             joined += len(parts)
@@ -284,8 +287,9 @@ def track_classical(views, gaussians, deformation, out: Path, truth=None, progre
         ids = track_of[seg].astype(np.int32)
         save_ids(ids_path(out, v.name), ids)
         maps[v.name] = ids
-        recent = [*recent, (geo, ids)][-MEMORY:] if MEMORY > 0 else []
-    info = {"source": "classical", "n_tracks": n_tracks, "views": len(views), "constants": CLASSICAL,
+        recent = [*recent, (geo, ids)][-(max(memory, 0) + 1):]  # the previous view and `memory` before it
+    constants = {**CLASSICAL, "memory": memory, "part_of": part_of_share}
+    info = {"source": "classical", "n_tracks": n_tracks, "views": len(views), "constants": constants,
             "continued": continued, "resumed": resumed, "parts": joined, "started": started}
     if truth is not None:
         truth_maps = [read_instance_map(truth.instance_maps[v.name]) for v in views]
