@@ -169,18 +169,25 @@ class GaussianGrouping(Method):
 
     def selected_gaussians(self, fitted: FittedModel, classes: list[int], t: float) -> np.ndarray:
         """[N] bool: gaussians whose probability of a chosen class exceeds the threshold, then
-        the convex-hull step (``selection.hull``)."""
+        the convex-hull step (``selection.hull``) for each chosen class."""
         n = fitted.features.shape[0]
         chosen = [k for k in classes if k >= 0]
         if not chosen or n == 0:
             return np.zeros(n, bool)
         s = fitted.config.selection
         probs = self.probabilities_at(fitted, t)
-        sel = (probs[:, chosen] > float(s.prob_threshold)).any(dim=1).numpy()
-        if s.hull != "none" and sel.sum() >= 5:
-            xyz = fitted.gaussians.means.detach().cpu().numpy().astype(np.float64)
-            inside = inside_hull(xyz, sel, float(s.hull_outlier_factor))
-            sel = (sel | inside) if s.hull == "union" else (sel & inside)
+        per_class = (probs[:, chosen] > float(s.prob_threshold)).numpy()  # [N, chosen]
+        if s.hull == "none":
+            return per_class.any(axis=1)
+        # the hull of each chosen class on its own: the public code edits one object at a time,
+        # and one hull around objects apart takes in everything between them
+        xyz = fitted.gaussians.means.detach().cpu().numpy().astype(np.float64)
+        sel = np.zeros(n, bool)
+        for col in per_class.T:
+            if col.sum() >= 5:
+                inside = inside_hull(xyz, col, float(s.hull_outlier_factor))
+                col = (col | inside) if s.hull == "union" else (col & inside)
+            sel |= col
         return sel
 
     def render_selection(self, fitted: FittedModel, scene, clusters: list[int]) -> list[np.ndarray]:
