@@ -1,6 +1,6 @@
 """gaussian-grouping through `trase-bench run` on the tiny synthetic HyperNeRF-format scene,
 with ground-truth geometry and track ids from the scene's instance maps (written after the
-masks stage, synthetic_tracks), a few hundred steps: the run completes and is recorded."""
+masks stage, synthetic_tracks), 150 steps: the run completes and is recorded."""
 
 import json
 import time
@@ -22,7 +22,7 @@ def test_gaussian_grouping_runs_the_tiny_scene(tmp_path, monkeypatch):
     runs = tmp_path / "runs"
     rc = main(["run", "--method", "gaussian-grouping", "--dataset", "hypernerf", "--sequence", "synthetic-tiny",
                "--runs", str(runs), "--set", "geometry.source=ground-truth", "--set", "preset=cpu",
-               "--set", "method.features.iterations=300", "--quiet"])
+               "--set", "method.features.iterations=150", "--quiet"])
     assert rc == 0
     (path,) = runs.glob("gaussian-grouping/hypernerf/synthetic-tiny/*/results.json")
     record = json.loads(path.read_text())
