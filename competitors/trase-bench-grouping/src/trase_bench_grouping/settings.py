@@ -99,6 +99,8 @@ SA4D_PRESETS.declare("paper", {"features.iterations": 5000, "features.reg3d_inte
 SA4D_PRESETS.declare("paper", {"features.dim": 32}, when=dataset("hypernerf"))
 SA4D_PRESETS.declare("cpu", base="paper", help="minutes on two cores: a narrower field, fewer steps, sampled pixels",
                      preset="cpu")
+# cpu: set from one run, not a grid (docs/competitors.md): seed-1 HyperNeRF-format scene,
+# ground-truth geometry: mIoU 0.9342 (ceiling 0.9269), 0.45 s per step on two loaded cores
 SA4D_PRESETS.declare("cpu", {"features.iterations": 1000, "features.n_pixels": 2000, "features.field_width": 64,
                              "features.reg3d_interval": 5, "features.field_lr": 0.005,
                              "features.classifier_lr": 0.005})
