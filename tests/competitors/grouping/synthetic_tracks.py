@@ -10,9 +10,10 @@ def with_truth_tracks(stages: tuple) -> tuple:
     """``stages`` (benchmark.runner.STAGES) with the masks stage followed by writing each
     training view's instance map as its track ids (0: background; ground truth, so a protocol
     of its own)."""
+    from trase_bench_grouping.tracks import ids_path, write_ids
+
     from benchmark.pipeline.context import synthetic_truth
     from masks.generate import read_instance_map
-    from trase_bench_grouping.tracks import ids_path, write_ids
 
     masks_run = stages[0]
 

@@ -9,8 +9,8 @@ import torch
 
 pytest.importorskip("trase_bench_grouping")
 
-from trase_bench_grouping.identity import IdentityField, IdentityTable, pack, unpack  # noqa: E402
-from trase_bench_grouping.losses import identity_loss, knn_consistency  # noqa: E402
+from trase_bench_grouping.identity import IdentityField, IdentityTable, pack, unpack
+from trase_bench_grouping.losses import identity_loss, knn_consistency
 
 
 def test_identity_loss_is_mean_cross_entropy_over_log_classes():

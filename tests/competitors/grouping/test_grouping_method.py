@@ -10,14 +10,15 @@ import torch
 
 pytest.importorskip("trase_bench_grouping")
 
-from benchmark.methods import FittedModel, check_method_class  # noqa: E402
-from benchmark.protocol.prompts import make_benchmark_prompts  # noqa: E402
-from benchmark.scoring import score_masks  # noqa: E402
-from tests.trase.helpers import exact_masks, tiny_scene  # noqa: E402
-from trase.deformation import deformed  # noqa: E402
-from trase.render import rasterize  # noqa: E402
-from trase_bench_grouping.method import SA4D, GaussianGrouping, inside_hull  # noqa: E402
-from trase_bench_grouping.tracks import ids_path, load_ids, write_ids  # noqa: E402
+from trase_bench_grouping.method import SA4D, GaussianGrouping, inside_hull
+from trase_bench_grouping.tracks import ids_path, load_ids, write_ids
+
+from benchmark.methods import FittedModel, check_method_class
+from benchmark.protocol.prompts import make_benchmark_prompts
+from benchmark.scoring import score_masks
+from tests.trase.helpers import exact_masks, tiny_scene
+from trase.deformation import deformed
+from trase.render import rasterize
 
 
 @dataclasses.dataclass
@@ -70,7 +71,7 @@ def test_both_are_methods_with_presets():
 
 
 def _fit(method, tiny, tmp_path, **features):
-    gm, deform, ids, views, masks_dir = tiny
+    gm, deform, _ids, views, masks_dir = tiny
     scene = _Scene(train=views, test=views)
     cfg = method.settings("cpu", "hypernerf")
     cfg.features = dataclasses.replace(cfg.features, **{"iterations": 300, "n_pixels": 0, "reg3d_sample_size": 50,
@@ -122,7 +123,7 @@ def test_track_ids_beyond_the_classes_are_one_line_errors(tiny, tmp_path):
 def test_no_ids_files_is_a_one_line_error(tmp_path):
     from benchmark.methods import MethodError
 
-    gm, deform, ids, views = tiny_scene()
+    gm, deform, _ids, views = tiny_scene()
     method = GaussianGrouping()
     method.name = "gaussian-grouping"
     with pytest.raises(MethodError, match="tracked ids"):

@@ -12,7 +12,7 @@ pytest.importorskip("trase_bench_grouping")
 
 @pytest.mark.slow
 def test_gaussian_grouping_runs_the_tiny_scene(tmp_path, monkeypatch):
-    import benchmark.runner as runner
+    from benchmark import runner
     from benchmark.cli import main
     from tests.competitors.grouping.synthetic_tracks import with_truth_tracks
 

@@ -126,7 +126,7 @@ class GaussianGrouping(Method):
         labels = self.probabilities_at(fitted, 0.5).argmax(dim=1).numpy().astype(np.int64)
         fitted.labels = labels
         fitted.timings["classify"] = time.perf_counter() - t0
-        fitted.stats.update(n_gaussians=int(len(labels)), n_clusters=int(len(np.unique(labels))) if len(labels) else 0,
+        fitted.stats.update(n_gaussians=len(labels), n_clusters=len(np.unique(labels)) if len(labels) else 0,
                             kept_fraction=1.0)
         return fitted
 
