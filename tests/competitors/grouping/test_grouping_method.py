@@ -1,0 +1,143 @@
+"""gaussian-grouping and sa4d on a tiny scene: two blobs, tracked ids written from the blobs'
+rendered labels (1 and 2; 0 where nothing is seen), then learn, group, a click and the oracle."""
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+pytest.importorskip("trase_bench_grouping")
+
+from trase_bench_grouping.method import SA4D, GaussianGrouping, inside_hull
+from trase_bench_grouping.tracks import ids_path, load_ids, write_ids
+
+from benchmark.methods import FittedModel, check_method_class
+from benchmark.protocol.prompts import make_benchmark_prompts
+from benchmark.scoring import score_masks
+from tests.trase.helpers import exact_masks, tiny_scene
+from trase.deformation import deformed
+from trase.render import rasterize
+
+
+@dataclasses.dataclass
+class _Scene:
+    train: list
+    test: list
+    root: Path = Path("tiny")
+
+
+def _track_ids(gm, deform, ids, view) -> np.ndarray:
+    with torch.no_grad():
+        m, q, s = deformed(gm, deform, view.camera.time)
+        onehot = torch.nn.functional.one_hot(torch.from_numpy(ids).long(), 2).float()
+        out = rasterize(m, q, s, gm.opacities, view.camera, features=onehot)
+    lab = np.argmax(out.features.numpy(), axis=2) + 1
+    return np.where(out.alpha.numpy() >= 0.5, lab, 0)
+
+
+@pytest.fixture
+def tiny(tmp_path):
+    gm, deform, ids, views = tiny_scene()
+    masks_dir = tmp_path / "masks"
+    for v in views:
+        write_ids(masks_dir, v.name, _track_ids(gm, deform, ids, v))
+    return gm, deform, ids, views, masks_dir
+
+
+def test_ids_files_round_trip_beside_the_masks(tmp_path):
+    import masks as masklib
+
+    ids = np.array([[0, 1], [2, 65535]])
+    p = write_ids(tmp_path, "cam/00", ids)
+    assert p.parent == masklib.mask_path(tmp_path, "cam/00").parent and p.name.endswith(".ids.png")
+    assert p == ids_path(tmp_path, "cam/00")
+    back = load_ids(p)
+    assert back.dtype == np.int32 and np.array_equal(back, ids)
+
+
+def test_both_are_methods_with_presets():
+    for cls in (GaussianGrouping, SA4D):
+        assert check_method_class(cls) is None and cls.needs_tracks
+    gg = GaussianGrouping().settings("paper", "hypernerf")
+    assert (gg.features.dim, gg.features.n_classes, gg.features.lr, gg.features.classifier_lr) == (16, 256, 0.0025, 5e-4)
+    assert (gg.features.reg3d_interval, gg.features.reg3d_k, gg.features.reg3d_weight) == (5, 5, 2.0)
+    assert gg.features.iterations == 30000 and gg.selection.hull == "union"
+    sa = SA4D().settings("paper", "hypernerf")
+    assert (sa.features.dim, sa.features.iterations, sa.features.reg3d_interval, sa.selection.hull) == (32, 5000, 1, "filter")
+    assert SA4D().settings("paper", "neu3d").features.dim == 16
+    assert GaussianGrouping().settings("cpu", "hypernerf").preset == "cpu"
+
+
+def _fit(method, tiny, tmp_path, **features):
+    gm, deform, _ids, views, masks_dir = tiny
+    scene = _Scene(train=views, test=views)
+    cfg = method.settings("cpu", "hypernerf")
+    cfg.features = dataclasses.replace(cfg.features, **{"iterations": 300, "n_pixels": 0, "reg3d_sample_size": 50,
+                                                         "n_classes": 8, **features})
+    method.name = method.name or type(method).__name__
+    fitted = method.fit(scene, gm, deform, masks_dir, cfg, tmp_path / "fit", progress=False)
+    return scene, fitted
+
+
+@pytest.mark.parametrize("cls", [GaussianGrouping, SA4D])
+def test_fit_click_and_oracle_on_two_blobs(cls, tiny, tmp_path):
+    gm, deform, ids, views, _ = tiny
+    method = cls()
+    scene, fitted = _fit(method, tiny, tmp_path, **({"field_width": 32} if cls is SA4D else {}))
+    assert fitted.features.shape[0] == len(ids)
+    # each blob's gaussians take their track's class (1 and 2)
+    assert np.mean(fitted.labels[ids == 0] == 1) > 0.9 and np.mean(fitted.labels[ids == 1] == 2) > 0.9
+    gts = [exact_masks(gm, deform, ids, v).masks[0] for v in views]
+    prompts = make_benchmark_prompts(views, gts)
+    preds = method.segment(fitted, scene, prompts)
+    names = [str(i) for i in range(len(views))]
+    assert fitted.stats["click_clusters"][0] in (1, 2)
+    assert score_masks(dict(zip(names, preds)), dict(zip(names, gts))).miou > 0.8
+    opreds, classes = method.segment_oracle(fitted, scene, gts)
+    assert len(opreds) == len(views) and classes == fitted.stats["selected_clusters"]
+    fitted.save(tmp_path / "out")  # the benchmark reloads it: the weights travel in fitted.json
+    back = FittedModel.load(tmp_path / "out", gm, deform, method.settings_class())
+    assert method.click_clusters(back, scene, prompts) == fitted.stats["click_clusters"]
+
+
+def test_a_click_on_nothing_chooses_nothing(tiny, tmp_path):
+    from trase.prompts import Click
+
+    method = GaussianGrouping()
+    scene, fitted = _fit(method, tiny, tmp_path, iterations=20)
+    prompts = make_benchmark_prompts(scene.test, [exact_masks(*tiny[:3], v).masks[0] for v in scene.test])
+    far = dataclasses.replace(prompts, clicks=[Click(0.5, 0.5, view=scene.test[0].name)])
+    assert method.click_clusters(fitted, scene, far) == [-1]
+    assert not any(m.any() for m in method.segment(fitted, scene, far))
+
+
+def test_track_ids_beyond_the_classes_are_one_line_errors(tiny, tmp_path):
+    from benchmark.methods import MethodError
+
+    with pytest.raises(MethodError, match="n_classes"):
+        _fit(GaussianGrouping(), tiny, tmp_path, n_classes=2, iterations=1)
+
+
+def test_no_ids_files_is_a_one_line_error(tmp_path):
+    from benchmark.methods import MethodError
+
+    gm, deform, _ids, views = tiny_scene()
+    method = GaussianGrouping()
+    method.name = "gaussian-grouping"
+    with pytest.raises(MethodError, match="tracked ids"):
+        method.learn(_Scene(views, views), gm, deform, tmp_path, method.settings("cpu", "hypernerf"), tmp_path / "w",
+                     progress=False)
+
+
+def test_hull_union_fills_and_filter_drops_outliers():
+    rng = np.random.default_rng(0)
+    cube = rng.uniform(-1, 1, size=(200, 3))
+    far = np.array([[10.0, 10.0, 10.0]])
+    pts = np.concatenate([cube, far, [[0.0, 0.0, 0.0]]])
+    chosen = np.zeros(len(pts), bool)
+    chosen[:150] = True
+    chosen[200] = True  # an outlier the IQR rule drops
+    inside = inside_hull(pts, chosen, 1.0)
+    assert inside[201] and not inside[200]  # the centre is inside, the outlier is not
