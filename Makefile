@@ -20,6 +20,7 @@ $(STAMP): pyproject.toml | $(PY)
 	  $(PY) -m pip install --quiet "$(TORCH_PIN)" || \
 	  echo "warning: $(TORCH_PIN) not available here; pip will resolve torch from pyproject.toml"
 	$(PY) -m pip install --quiet -e ".[dev]"
+	$(PY) -m pip install --quiet --no-deps -e competitors/trase-bench-saga
 	@touch $(STAMP)
 
 test: $(STAMP)
