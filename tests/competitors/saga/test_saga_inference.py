@@ -72,3 +72,13 @@ def test_presets_paper_are_the_public_defaults_and_cpu_is_smaller():
     cpu = SAGA_PRESETS.resolve("cpu", Context(dataset="hypernerf")).config
     assert cpu.features.iterations < paper.features.iterations and cpu.render_rule == "visible"
     assert SAGA_PRESETS.resolve("cpu", Context(dataset="neu3d", monocular=False)).config.render_rule == "alone"
+
+
+def test_mask_scales_come_from_rendered_depth():
+    from trase_bench_saga.train import view_scales
+
+    gm, deform, ids, views = tiny_scene()
+    ms = _nested_masks(gm, deform, ids, views[0])
+    s = view_scales(gm, deform, views[0].camera, ms, erode_min=5, min_alpha=0.5)
+    # each blob spans ~0.4 m (0.18 std per axis, seen from one side); both together ~1.2 m apart
+    assert 0.1 < s[0] < 0.8 and 0.1 < s[1] < 0.8 and s[2] > 1.5 * max(s[0], s[1])
