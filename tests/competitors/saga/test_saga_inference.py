@@ -69,6 +69,8 @@ def test_presets_paper_are_the_public_defaults_and_cpu_is_smaller():
     paper = SAGA_PRESETS.resolve("paper", Context(dataset="hypernerf")).config
     assert (paper.features.dim, paper.features.iterations, paper.features.lr, paper.features.n_rays) == (32, 10000, 0.0025, 1000)
     assert (paper.inference.scale, paper.inference.threshold) == (0.5, 0.75)
+    assert (cpu_inf := SAGA_PRESETS.resolve("cpu", Context(dataset="nerfds")).config.inference).scale == 0.75
+    assert cpu_inf.threshold == 0.65
     cpu = SAGA_PRESETS.resolve("cpu", Context(dataset="hypernerf")).config
     assert cpu.features.iterations < paper.features.iterations and cpu.render_rule == "visible"
     assert SAGA_PRESETS.resolve("cpu", Context(dataset="neu3d", monocular=False)).config.render_rule == "alone"

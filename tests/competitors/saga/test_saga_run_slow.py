@@ -24,4 +24,4 @@ def test_saga_runs_on_the_tiny_scene(tmp_path):
     assert 0.0 <= r["metrics"]["miou"] <= 1.0 and 0.0 <= r["oracle"]["miou"] <= 1.0
     assert r["ceiling"]["miou"] > 0.5
     assert r["stages"]["features"]["info"]["saga"]["gate"]["weight"]
-    assert r["config"]["method"]["inference"]["threshold"] == 0.75
+    assert r["config"]["method"]["inference"]["threshold"] == 0.65  # the cpu preset (no GPU here)
