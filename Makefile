@@ -15,12 +15,13 @@ $(PY):
 
 # Torch first: the pinned CPU wheel where the machine has it, so the dependency range in
 # pyproject.toml is already satisfied and pip never resolves a multi-GB CUDA build.
-$(STAMP): pyproject.toml | $(PY)
+$(STAMP): pyproject.toml $(wildcard competitors/*/pyproject.toml) | $(PY)
 	@$(PY) -c "import torch" 2>/dev/null || \
 	  $(PY) -m pip install --quiet "$(TORCH_PIN)" || \
 	  echo "warning: $(TORCH_PIN) not available here; pip will resolve torch from pyproject.toml"
 	$(PY) -m pip install --quiet -e ".[dev]"
 	$(PY) -m pip install --quiet --no-deps -e competitors/trase-bench-grouping
+	$(PY) -m pip install --quiet --no-deps -e competitors/trase-bench-saga
 	@touch $(STAMP)
 
 test: $(STAMP)
