@@ -112,7 +112,7 @@ def click_to_cluster(gaussians, deformation, camera: Camera, click: Click, label
         features = gaussians.features.detach().cpu().numpy()  # the editor's models carry them
     cam = camera if click.time is None else camera.with_time(click.time)
     if rule in ("weight", "feature"):
-        window = _window_weights(gaussians, deformation, cam, click.u, click.v, min_alpha, radius)
+        window = window_weights(gaussians, deformation, cam, click.u, click.v, min_alpha, radius)
         if window is None:
             return -1
         idx, w = window
@@ -124,7 +124,7 @@ def click_to_cluster(gaussians, deformation, camera: Camera, click: Click, label
 
 
 @torch.no_grad()
-def _window_weights(gaussians, deformation, camera: Camera, u: float, v: float, min_alpha: float,
+def window_weights(gaussians, deformation, camera: Camera, u: float, v: float, min_alpha: float,
                     radius: int) -> tuple[np.ndarray, np.ndarray] | None:
     """(gaussian ids [K], compositing weights [K] float64) of every (gaussian, pixel) pair in
     the (2 radius + 1)^2 window of pixels around (u, v); None off the image, on an empty

@@ -40,23 +40,10 @@ def rendered_feature(gaussians, deformation, camera, u: float, v: float, feature
     """The feature rendered at the click (the compositing-weighted sum of the gaussians'
     features over the (2 r + 1)^2 pixels around it); None off the image, on no gaussians, or
     where the clicked pixel's alpha is below ``min_alpha``."""
-    from trase.prompts import geometry_at
-    from trase.render import pixel_weights
+    from trase.prompts import window_weights
 
-    W, H = camera.width, camera.height
-    if not (0 <= u < W and 0 <= v < H) or gaussians.num_gaussians == 0:
+    found = window_weights(gaussians, deformation, camera, u, v, min_alpha, max(int(radius), 0))
+    if found is None:
         return None
-    col, row = int(np.floor(u)), int(np.floor(v))
-    r = max(int(radius), 0)
-    rows = np.arange(max(row - r, 0), min(row + r, H - 1) + 1)
-    cols = np.arange(max(col - r, 0), min(col + r, W - 1) + 1)
-    window = (rows[:, None] * W + cols[None, :]).reshape(-1)
-    centre = int(np.flatnonzero(window == row * W + col)[0])
-    m, q, s, o = geometry_at(gaussians, deformation, camera.time)
-    pw = pixel_weights(m, q, s, o, camera, torch.from_numpy(window))
-    indptr = pw.indptr.cpu().numpy()
-    w = pw.weights.cpu().numpy().astype(np.float64)
-    if w[indptr[centre]:indptr[centre + 1]].sum() < min_alpha:
-        return None
-    idx = pw.indices.cpu().numpy()
+    idx, w = found
     return (w[:, None] * np.asarray(features, np.float64)[idx]).sum(axis=0)
