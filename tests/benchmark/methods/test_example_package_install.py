@@ -28,7 +28,10 @@ def _fresh_env(where: Path) -> Path:
     site = subprocess.run([str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
                           capture_output=True, text=True, check=True).stdout.strip()
     ours = [p for p in sys.path if p.endswith(("site-packages", "dist-packages")) and Path(p).is_dir()]
-    (Path(site) / "_outer_site_packages.pth").write_text("\n".join(ours) + "\n")
+    # addsitedir, not a plain path line: the outer folders' own .pth files (editable installs,
+    # such as the competitors' packages) are processed too
+    (Path(site) / "_outer_site_packages.pth").write_text(
+        "".join(f"import site; site.addsitedir({p!r})\n" for p in ours))
     return bin_dir
 
 
