@@ -11,7 +11,7 @@ import torch
 pytest.importorskip("trase_bench_grouping")
 
 from trase_bench_grouping.method import SA4D, GaussianGrouping, inside_hull
-from trase_bench_grouping.tracks import ids_path, load_ids, write_ids
+from masks.tracked import ids_path, save_ids
 
 from benchmark.methods import FittedModel, check_method_class
 from benchmark.protocol.prompts import make_benchmark_prompts
@@ -42,19 +42,8 @@ def tiny(tmp_path):
     gm, deform, ids, views = tiny_scene()
     masks_dir = tmp_path / "masks"
     for v in views:
-        write_ids(masks_dir, v.name, _track_ids(gm, deform, ids, v))
+        save_ids(ids_path(masks_dir, v.name), _track_ids(gm, deform, ids, v))
     return gm, deform, ids, views, masks_dir
-
-
-def test_ids_files_round_trip_beside_the_masks(tmp_path):
-    import masks as masklib
-
-    ids = np.array([[0, 1], [2, 65535]])
-    p = write_ids(tmp_path, "cam/00", ids)
-    assert p.parent == masklib.mask_path(tmp_path, "cam/00").parent and p.name.endswith(".ids.png")
-    assert p == ids_path(tmp_path, "cam/00")
-    back = load_ids(p)
-    assert back.dtype == np.int32 and np.array_equal(back, ids)
 
 
 def test_both_are_methods_with_presets():

@@ -50,7 +50,7 @@ class GaussianGrouping(Method):
         import torch
 
         from trase_bench_grouping.identity import pack
-        from trase_bench_grouping.tracks import ids_path, load_ids, read_tracks_json
+        from masks.tracked import INFO_FILE, ids_path, load_ids, load_tracks_info
         from trase_bench_grouping.train import IdentityTrainingError, train_identity
 
         masks_dir = Path(masks_dir)
@@ -75,7 +75,8 @@ class GaussianGrouping(Method):
                         "features_per_step": res.timings["per_step"]},
             "path": res.path_stats,
             "loss_tail": res.history[-5:],
-            "tracks": {**read_tracks_json(masks_dir), "views_without_ids": len(missing)},
+            "tracks": {**(load_tracks_info(masks_dir) if (masks_dir / INFO_FILE).is_file() else {}),
+                       "views_without_ids": len(missing)},
             "classifier": pack(res.classifier),
             **({"field": pack(res.encoder)} if self.temporal else {}),
         }
