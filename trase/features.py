@@ -65,7 +65,9 @@ class TrainResult:
     path_stats: dict  # fast path bytes per view etc.
 
 
-def _camera_at(camera: Camera, height: int, width: int, name: str) -> Camera:
+def camera_at(camera: Camera, height: int, width: int, name: str) -> Camera:
+    """``camera`` with its intrinsics scaled to a mask (or id map) of height x width of the same
+    aspect ratio; another aspect is a one-line error naming the view."""
     if (camera.height, camera.width) == (height, width):
         return camera
     fx, fy = camera.width / width, camera.height / height
@@ -197,7 +199,7 @@ def _usable_views(views: Sequence, masks_of: _MaskCache, whole_view: bool) -> tu
             continue  # a view without masks teaches nothing
         # the whole view is rendered when the regulariser needs it, else only pixels in a mask
         covered = np.ones_like(ms.covered) if whole_view else ms.covered
-        cams[i] = (_camera_at(v.camera, ms.height, ms.width, v.name), covered)
+        cams[i] = (camera_at(v.camera, ms.height, ms.width, v.name), covered)
         usable.append(i)
     return usable, cams
 

@@ -49,8 +49,8 @@ class GaussianGrouping(Method):
         """Encodings [N, D] float32 (SA4D: the field at t = 0.5) and the trained weights in the info."""
         import torch
 
-        from trase_bench_grouping.identity import pack
         from masks.tracked import INFO_FILE, ids_path, load_ids, load_tracks_info
+        from trase_bench_grouping.identity import pack
         from trase_bench_grouping.train import IdentityTrainingError, train_identity
 
         masks_dir = Path(masks_dir)

@@ -20,6 +20,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 import torch
 
+from trase.features import camera_at
 from trase_bench_grouping.identity import IdentityField, IdentityTable
 from trase_bench_grouping.losses import identity_loss, knn_consistency
 
@@ -35,20 +36,6 @@ class IdentityResult:
     history: list[dict]
     timings: dict
     path_stats: dict
-
-
-def camera_at(camera, height: int, width: int, name: str):
-    """``camera`` with its intrinsics scaled to an id map of height x width (same aspect)."""
-    if (camera.height, camera.width) == (height, width):
-        return camera
-    fx, fy = camera.width / width, camera.height / height
-    if abs(fx - fy) > 0.02 * max(fx, fy):
-        raise IdentityTrainingError(f"view {name}: track ids are {width}x{height} but the image is "
-                                    f"{camera.width}x{camera.height} (another aspect ratio)")
-    K = camera.K.copy()
-    K[0] /= fx
-    K[1] /= fy
-    return dataclasses.replace(camera, K=K, width=width, height=height)
 
 
 def make_encoder(n: int, cfg, temporal: bool, generator: torch.Generator) -> torch.nn.Module:
@@ -163,4 +150,4 @@ def train_identity(gaussians, deformation, views: Sequence, load_ids: Callable, 
         torch.set_num_threads(old_threads)
 
 
-__all__ = ["IdentityResult", "IdentityTrainingError", "camera_at", "make_encoder", "train_identity"]
+__all__ = ["IdentityResult", "IdentityTrainingError", "make_encoder", "train_identity"]

@@ -54,7 +54,7 @@ def scale_targets(member: torch.Tensor, index: int) -> torch.Tensor:
     """member [M, P] bool, masks sorted by scale, largest first; ``index``: the mask whose scale is
     sampled (masks 0..index are at least as large), -1: above every mask -> [P, P] float 0/1."""
     member = member.bool()
-    M, P = member.shape
+    M = member.shape[0]
     if index < 0 or M == 0:
         rows = member
     else:

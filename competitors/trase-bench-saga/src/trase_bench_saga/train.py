@@ -19,6 +19,7 @@ import time
 import numpy as np
 import torch
 
+from trase.features import camera_at
 from trase_bench_saga.objective import ScaleGate, pair_weights, saga_loss, scale_targets
 from trase_bench_saga.scales import QuantileMap, mask_scales
 
@@ -47,20 +48,6 @@ class SagaResult:
     timings: dict
     path_stats: dict
     scale_stats: dict
-
-
-def camera_at(camera, height: int, width: int, name: str):
-    """The camera with its intrinsics scaled to an image of height x width (same aspect)."""
-    if (camera.height, camera.width) == (height, width):
-        return camera
-    fx, fy = camera.width / width, camera.height / height
-    if abs(fx - fy) > 0.02 * max(fx, fy):
-        raise SagaTrainingError(f"view {name}: masks are {width}x{height} but the image is "
-                                f"{camera.width}x{camera.height} (different aspect ratio)")
-    K = camera.K.copy()
-    K[0] /= fx
-    K[1] /= fy
-    return dataclasses.replace(camera, K=K, width=width, height=height)
 
 
 def view_scales(gaussians, deformation, camera, maskset, erode_min: int, min_alpha: float) -> np.ndarray:
@@ -214,7 +201,7 @@ def _train(gaussians, deformation, views, load_masks, cfg, cache_dir, progress, 
             raise SagaTrainingError(f"loss became non-finite at step {it} (view {views[u.index].name})")
         if it % log_every == 0 or it == cfg.iterations - 1:
             history.append({"step": it, "loss": float(loss.detach()), "norm": float(norms.mean().detach()),
-                            "pixels": int(len(pix)), **stats})
+                            "pixels": len(pix), **stats})
     timings["train"] = time.perf_counter() - t2
     timings["per_step"] = timings["train"] / cfg.iterations
     return _result(feats, knn, gate, qmap, upper, history, timings, path, scale_stats, smooth_features)
