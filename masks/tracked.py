@@ -29,7 +29,8 @@ from pathlib import Path
 import numpy as np
 
 from masks.maskset import MaskError
-from masks.store import atomic_write
+from masks.store import SUFFIX as MASKS_SUFFIX
+from masks.store import MaskFileError, atomic_write, mask_path
 
 IDS_SUFFIX = ".ids.png"
 INFO_FILE = "tracks.json"
@@ -37,23 +38,16 @@ SOURCES = ("synthetic-truth", "files", "classical")
 MAX_TRACKS = 65535  # what a 16-bit PNG holds (0 is "no track")
 
 
-class TrackFileError(MaskError):
+class TrackFileError(MaskFileError):
     """A track-id file (or tracks.json) that cannot be read or written; names the file."""
-
-    user_facing = True
-
-    def __init__(self, path: os.PathLike | str, problem: str):
-        self.path = str(path)
-        self.problem = problem
-        super().__init__(f"{path}: {problem}")
 
 
 # ----------------------------------------------------------------------------- storage
 def ids_path(masks_dir: os.PathLike | str, view_name: str) -> Path:
     """Where a view's track ids live: ``masks_dir/<view name, '/' -> '__'>.ids.png`` (the stem
     of ``masks.mask_path`` with another suffix)."""
-    safe = view_name.replace("/", "__").replace("\\", "__")
-    return Path(masks_dir) / f"{safe}{IDS_SUFFIX}"
+    masks = mask_path(masks_dir, view_name)
+    return masks.with_name(masks.name[: -len(MASKS_SUFFIX)] + IDS_SUFFIX)
 
 
 def save_ids(path: os.PathLike | str, ids: np.ndarray) -> Path:
