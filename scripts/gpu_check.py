@@ -136,15 +136,19 @@ def profile(sizes: list[tuple[int, int, int]], device: str, repeats: int, tf32: 
 
 
 # -- the worker: the default run's reconstruction, watched ---------------------------------
-DIAG_VARIANTS = ("default", "torch-sh", "tf32", "cap")
+DIAG_VARIANTS = ("default", "torch-sh", "tf32", "cap", "lstsq")
 
 
-def diagnose(seconds: float, variant: str, every: int = 100) -> dict:
+def diagnose(seconds: float, variant: str, every: int = 100, until: int = 0,
+             window: tuple[int, int] = (0, 0)) -> dict:
     """The geometry stage of ``trase-bench run --method trase --dataset hypernerf`` (its
     resolved settings, on this machine's default device) for ``seconds``, with the model's
     state every ``every`` iterations: what grows or diverges, and when. Variants: ``torch-sh``
     evaluates SH in torch (the adapter before gsplat took it over), ``tf32`` runs the matrix
-    products in TF32, ``cap`` caps the gaussians at two per pixel of a training image."""
+    products in TF32, ``cap`` caps the gaussians at two per pixel of a training image, ``lstsq``
+    densifies by the statistic the cpu presets use. ``until``: stop after this iteration (the
+    schedule is otherwise the run's); inside ``window`` (first, last iteration) every 10th
+    iteration is recorded, and every iteration's loss."""
     import dataclasses
     import tempfile
 
@@ -164,6 +168,10 @@ def diagnose(seconds: float, variant: str, every: int = 100) -> dict:
     cfg = settings.geometry.train
     if variant == "cap":
         cfg = dataclasses.replace(cfg, max_gaussians=2 * cam.width * cam.height)
+    if variant == "lstsq":
+        cfg = dataclasses.replace(cfg, densify_statistic="lstsq")
+    if until:
+        cfg = dataclasses.replace(cfg, iterations=until)
     torch.backends.cuda.matmul.allow_tf32 = variant == "tf32"
     if variant == "torch-sh":
         import trase.render.gsplat_backend as gb
@@ -181,9 +189,14 @@ def diagnose(seconds: float, variant: str, every: int = 100) -> dict:
     t0 = time.perf_counter()
     record = rec._record
 
+    losses: list[list] = []
+
     def watched(tr, it, step):
         record(tr, it, step)
-        if it % every:
+        inside = window[0] <= it <= window[1]
+        if inside:
+            losses.append([it, round(float(step.loss), 5), round(float(step.camera.time), 4)])
+        if it % (10 if inside else every):
             return
         with torch.no_grad():
             g, d = tr.gaussians, tr.deform
@@ -203,6 +216,18 @@ def diagnose(seconds: float, variant: str, every: int = 100) -> dict:
                 "d_scale_max": None if offsets is None else float(offsets[2].max()),
                 "deform_norm": round(float(sum(float(p.norm()) ** 2 for p in d.parameters()) ** 0.5), 3),
                 "visible": int((step.out.radii > 0).sum()),
+                "radius_max": int(step.out.radii.max()),
+                "radius_over_quarter": int((step.out.radii > cam.width / 4).sum()),
+                "d_scale_min": None if offsets is None else float(offsets[2].min()),
+                "d_rot_max": None if offsets is None else float(offsets[1].abs().max()),
+                "deform_grad": None if not step.use_deform else round(float(torch.sqrt(sum(
+                    (p.grad.double() ** 2).sum() for p in d.parameters() if p.grad is not None))), 6),
+                "means_grad_max": None if g.means.grad is None else float(g.means.grad.abs().max()),
+                "deform_lr": tr.opt_d.param_groups[0]["lr"],
+                "time": round(float(step.camera.time), 4),
+                "psnr_canonical": round(psnr_of_mse(float(((rec.render_view(
+                    g, None, step.camera, step.out.color.new_zeros(3), "auto", with_deform=False)[0].color.clamp(0, 1)
+                    - step.gt) ** 2).mean())), 2),
             })
 
     rec._record = watched
@@ -211,7 +236,7 @@ def diagnose(seconds: float, variant: str, every: int = 100) -> dict:
                                             resume=False, progress=False, max_seconds=seconds)
         test_psnr = rec.evaluate_psnr(gaussians, deform, scene.test) if scene.test else None
     return {"variant": variant, "config": dataclasses.asdict(cfg), "seconds": seconds, "test_psnr": test_psnr,
-            "rows": rows}
+            "rows": rows, "window_losses": losses}
 
 
 # -- the orchestrator ----------------------------------------------------------------------
@@ -361,7 +386,8 @@ def diagnose_all(args) -> int:
     their speeds share the GPU and mean little); one JSON."""
     out = Path(args.out).resolve()
     out.mkdir(parents=True, exist_ok=True)
-    chk = Check(out, args.seconds + 200)
+    n_var = len(args.variants.split(","))
+    chk = Check(out, args.seconds * (n_var if args.sequential else 1) + 200)
     chk.result["machine"] = machine()
     chk.save()
     scene = subprocess.Popen([sys.executable, "-c", "from benchmark.datasets.synthetic.cache import ensure_synthetic; "
@@ -373,24 +399,32 @@ def diagnose_all(args) -> int:
     scene.wait()
     pre.wait()
     procs = {}
+    watch = ["--until", str(args.until), "--window", args.window, "--every", str(args.every)]
     for v in args.variants.split(","):
         log = open(chk.logs / f"diag_{v}.log", "w")
         procs[v] = subprocess.Popen([sys.executable, str(REPO / "scripts" / "gpu_check.py"), "diagnose", "--seconds",
-                                     str(args.seconds), "--variant", v, "--json", str(out / f"diag_{v}.json")],
+                                     str(args.seconds), "--variant", v, "--json", str(out / f"diag_{v}.json"), *watch],
                                     cwd=REPO, env={**os.environ, **_py()}, stdout=log, stderr=subprocess.STDOUT)
+        if args.sequential:
+            _collect_diag(chk, out, v, procs.pop(v), args.seconds)
     for v, p in procs.items():
-        try:
-            rc = p.wait(timeout=args.seconds + 90)
-        except subprocess.TimeoutExpired:
-            p.kill()
-            rc = "timeout"
-        js = out / f"diag_{v}.json"
-        chk.result["steps"][f"diag_{v}"] = {"rc": rc, "log_tail": (chk.logs / f"diag_{v}.log").read_text()[-1500:],
-                                           **({"diag": json.loads(js.read_text())} if js.is_file() else {})}
-        js.unlink(missing_ok=True)
-        chk.save()
+        _collect_diag(chk, out, v, p, args.seconds)
     shutil.rmtree(chk.logs)
     return 0
+
+
+def _collect_diag(chk, out: Path, v: str, p, seconds: float) -> None:
+    """Wait for variant ``v``'s worker and put its figures into the check's JSON."""
+    try:
+        rc = p.wait(timeout=seconds + 90)
+    except subprocess.TimeoutExpired:
+        p.kill()
+        rc = "timeout"
+    js = out / f"diag_{v}.json"
+    chk.result["steps"][f"diag_{v}"] = {"rc": rc, "log_tail": (chk.logs / f"diag_{v}.log").read_text()[-1500:],
+                                       **({"diag": json.loads(js.read_text())} if js.is_file() else {})}
+    js.unlink(missing_ok=True)
+    chk.save()
 
 
 def _run_figures(runs: Path) -> dict:
@@ -442,13 +476,20 @@ def main(argv=None) -> int:
     d.add_argument("--json", required=True)
     dg = sub.add_parser("diagnose-all", help="diagnose's variants side by side on one GPU")
     dg.add_argument("--out", required=True)
-    dg.add_argument("--seconds", type=float, default=150.0)
+    dg.add_argument("--seconds", type=float, default=150.0, help="seconds per variant")
     dg.add_argument("--variants", default="default,torch-sh,cap")
+    dg.add_argument("--sequential", action="store_true", help="one variant after the other, each alone on the GPU")
+    for q in (d, dg):
+        q.add_argument("--until", type=int, default=0, help="stop after this iteration")
+        q.add_argument("--window", default="0,0", help="FIRST,LAST: iterations watched every 10, every loss kept")
+        q.add_argument("--every", type=int, default=100)
     args = ap.parse_args(argv)
     if args.cmd == "all":
         return run_all(args)
     if args.cmd == "diagnose":
-        Path(args.json).write_text(json.dumps(diagnose(args.seconds, args.variant), indent=1))
+        window = tuple(int(x) for x in args.window.split(","))
+        Path(args.json).write_text(json.dumps(diagnose(args.seconds, args.variant, args.every, args.until, window),
+                                              indent=1))
         return 0
     if args.cmd == "diagnose-all":
         return diagnose_all(args)

@@ -12,6 +12,7 @@ same types with a TabulatedDeformation.
 from __future__ import annotations
 
 import io
+import json
 import re
 import zipfile
 from pathlib import Path
@@ -60,6 +61,12 @@ def deform_path(model_dir: str | Path, iteration: int) -> Path:
     return Path(model_dir) / "deform" / f"iteration_{iteration}" / "deform.pth"
 
 
+def deform_options_path(model_dir: str | Path, iteration: int) -> Path:
+    """The network's options the weights do not say (its scale rule): this project's addition
+    to the layout, beside deform.pth; a folder without it is the public code's (rule mirror)."""
+    return Path(model_dir) / "deform" / f"iteration_{iteration}" / "deform_options.json"
+
+
 def deform_table_path(model_dir: str | Path, iteration: int) -> Path:
     """Tabulated motion (an edited composition baked per time): this project's addition to
     the layout; the public code reads only deform.pth."""
@@ -99,6 +106,8 @@ def save_model(model_dir: str | Path, gaussians: GaussianModel, deformation, ite
         if not isinstance(deformation, DeformMLP):
             raise TypeError(f"save_model: can only save a DeformMLP or a TabulatedDeformation, got {type(deformation).__name__}")
         sd = {k: v.detach().cpu().clone() for k, v in deformation.state_dict().items()}
+        atomic_write_bytes(deform_options_path(model_dir, iteration),
+                           json.dumps({"scale_rule": deformation.scale_rule}).encode())
         atomic_torch_save(sd, deform_path(model_dir, iteration))
     write_cfg_args(model_dir, gaussians.max_sh_degree, bool(getattr(deformation, "blender", False)),
                    source_path, white_background)
@@ -112,8 +121,15 @@ def load_deformation(path: Path) -> DeformMLP:
     sd = read_torch(path, CheckpointError)
     if not isinstance(sd, dict) or not all(torch.is_tensor(v) for v in sd.values()):
         raise CheckpointError(f"{path}: expected a state dict of tensors, got {type(sd).__name__}")
+    options = path.parent / "deform_options.json"
+    rule = "mirror"
+    if options.is_file():
+        try:
+            rule = json.loads(options.read_text())["scale_rule"]
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise CheckpointError(f"{options}: unreadable ({type(exc).__name__}: {exc})") from None
     try:
-        net = DeformMLP(**infer_mlp_config(sd))
+        net = DeformMLP(**infer_mlp_config(sd), scale_rule=rule)
         net.load_state_dict(sd, strict=True)
     except (ValueError, RuntimeError, KeyError) as exc:
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__

@@ -26,6 +26,33 @@ from trase.reconstruction_config import deform_shape
 
 # Smallest scale handed to the rasterizer: exp(log_s) + d_scale may go negative.
 MIN_SCALE = 1e-7
+# How a scale plus its offset becomes the scale rendered (``offset_scales``)
+SCALE_RULES = ("mirror", "clamp")
+
+
+def offset_scales(scales: torch.Tensor, d_scale: torch.Tensor, rule: str = "mirror") -> torch.Tensor:
+    """The rendered scales [N, 3] of exp(log_s) [N, 3] plus the network's d_scale [N, 3].
+
+    ``mirror`` (the public code): |s + d|. The public code hands s + d to a rasterizer that uses
+    only its square (the covariance R S S^T R^T), so a negative sum draws the gaussian at |s + d|
+    and the gradient keeps acting on it. ``clamp`` (this project's first rule, which the cpu
+    presets were tuned with): s + d floored at MIN_SCALE, under which a gaussian the network
+    drives below zero vanishes at that time and gets no gradient to come back; on a GPU run of
+    the paper preset the network parked 1% or more of the gaussians so (offsets of hundreds of
+    units, scales at the floor) by iteration 5500 and the loss rose from 0.02 to 0.11
+    (docs/gpu.md). Both floor at MIN_SCALE."""
+    s = scales + d_scale
+    if rule == "mirror":
+        s = s.abs()
+    elif rule != "clamp":
+        raise ValueError(f"scale rule must be one of {', '.join(SCALE_RULES)}, got {rule!r}")
+    return torch.clamp(s, min=MIN_SCALE)
+
+
+def scale_rule_of(deformation) -> str:
+    """The scale rule a deformation was trained with (its ``scale_rule``; the public code's
+    ``mirror`` for one that does not say, e.g. a table of final offsets, where both agree)."""
+    return getattr(deformation, "scale_rule", None) or "mirror"
 
 
 @runtime_checkable
@@ -65,10 +92,14 @@ class DeformMLP(nn.Module):
         xyz_freqs: int = 10,
         t_freqs: int | None = None,
         blender: bool = False,
+        scale_rule: str = "mirror",
     ) -> None:
         super().__init__()
         if D < 2 or W < 1:
             raise ValueError(f"DeformMLP needs D >= 2 and W >= 1, got D={D}, W={W}")
+        if scale_rule not in SCALE_RULES:
+            raise ValueError(f"scale rule must be one of {', '.join(SCALE_RULES)}, got {scale_rule!r}")
+        self.scale_rule = scale_rule  # how d_scale is applied (offset_scales); saved beside the weights
         self.D, self.W = D, W
         self.xyz_freqs = xyz_freqs
         self.t_freqs = t_freqs if t_freqs is not None else (6 if blender else 10)
@@ -103,11 +134,11 @@ class DeformMLP(nn.Module):
         return self
 
     @classmethod
-    def preset(cls, name: str) -> DeformMLP:
+    def preset(cls, name: str, scale_rule: str = "mirror") -> DeformMLP:
         """A network by name: ``paper`` (D=8, W=256, Deformable-3DGS), ``small`` (D=4, W=64, for
         CPU training), or any depth and width written ``<D>x<W>`` (e.g. ``8x128``)."""
         D, W = deform_shape(name)
-        return cls(D=D, W=W)
+        return cls(D=D, W=W, scale_rule=scale_rule)
 
     def config(self) -> dict:
         """Constructor arguments, enough to rebuild the module before loading a state dict."""
@@ -275,9 +306,9 @@ def deformed(gaussians, deformation, t: float, detach_xyz_input: bool = True):
     """Means [N, 3], quats [N, 4] wxyz, scales [N, 3] of ``gaussians`` at time t.
 
     Deformable-3DGS semantics: means + d_xyz, normalize(q) + d_rot, exp(log_s) + d_scale;
-    the network sees the canonical means detached (as in the public trainer). Scales are
-    clamped to MIN_SCALE so a negative offset cannot produce an invalid gaussian. With
-    ``deformation=None`` the canonical geometry is returned.
+    the network sees the canonical means detached (as in the public trainer). The scales follow
+    the deformation's scale rule (``offset_scales``: the public code's |s + d| unless it was
+    trained with ``clamp``). With ``deformation=None`` the canonical geometry is returned.
     """
     means = gaussians.means
     quats = gaussians.rotations
@@ -286,7 +317,7 @@ def deformed(gaussians, deformation, t: float, detach_xyz_input: bool = True):
         return means, quats, scales
     xyz_in = means.detach() if detach_xyz_input else means
     d_xyz, d_rot, d_scale = deformation(xyz_in, t)
-    return means + d_xyz, quats + d_rot, torch.clamp(scales + d_scale, min=MIN_SCALE)
+    return means + d_xyz, quats + d_rot, offset_scales(scales, d_scale, scale_rule_of(deformation))
 
 
 def deformed_visible(gaussians, deformation, t: float, visible):
@@ -305,14 +336,15 @@ def deformed_visible(gaussians, deformation, t: float, visible):
     if deformation is None:
         return means, quats, scales
     xyz = means.detach()
+    rule = scale_rule_of(deformation)
     with torch.no_grad():
         d_xyz, d_rot, d_scale = deformation(xyz, t)
-        mask = visible(xyz + d_xyz, quats.detach() + d_rot, torch.clamp(scales.detach() + d_scale, min=MIN_SCALE))
+        mask = visible(xyz + d_xyz, quats.detach() + d_rot, offset_scales(scales.detach(), d_scale, rule))
     idx = torch.nonzero(torch.as_tensor(mask, dtype=torch.bool).reshape(-1)).reshape(-1)  # [V]
     if idx.numel() > 0 and torch.is_grad_enabled():
         v_xyz, v_rot, v_scale = deformation(xyz[idx], t)  # [V, 3], [V, 4], [V, 3]
         d_xyz = d_xyz.index_copy(0, idx, v_xyz)
         d_rot = d_rot.index_copy(0, idx, v_rot)
         d_scale = d_scale.index_copy(0, idx, v_scale)
-    return means + d_xyz, quats + d_rot, torch.clamp(scales + d_scale, min=MIN_SCALE)
+    return means + d_xyz, quats + d_rot, offset_scales(scales, d_scale, rule)
 

@@ -175,7 +175,7 @@ def _new_trainer(points, point_colors, cfg: ReconstructionConfig, dev, strategy:
     """A run from the point cloud: gaussians and network initialised on the CPU (alike on
     every device), then moved."""
     gaussians = GaussianModel.from_points(points, point_colors, sh_degree=cfg.sh_degree)
-    deform = DeformMLP.preset(cfg.deform_preset)
+    deform = DeformMLP.preset(cfg.deform_preset, scale_rule=cfg.deform_scale_rule)
     if cfg.deform_zero_init:
         deform.zero_heads()
     gaussians, deform = gaussians.to(dev), deform.to(dev)
@@ -204,6 +204,7 @@ def _resumed_trainer(out_dir: Path, start: int, cfg: ReconstructionConfig, dev,
     except ValueError as exc:
         raise CheckpointError(f"{sp}: {exc}") from None
     gaussians.active_sh_degree = int(state["active_sh_degree"])
+    deform.scale_rule = cfg.deform_scale_rule  # the run's rule (older checkpoints do not record it)
     deform.train()
     opt_g, opt_d = _make_optimizers(gaussians, deform, cfg)
     opt_g.load_state_dict(state["opt_g"])

@@ -64,6 +64,10 @@ class ReconstructionConfig:
     # deformation
     deform_preset: str = "paper"  # "paper" (D=8, W=256), "small" (D=4, W=64) or "<D>x<W>"
     deform_zero_init: bool = False  # start as the identity (see DeformMLP.zero_heads)
+    # how d_scale is applied (trase.deformation.offset_scales): "mirror" |s + d| is the public
+    # code's (its rasterizer squares the scale); "clamp" floors s + d, the rule the cpu presets
+    # were tuned with
+    deform_scale_rule: str = "mirror"
     # the network's gradients only for gaussians in view (deformation.deformed_visible): the
     # same images and gradients up to rounding; no effect on a GPU. Off by default: it pays
     # only when a camera sees a small part of the scene. Measured on the synthetic HyperNeRF
@@ -100,6 +104,8 @@ class ReconstructionConfig:
 
     def __post_init__(self) -> None:
         deform_shape(self.deform_preset)  # a bad name fails here, not after the warm-up
+        if self.deform_scale_rule not in ("mirror", "clamp"):
+            raise ValueError(f"deform_scale_rule must be mirror or clamp, got {self.deform_scale_rule!r}")
         if self.densify_statistic not in DENSIFY_STATISTICS:
             raise ValueError(f"densify_statistic must be one of {', '.join(DENSIFY_STATISTICS)}, "
                              f"got {self.densify_statistic!r}")

@@ -137,3 +137,17 @@ def test_tabulated_geometry_writer_checks_its_arrays(tmp_path):
 
     with pytest.raises(ValueError, match="lacks arrays means"):
         save_tabulated_geometry(tmp_path / "g.npz", {})
+
+
+def test_scale_rule_is_saved_beside_the_weights(tmp_path):
+    g, d = _model()
+    d.scale_rule = "clamp"
+    save_model(tmp_path / "clamp", g, d, 3)
+    assert load_model(tmp_path / "clamp")[1].scale_rule == "clamp"
+    # a folder without the options file is the public code's: rule mirror
+    save_model(tmp_path / "public", g, DeformMLP.preset("small"), 3)
+    (tmp_path / "public/deform/iteration_3/deform_options.json").unlink()
+    assert load_model(tmp_path / "public")[1].scale_rule == "mirror"
+    (tmp_path / "clamp/deform/iteration_3/deform_options.json").write_text("{not json")
+    with pytest.raises(CheckpointError, match="deform_options.json: unreadable"):
+        load_model(tmp_path / "clamp")

@@ -49,13 +49,16 @@ def test_blender_variant_has_timenet():
 
 @pytest.mark.parametrize("preset", ["paper", "small", "6x96"])
 def test_forward_shapes_and_config_roundtrip(preset):
+    torch.manual_seed(0)
     net = DeformMLP.preset(preset)
     x = torch.randn(11, 3)
     dx, dr, ds = net(x, 0.3)
     assert dx.shape == (11, 3) and dr.shape == (11, 4) and ds.shape == (11, 3)
-    # per-gaussian times give the same result as a float
+    # per-gaussian times give the same result as a float, up to rounding (the float's path splits
+    # two layers' products by columns): an absolute tolerance, as offsets near zero have no
+    # relative precision
     dx2, _, _ = net(x, torch.full((11, 1), 0.3))
-    assert torch.allclose(dx, dx2)
+    assert torch.allclose(dx, dx2, rtol=1e-5, atol=1e-6)
     cfg = infer_mlp_config(net.state_dict())
     assert cfg == net.config()
     again = DeformMLP(**cfg)
@@ -151,3 +154,42 @@ def test_a_preset_is_a_name_or_depth_x_width_and_a_bad_one_fails_when_the_config
     for bad in ("big", "1x64", "8x", "8x0"):
         with pytest.raises(ValueError, match="unknown deformation preset"):
             ReconstructionConfig(deform_preset=bad)
+
+
+def test_scale_rules_mirror_keeps_the_public_covariance_and_its_gradient():
+    from trase.deformation import MIN_SCALE, offset_scales
+
+    s = torch.tensor([[0.2, 0.3, 0.4]])
+    d = torch.tensor([[-0.5, 0.1, -0.4]], requires_grad=True)  # below zero, above, exactly zero
+    mirror = offset_scales(s, d, "mirror")
+    # the public code's rasterizer squares s + d (its covariance): |s + d| has the same square
+    assert torch.allclose(mirror[0, :2] ** 2, (s + d.detach())[0, :2] ** 2)
+    assert mirror[0, 2] == torch.tensor(MIN_SCALE)
+    mirror.sum().backward()
+    assert d.grad[0, 0] == -1.0 and d.grad[0, 1] == 1.0  # a negative sum is still pulled on
+    d.grad = None
+    clamp = offset_scales(s, d, "clamp")
+    assert clamp[0, 0] == torch.tensor(MIN_SCALE) and torch.isclose(clamp[0, 1], torch.tensor(0.4))
+    clamp.sum().backward()
+    assert d.grad[0, 0] == 0.0  # floored: gone at this time, and no gradient brings it back
+    with pytest.raises(ValueError, match="scale rule"):
+        offset_scales(s, d, "relu")
+
+
+def test_deformed_follows_the_networks_scale_rule():
+    g = GaussianModel.from_points(np.zeros((4, 3), np.float32), None, sh_degree=0)
+    net = DeformMLP.preset("small").zero_heads()
+    with torch.no_grad():
+        net.gaussian_scaling.bias.fill_(-10.0)  # every scale offset far below zero
+    assert torch.allclose(deformed(g, net, 0.5)[2], (10.0 - g.scales).detach())
+    net.scale_rule = "clamp"
+    assert bool((deformed(g, net, 0.5)[2] == torch.tensor(1e-7)).all())
+
+
+def test_concatenating_networks_of_two_scale_rules_is_refused():
+    from trase.edit.ops import ConcatDeformation
+
+    a, b = DeformMLP.preset("small"), DeformMLP.preset("small", scale_rule="clamp")
+    assert ConcatDeformation([a, None], [2, 3]).scale_rule == "mirror"
+    with pytest.raises(ValueError, match="different rules"):
+        ConcatDeformation([a, b], [2, 3])

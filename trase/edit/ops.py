@@ -58,6 +58,13 @@ class ConcatDeformation(nn.Module):
             raise ValueError("ConcatDeformation: one size per part")
         self.parts = nn.ModuleList([p if p is not None else StaticDeformation() for p in parts])
         self.sizes = [int(s) for s in sizes]
+        # networks apply their offsets by one scale rule each (trase.deformation.offset_scales);
+        # a table of final offsets or a static part fits either
+        rules = {getattr(p, "scale_rule", None) for p in parts} - {None}
+        if len(rules) > 1:
+            raise ValueError("ConcatDeformation: the parts' networks apply scale offsets by different rules "
+                             f"({', '.join(sorted(rules))}); save each part (which tabulates its motion) first")
+        self.scale_rule = rules.pop() if rules else None
 
     def forward(self, xyz: torch.Tensor, t):
         if xyz.shape[0] != sum(self.sizes):

@@ -159,6 +159,7 @@ class TransformedDeformation(nn.Module):
         self.inner = inner if inner is not None else StaticDeformation()
         self.tf = tf
         self.time_offset = float(time_offset)
+        self.scale_rule = getattr(self.inner, "scale_rule", None)  # d_scale passes through unchanged
 
     def forward(self, xyz: torch.Tensor, t):
         t = float(t.reshape(-1)[0]) if torch.is_tensor(t) else float(t)
