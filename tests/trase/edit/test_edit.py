@@ -109,6 +109,7 @@ def test_rigid_transform_renders_as_the_inverse_moved_camera():
     camera moved by the inverse: geometry, and view-dependent colour (SH degree 3)."""
     gm = _random_sh_model()
     n = gm.num_gaussians
+    torch.manual_seed(0)  # the network's draw (1 of 40 draws misses the tolerance: an unseeded test was flaky)
     net = DeformMLP(D=2, W=16, t_freqs=2)
     torch.nn.init.normal_(net.gaussian_warp.weight, std=0.02)
     torch.nn.init.normal_(net.gaussian_rotation.weight, std=0.02)
