@@ -25,11 +25,15 @@ from benchmark.commands import old_spelling
               help="The summary written (and read by --write-page).")
 @click.option("--write-page", "page", type=click.Path(dir_okay=False), default=None, is_flag=False,
               flag_value="docs/figures.md", help="Rewrite this page's figures block from --data (default docs/figures.md).")
+@click.option("--method", "methods", multiple=True,
+              help="Methods to measure (repeatable; default trase). Several methods make the methods table: "
+                   "write it with --data docs/methods-figures.json --write-page docs/competitors.md.")
 @click.option("--quiet", is_flag=True, help="No progress output.")
-def figures(runs_dir, seeds, formats, geometries, collect_only, data_path, page, quiet) -> None:
-    """Run trase on the five built-in formats (reconstructed and ground-truth geometry, each for
-    --seeds run seeds), summarise mean ± std over seeds into --data with the commit and machine,
-    print the table, and with --write-page put it into the figures page's block.
+def figures(runs_dir, seeds, formats, geometries, collect_only, data_path, page, methods, quiet) -> None:
+    """Run trase (or each --method) on the five built-in formats (reconstructed and ground-truth
+    geometry, each for --seeds run seeds), summarise mean ± std over seeds into --data with the
+    commit and machine, print the table, and with --write-page put it into the page's block
+    (trase's figures block, or the methods table where the page has one).
 
     The whole measurement takes hours on 2 CPU cores (15 reconstructions of several minutes
     each); every stage is cached under --runs and measured runs are kept, so an interrupted
@@ -40,25 +44,29 @@ def figures(runs_dir, seeds, formats, geometries, collect_only, data_path, page,
         FORMATS,
         GEOMETRIES,
         collect,
+        page_markers,
         render_block,
+        render_methods_block,
         replace_block,
         write_json,
     )
 
     formats = tuple(formats) or FORMATS
     geometries = tuple(geometries) or GEOMETRIES
+    methods = tuple(methods) or ("trase",)
     if not collect_only:
         from benchmark.results.figures import run_all
 
-        run_all(Path(runs_dir), parse_seeds(seeds), formats, geometries, progress=not quiet)
-    data = collect(Path(runs_dir), formats, geometries)
+        run_all(Path(runs_dir), parse_seeds(seeds), formats, geometries, progress=not quiet, methods=methods)
+    data = collect(Path(runs_dir), formats, geometries, methods)
     write_json(Path(data_path), data)
-    block = render_block(data)
-    click.echo(block)
+    click.echo(render_methods_block(data) if len(methods) > 1 else render_block(data))
     click.echo(f"wrote {data_path}")
     if page:
         from benchmark.io import atomic_write_text
 
         path = Path(page)
-        atomic_write_text(path, replace_block(path.read_text(), block, str(path)))
+        text = path.read_text()
+        markers, render = page_markers(text)
+        atomic_write_text(path, replace_block(text, render(data), str(path), markers))
         click.echo(f"wrote the figures block of {path}")

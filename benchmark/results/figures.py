@@ -1,11 +1,13 @@
-"""The figures page (docs/figures.md), measured by one command and rendered from its data, never typed.
+"""The figures pages, measured by one command and rendered from their data, never typed.
 
-``trase-bench figures`` runs ``trase`` on the five built-in formats with reconstructed and
-with ground-truth geometry, for several run seeds, summarises the runs (mean ± std over seeds
-of test PSNR, geometry ceiling, oracle, mIoU, click-set median and worst, clustering
-agreement) into ``docs/figures.json`` with the commit and machine they were measured on, and
-rewrites the page's block between the FIGURES markers from that file. A test renders the
-block from the file again and compares: the page's table cannot drift from its data.
+``trase-bench figures`` runs ``trase`` (or any ``--method``) on the five built-in formats with
+reconstructed and with ground-truth geometry, for several run seeds, summarises the runs (mean
+± std over seeds of test PSNR, geometry ceiling, oracle, mIoU, click-set median and worst,
+clustering agreement) into a data file (``docs/figures.json``) with the commit and machine,
+and rewrites a page's block from that file: between the FIGURES markers trase's table
+(docs/figures.md), between the METHODS markers every method's mIoU side by side with the
+paper's published averages and both orders (docs/competitors.md). A test renders each block
+from its file again and compares: a page's table cannot drift from its data.
 """
 
 from __future__ import annotations
@@ -23,6 +25,10 @@ FORMATS = ("nerfds", "hypernerf", "neu3d", "immersive", "technicolor")
 GEOMETRIES = ("reconstruct", "ground-truth")
 BEGIN = "<!-- FIGURES:BEGIN (trase-bench figures --write-page; do not edit by hand) -->"
 END = "<!-- FIGURES:END -->"
+METHODS_BEGIN = "<!-- METHODS:BEGIN (trase-bench figures --method ... --write-page; do not edit by hand) -->"
+METHODS_END = "<!-- METHODS:END -->"
+NAMES = {"nerfds": "NeRF-DS", "hypernerf": "HyperNeRF", "neu3d": "Neu3D", "immersive": "Immersive",
+         "technicolor": "Technicolor"}
 SCHEMA = "trase-bench/figures/1"
 
 
@@ -37,48 +43,52 @@ def _git_commit(root: Path) -> str:
         return "unknown"
 
 
-def run_all(out_dir: Path, seeds: list[int], formats=FORMATS, geometries=GEOMETRIES, progress: bool = True) -> None:
-    """Every (format, geometry) main-protocol run for every seed, into ``out_dir`` (stages
-    cached; a run already there with this config is kept, so an interrupted measurement
-    resumes where it stopped)."""
+def run_all(out_dir: Path, seeds: list[int], formats=FORMATS, geometries=GEOMETRIES, progress: bool = True,
+            methods=("trase",)) -> None:
+    """Every (method, format, geometry) main-protocol run for every seed, into ``out_dir``
+    (stages cached, so methods share a scene's masks and geometry; a run already there with
+    this config is kept, so an interrupted measurement resumes where it stopped)."""
     from benchmark.runner import RunOptions, run
 
-    for geo in geometries:
-        for ds in formats:
-            overrides = [] if geo == "reconstruct" else ["geometry.source=ground-truth"]
-            run(RunOptions(method="trase", dataset=ds, out_dir=Path(out_dir), overrides=overrides, seeds=seeds,
-                           progress=progress, keep_existing=True))
+    for method in methods:
+        for geo in geometries:
+            for ds in formats:
+                overrides = [] if geo == "reconstruct" else ["geometry.source=ground-truth"]
+                run(RunOptions(method=method, dataset=ds, out_dir=Path(out_dir), overrides=overrides, seeds=seeds,
+                               progress=progress, keep_existing=True))
 
 
-def collect(out_dir: Path, formats=FORMATS, geometries=GEOMETRIES) -> dict:
-    """Summaries of the runs under ``out_dir`` per (format, geometry), with provenance."""
+def collect(out_dir: Path, formats=FORMATS, geometries=GEOMETRIES, methods=("trase",)) -> dict:
+    """Summaries of the runs under ``out_dir`` per (method, format, geometry), with provenance.
+    A combination without runs is left out (a measurement still under way)."""
     from benchmark.results.runs import find_runs, seed_siblings
     from benchmark.results.stability import seed_summary
 
     records = find_runs(Path(out_dir))
     rows, used = [], []
-    for geo in geometries:
-        for ds in formats:
-            mine = [r for r in records if r["method"] == "trase" and r["dataset"] == ds
-                    and r["config"]["geometry"]["source"] == geo and r["variant"] == "synthetic"]
-            if not mine:
-                continue
-            groups = {r["run"]["group"] for r in mine}
-            if len(groups) > 1:
-                raise UserError(f"{out_dir}: {ds} with {geo} geometry has runs of {len(groups)} configs; "
-                                "use a fresh --runs for the figures")
-            sibs = seed_siblings(mine[0], mine)
-            summary = seed_summary(sibs)
-            used += sibs
-            psnr = [(r["stages"]["geometry"].get("info") or {}).get("test_psnr") for r in sibs]
-            seconds = [sum(s.get("seconds", 0.0) for k, s in r["stages"].items() if k in ("geometry", "features"))
-                       for r in sibs]
-            rows.append({"format": ds, "geometry": geo, "summary": summary,
-                         "test_psnr": [p for p in psnr if p is not None], "seconds": seconds,
-                         "scene": sibs[0].get("synthetic_scene"), "config_group": sibs[0]["run"]["group"],
-                         "preset": sibs[0]["config"]["geometry"]["preset"]})
+    for method, geo, ds in ((m, g, d) for m in methods for g in geometries for d in formats):
+        mine = [r for r in records if r["method"] == method and r["dataset"] == ds
+                and r["config"]["geometry"]["source"] == geo and r["variant"] == "synthetic"
+                and r["run"].get("kind", "main") != "ablation"]
+        if not mine:
+            continue
+        groups = {r["run"]["group"] for r in mine}
+        if len(groups) > 1:
+            raise UserError(f"{out_dir}: {method} on {ds} with {geo} geometry has runs of {len(groups)} "
+                            "configs; use a fresh --runs for the figures")
+        sibs = seed_siblings(mine[0], mine)
+        summary = seed_summary(sibs)
+        used += sibs
+        psnr = [(r["stages"]["geometry"].get("info") or {}).get("test_psnr") for r in sibs]
+        seconds = [sum(s.get("seconds", 0.0) for k, s in r["stages"].items() if k in ("geometry", "features"))
+                   for r in sibs]
+        rows.append({"method": method, "format": ds, "geometry": geo, "summary": summary,
+                     "test_psnr": [p for p in psnr if p is not None], "seconds": seconds,
+                     "scene": sibs[0].get("synthetic_scene"), "config_group": sibs[0]["run"]["group"],
+                     "preset": sibs[0]["config"]["geometry"]["preset"]})
     if not rows:
-        raise UserError(f"{out_dir}: no trase runs on the synthetic formats; run `trase-bench figures` first")
+        raise UserError(f"{out_dir}: no runs of {', '.join(methods)} on the synthetic formats; "
+                        "run `trase-bench figures` first")
     machine = {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
                "cpus": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
                "instruction_sets": run_instruction_sets(used)}
@@ -121,17 +131,8 @@ def render_block(data: dict) -> str:
     """The figures block (markdown) from ``docs/figures.json``'s content. Stage seconds
     stay in the data file only: measured beside other work, they are not timings (see the perf
     suites for those)."""
-    if data.get("schema") != SCHEMA:
-        raise UserError(f"figures data: schema {data.get('schema')!r}, expected {SCHEMA}")
-    names = {"nerfds": "NeRF-DS", "hypernerf": "HyperNeRF", "neu3d": "Neu3D", "immersive": "Immersive",
-             "technicolor": "Technicolor"}
-    m = data["machine"]
-    isa = m.get("instruction_sets") or []
-    where = f"{m.get('cpus', '?')} CPU cores, {m.get('processor', '?')}"
-    if len(isa) == 1:
-        where += f"; {isa[0]}"
-    elif isa:
-        where += f"; runs from {len(isa)} instruction sets: " + " / ".join(isa)
+    _check_schema(data)
+    names, where = NAMES, _where(data)
     lines = [
         (f"Measured at commit `{data['commit']}` on {data['date']} ({where}), `trase-bench figures` (the "
          "main protocol of each format, official metric; mean ± standard deviation over the run seeds, "
@@ -142,6 +143,8 @@ def render_block(data: dict) -> str:
         "|---|---|---|---|---|---|---|---|---|",
     ]
     for row in data["rows"]:
+        if row.get("method", "trase") != "trase":
+            continue
         s = row["summary"]
         geo = "reconstructed" if row["geometry"] == "reconstruct" else "ground truth"
         ag = (s.get("agreement") or {}).get("pixel_ari")
@@ -150,6 +153,86 @@ def render_block(data: dict) -> str:
             f"| {names.get(row['format'], row['format'])} | {geo} | {psnr} | {_ms(s['ceiling'])} | "
             f"{_ms(s['oracle'])} | **{_ms(s['miou'])}** | {_ms(s['click_sets_median'])} / "
             f"{_ms(s['click_sets_worst'])} | {'—' if ag is None else f'{ag:.3f}'} | {len(s['seeds'])} |")
+    return "\n".join(lines) + "\n"
+
+
+def _check_schema(data: dict) -> None:
+    if data.get("schema") != SCHEMA:
+        raise UserError(f"figures data: schema {data.get('schema')!r}, expected {SCHEMA}")
+
+
+def _where(data: dict) -> str:
+    m = data["machine"]
+    isa = m.get("instruction_sets") or []
+    where = f"{m.get('cpus', '?')} CPU cores, {m.get('processor', '?')}"
+    if len(isa) == 1:
+        where += f"; {isa[0]}"
+    elif isa:
+        where += f"; runs from {len(isa)} instruction sets: " + " / ".join(isa)
+    return where
+
+
+def published_averages() -> dict[tuple[str, str], float]:
+    """(method, format) -> the paper's average mIoU over that benchmark's sequences (its Table 1)."""
+    from benchmark.results.leaderboard import published_frame
+
+    df = published_frame()
+    df = df[df["sequence"] == "_average"]
+    return {(r.method, r.dataset): float(r.miou) for r in df.itertuples()}
+
+
+def _order(scores: dict[str, float]) -> str:
+    """Methods by decreasing score: "a > b > c"."""
+    return " > ".join(m for m, _ in sorted(scores.items(), key=lambda kv: -kv[1]))
+
+
+def render_methods_block(data: dict) -> str:
+    """Every method's mIoU per format and geometry (mean ± std over seeds, oracle beside), the
+    paper's published averages for the same methods, and the two orders per format. The
+    measured rows are the built-in synthetic scenes, the published ones the real benchmarks:
+    they sit side by side and are never mixed into one table."""
+    _check_schema(data)
+    rows = data["rows"]
+    methods = list(dict.fromkeys(r.get("method", "trase") for r in rows))
+    formats = [f for f in FORMATS if any(r["format"] == f for r in rows)]
+    by = {(r.get("method", "trase"), r["format"], r["geometry"]): r for r in rows}
+    lines = [(f"Measured at commit `{data['commit']}` on {data['date']} ({_where(data)}), `trase-bench figures "
+             "--method ...` on the built-in synthetic scenes (each method's main protocol and defaults, "
+             "official metric): mIoU, mean ± standard deviation over the run seeds; (n): the number of seeds "
+             "where fewer than three."), ""]
+    for geo in GEOMETRIES:
+        if not any(r["geometry"] == geo for r in rows):
+            continue
+        lines += [f"**{'Reconstructed' if geo == 'reconstruct' else 'Ground-truth'} geometry**", "",
+                  "| method | " + " | ".join(NAMES[f] for f in formats) + " |",
+                  "|---|" + "---|" * len(formats)]
+        for m in methods:
+            cells = []
+            for f in formats:
+                r = by.get((m, f, geo))
+                if r is None:
+                    cells.append("—")
+                    continue
+                s, n = r["summary"], len(r["summary"]["seeds"])
+                cells.append(_ms(s["miou"]) + (f" ({n})" if n < 3 else ""))
+            lines.append(f"| {m} | " + " | ".join(cells) + " |")
+        lines.append("")
+    pub = published_averages()
+    pub_methods = list(dict.fromkeys([m for m in methods if any((m, f) in pub for f in formats)]
+                                     + sorted({m for m, _ in pub})))  # measured ones first
+    lines += ["**Published** (the paper's Table 1: real sequences, SAM masks, its own geometry per method)", "",
+              "| method | " + " | ".join(NAMES[f] for f in formats) + " |", "|---|" + "---|" * len(formats)]
+    for m in pub_methods:
+        lines.append(f"| {m} | " + " | ".join(f"{pub[(m, f)]:.3f}" if (m, f) in pub else "—" for f in formats) + " |")
+    lines += ["", "**Order** (methods measured here, by mIoU; the published order of the same methods)", "",
+              "| format | measured, reconstructed | measured, ground truth | published |", "|---|---|---|---|"]
+    for f in formats:
+        orders = []
+        for geo in GEOMETRIES:
+            sc = {m: by[(m, f, geo)]["summary"]["miou"]["mean"] for m in methods if (m, f, geo) in by}
+            orders.append(_order(sc) if len(sc) > 1 else "—")
+        pb = {m: pub[(m, f)] for m in methods if (m, f) in pub}
+        lines.append(f"| {NAMES[f]} | {orders[0]} | {orders[1]} | {_order(pb) if len(pb) > 1 else '—'} |")
     return "\n".join(lines) + "\n"
 
 
@@ -162,19 +245,29 @@ def read_figures(path: Path) -> dict:
 PAGE = "docs/figures.md"  # the page holding the block
 
 
-def replace_block(text: str, block: str, where: str = PAGE) -> str:
-    if text.count(BEGIN) != 1 or text.count(END) != 1 or text.index(BEGIN) > text.index(END):
-        raise UserError(f"{where}: needs exactly one figures block ({BEGIN} ... {END})")
-    head, rest = text.split(BEGIN, 1)
-    _, tail = rest.split(END, 1)
-    return f"{head}{BEGIN}\n{block}{END}{tail}"
+def replace_block(text: str, block: str, where: str = PAGE, markers: tuple[str, str] = (BEGIN, END)) -> str:
+    begin, end = markers
+    if text.count(begin) != 1 or text.count(end) != 1 or text.index(begin) > text.index(end):
+        raise UserError(f"{where}: needs exactly one figures block ({begin} ... {end})")
+    head, rest = text.split(begin, 1)
+    _, tail = rest.split(end, 1)
+    return f"{head}{begin}\n{block}{end}{tail}"
 
 
-def page_block(text: str, where: str = PAGE) -> str:
+def page_block(text: str, where: str = PAGE, markers: tuple[str, str] = (BEGIN, END)) -> str:
     """The current block's content (between the markers)."""
-    if text.count(BEGIN) != 1 or text.count(END) != 1:
-        raise UserError(f"{where}: needs exactly one figures block ({BEGIN} ... {END})")
-    return text.split(BEGIN, 1)[1].split(END, 1)[0].lstrip("\n")
+    begin, end = markers
+    if text.count(begin) != 1 or text.count(end) != 1:
+        raise UserError(f"{where}: needs exactly one figures block ({begin} ... {end})")
+    return text.split(begin, 1)[1].split(end, 1)[0].lstrip("\n")
+
+
+def page_markers(text: str) -> tuple[tuple[str, str], object]:
+    """Which block a page holds, and the function rendering it: the methods table's markers
+    (several methods side by side) or trase's figures block."""
+    if METHODS_BEGIN in text:
+        return (METHODS_BEGIN, METHODS_END), render_methods_block
+    return (BEGIN, END), render_block
 
 
 def write_json(path: Path, data: dict) -> None:

@@ -63,3 +63,48 @@ def test_figures_page_is_the_rendering_of_its_data_file():
     data = read_figures(ROOT / "docs" / "figures.json")
     assert page_block(readme) == render_block(data), \
         "docs/figures.md figures block differs from docs/figures.json: run `trase-bench figures --collect-only --write-page`"
+
+
+def _methods_data():
+    data = _data()
+    base = data["rows"][0]
+    st = lambda m, s: {"mean": m, "std": s, "n": 3}
+    rows = []
+    for method, miou, seeds in (("trase", 0.9, [0, 1, 2]), ("cgc", 0.7, [0]), ("saga", 0.8, [0, 1, 2])):
+        for fmt in ("hypernerf", "neu3d"):
+            summary = dict(base["summary"], seeds=seeds, miou=st(miou, 0.01 if len(seeds) > 1 else None))
+            rows.append(dict(base, method=method, format=fmt, summary=summary))
+    rows.append(dict(rows[0], geometry="ground-truth"))
+    data["rows"] = rows
+    return data
+
+
+def test_methods_block_puts_the_measured_beside_the_published_and_orders_both():
+    from benchmark.results.figures import METHODS_BEGIN, METHODS_END, page_markers, render_methods_block
+
+    block = render_methods_block(_methods_data())
+    assert "| method | HyperNeRF | Neu3D |" in block  # only the formats measured
+    assert "| trase | 0.900 ± 0.010 | 0.900 ± 0.010 |" in block
+    assert "| cgc | 0.700 (1) | 0.700 (1) |" in block  # a seed count where fewer than three
+    gt = block.split("**Ground-truth geometry**")[1].split("**Published**")[0]
+    assert "| trase | 0.900 ± 0.010 | — |" in gt and "| cgc | — | — |" in gt
+    # the paper's Table 1 averages (package data), measured methods first, then the others
+    pub = block.split("**Published**")[1].split("**Order**")[0]
+    assert "| trase | 0.866 | 0.902 |" in pub and "| saga | 0.766 | 0.694 |" in pub and "| dgd |" in pub
+    assert pub.index("| cgc |") < pub.index("| dgd |")
+    assert "| HyperNeRF | trase > saga > cgc | — | trase > cgc > saga |" in block
+    # the block's markers tell the page apart from trase's figures page
+    assert page_markers(f"{METHODS_BEGIN}\nx\n{METHODS_END}")[1] is render_methods_block
+    assert page_markers(f"{BEGIN}\nx\n{END}")[1] is render_block
+    # trase's figures block ignores the other methods' rows
+    assert "0.700" not in render_block(_methods_data())
+
+
+def test_competitors_page_methods_table_is_the_rendering_of_its_data_file():
+    from benchmark.results.figures import METHODS_BEGIN, METHODS_END, render_methods_block
+
+    page = (ROOT / "docs" / "competitors.md").read_text()
+    data = read_figures(ROOT / "docs" / "methods-figures.json")
+    assert page_block(page, markers=(METHODS_BEGIN, METHODS_END)) == render_methods_block(data), \
+        ("docs/competitors.md methods table differs from docs/methods-figures.json: run `trase-bench figures "
+         "--collect-only --method ... --data docs/methods-figures.json --write-page docs/competitors.md`")
