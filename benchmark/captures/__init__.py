@@ -59,6 +59,32 @@ def load_capture(scene_dir: Path | str, options: CaptureOptions | None = None):
         raise fail(scene_dir, "capture directory does not exist")
     scene = FORMATS.load(fmt).load(scene_dir, options)
     scene.extras["format"] = fmt
+    return _scaled_scene(scene, options)
+
+
+def _scaled_scene(scene, options: CaptureOptions):
+    """The scene with its images scaled the rest of the way: what the layout's copies lack of
+    ``image_scale``, then down to ``max_side``; said in a notice."""
+    from benchmark.captures import scaling
+
+    factor, source = scene.extras.pop("scale_on_the_fly", (1.0, ""))
+    views = scene.train + scene.test
+    cap = scaling.max_side_factor(views, options.max_side) if options.max_side else 1.0
+    total = float(factor) * cap
+    if total <= 1.0:
+        return scene
+    w0, h0 = views[0].camera.width, views[0].camera.height
+    scene.train = scaling.rescale(scene.train, total)
+    scene.test = scaling.rescale(scene.test, total)
+    w1, h1 = scene.train[0].camera.width, scene.train[0].camera.height
+    why = []
+    if factor > 1:
+        why.append(f"no copy at 1/{options.image_scale}: scaled 1/{factor:g} from {source}")
+    if cap > 1:
+        why.append(f"capture.max_side={options.max_side}")
+    scene.extras["notices"].append(f"images scaled on the fly ({'; '.join(why)}): {w0}x{h0} -> {w1}x{h1}, "
+                                   f"area filter, alpha kept, cached in {scaling.cache_root()}")
+    scene.extras["scaled_on_the_fly"] = {"factor": total, "from": [w0, h0], "to": [w1, h1]}
     return scene
 
 

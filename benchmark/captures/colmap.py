@@ -17,6 +17,7 @@ import numpy as np
 from benchmark.captures.common import (
     CaptureLayout,
     capture_scene,
+    closest_copy,
     colmap_points,
     normalize_scene,
     order_times,
@@ -93,11 +94,9 @@ def load(scene_dir: Path, options: CaptureOptions):
         raise fail(scene_dir / "sparse" / "0", "no COLMAP model (cameras.bin or cameras.txt)")
     model = read_colmap_model(sparse)
     s = options.image_scale or 1
-    image_dir = scene_dir / ("images" if s == 1 else f"images_{s}")
-    if not image_dir.is_dir():
-        have = sorted(p.name for p in scene_dir.glob("images*") if p.is_dir())
-        raise fail(image_dir, f"missing image folder (found: {', '.join(have) or 'none'}); "
-                              f"choose one with --set capture.image_scale=N")
+    have = {1 if p.name == "images" else int(p.name[7:]): p for p in scene_dir.glob("images*")
+            if p.is_dir() and (p.name == "images" or (p.name.startswith("images_") and p.name[7:].isdigit()))}
+    s_read, image_dir = closest_copy(s, have, scene_dir / ("images" if s == 1 else f"images_{s}"), "image folder")
     images = sorted(model.images.values(), key=lambda im: im.name)
     if not images:
         raise fail(sparse, "the COLMAP model has no registered images")
@@ -110,16 +109,17 @@ def load(scene_dir: Path, options: CaptureOptions):
         native = camera_of(model.cameras[im.camera_id], w2c, im.name, sparse)
         frame, t = times[im.name]
         native = native.with_time(t)
-        cam = native.scaled(s).undistorted()
-        dropped = max(dropped, distortion_px(native) / s)
+        cam = native.scaled(s_read).undistorted()
+        dropped = max(dropped, distortion_px(native) / s_read)
         img = find_image(image_dir, im.name)
-        check_size(img, cam.width, cam.height, f"COLMAP camera {im.camera_id} scaled 1/{s}")
+        check_size(img, cam.width, cam.height, f"COLMAP camera {im.camera_id} scaled 1/{s_read}")
         views.append(View(name=Path(im.name).with_suffix("").as_posix(), camera=cam, image_path=img,
                           frame=frame, native_camera=native))
     if dropped > 0:
         notices.append(f"lens distortion dropped: up to {dropped:.2f} px (run colmap image_undistorter for exact geometry)")
     points, colors = colmap_points(model, sparse)
-    scene = capture_scene(scene_dir, views, options, set(), points, colors, notices, {"image_scale": s})
+    scene = capture_scene(scene_dir, views, options, set(), points, colors, notices,
+                          {"image_scale": s, "scale_on_the_fly": (s / s_read, image_dir.name)})
     return normalize_scene(scene, options, notices)
 
 

@@ -145,6 +145,20 @@ def colmap_points(model, where: Path) -> tuple[np.ndarray, np.ndarray | None]:
     return xyz, rgb
 
 
+def closest_copy(wanted: int, have: dict[int, Path], missing: Path, what: str) -> tuple[int, Path]:
+    """(scale, folder) of the pre-scaled copy to read for images at 1/``wanted``: the copy at
+    that scale, else the coarsest finer one whose scale divides it (the rest is scaled on the
+    fly, benchmark.captures.scaling); ``have``: scale -> folder of the copies present."""
+    if wanted in have:
+        return wanted, have[wanted]
+    finer = [k for k in have if wanted % k == 0]
+    if not finer:
+        listed = ", ".join(have[k].name for k in sorted(have)) or "none"
+        raise fail(missing, f"missing {what} (found: {listed}), and none finer to scale from")
+    k = max(finer)
+    return k, have[k]
+
+
 def check_views(views: list[View], where: Path) -> None:
     if not views:
         raise fail(where, "no views to train on")

@@ -17,6 +17,7 @@ import numpy as np
 from benchmark.captures.common import (
     CaptureLayout,
     capture_scene,
+    closest_copy,
     colmap_points,
     order_times,
     read_colmap_model,
@@ -50,15 +51,12 @@ def load(scene_dir: Path, options: CaptureOptions):
         raise fail(ds_path, "ids lists an item twice")
 
     s = options.image_scale or DEFAULT_SCALE
-    image_dir = scene_dir / "rgb" / f"{s}x"
-    if not image_dir.is_dir():
-        have = sorted(p.name for p in (scene_dir / "rgb").glob("*x") if p.is_dir())
-        raise fail(image_dir, f"missing image folder rgb/{s}x (found: {', '.join(have) or 'none'}); "
-                              f"choose one with --set capture.image_scale=N")
+    have = {int(p.name[:-1]): p for p in (scene_dir / "rgb").glob("*x") if p.is_dir() and p.name[:-1].isdigit()}
+    s_read, image_dir = closest_copy(s, have, scene_dir / "rgb" / f"{s}x", f"image folder rgb/{s}x")
     listed = set(ids)
     unlisted = sorted(p.name for p in image_dir.iterdir() if p.suffix in IMAGE_SUFFIXES and p.stem not in listed)
     if unlisted:
-        notices.append(f"ignored {len(unlisted)} image(s) in rgb/{s}x with no id in dataset.json "
+        notices.append(f"ignored {len(unlisted)} image(s) in rgb/{image_dir.name} with no id in dataset.json "
                        f"(e.g. {unlisted[0]})")
 
     if options.time == "static":
@@ -71,17 +69,18 @@ def load(scene_dir: Path, options: CaptureOptions):
             raise fail(meta_path, "top level is not a JSON object")
         times = item_times(ids, metadata, meta_path)
 
-    built = [nerfies_view(scene_dir, item, image_dir, s, center, scale, times[item]) for item in ids]
+    built = [nerfies_view(scene_dir, item, image_dir, s_read, center, scale, times[item]) for item in ids]
     views = [v for v, _ in built]
     dropped = max((px for _, px in built), default=0.0)
     if dropped > 0:
-        notices.append(f"lens distortion dropped (as the public code does): up to {dropped:.2f} px at rgb/{s}x")
+        notices.append(f"lens distortion dropped (as the public code does): up to {dropped:.2f} px at rgb/{image_dir.name}")
 
     points, colors = _points(scene_dir)
     points = (points - center) * scale
     val = dataset.get("val_ids", []) if isinstance(dataset, dict) else []
     return capture_scene(scene_dir, views, options, set(val) if isinstance(val, list) else set(),
-                         points, colors, notices, {"scene_json": scene_json, "image_scale": s})
+                         points, colors, notices, {"scene_json": scene_json, "image_scale": s,
+                                                   "scale_on_the_fly": (s / s_read, f"rgb/{s_read}x")})
 
 
 def _points(scene_dir: Path) -> tuple[np.ndarray, np.ndarray | None]:

@@ -13,9 +13,14 @@ TIME_RULES = ("auto", "order", "static")
 @dataclasses.dataclass(frozen=True)
 class CaptureOptions:
     format: str = "auto"  # auto | nerfies | colmap | transforms
-    # images at 1/s of the cameras' size: nerfies rgb/<s>x, COLMAP images_<s> (images/ for 1);
-    # 0: the layout's default (nerfies 2, as the benchmarks train on; COLMAP and transforms 1)
+    # images at 1/s of the cameras' size: nerfies rgb/<s>x, COLMAP images_<s> (images/ for 1),
+    # transforms <folder>_<s>; where the layout has no such copy, the finest one it has is scaled
+    # on the fly (benchmark.captures.scaling); 0: the layout's default (nerfies 2, as the
+    # benchmarks train on; COLMAP and transforms 1)
     image_scale: int = 0
+    # the longest image side in pixels after image_scale (0: no limit): larger images are scaled
+    # down on the fly (benchmark.captures.scaling)
+    max_side: int = 0
     # auto: the layout's times (nerfies metadata.json; COLMAP times.json, else the frame order;
     # transforms each frame's "time", else the frame order); order: t = rank of the image name /
     # (n - 1); static: t = 0 for every view
@@ -34,6 +39,8 @@ class CaptureOptions:
             raise DatasetError(f"--set capture.time={self.time}: choose {', '.join(TIME_RULES)}")
         if self.image_scale < 0:
             raise DatasetError(f"--set capture.image_scale={self.image_scale}: a whole number >= 1 (0: the layout's default)")
+        if self.max_side < 0:
+            raise DatasetError(f"--set capture.max_side={self.max_side}: pixels >= 1 (0: no limit)")
         holdout_every(self.holdout)  # checks the rule
 
     def to_dict(self) -> dict:

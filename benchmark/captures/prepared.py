@@ -35,12 +35,12 @@ def load(scene_dir: Path, options: CaptureOptions):
     key = field(read_json(pdir / "prepared.json", "prepared.json"), "dataset", pdir / "prepared.json")
     if key not in DATASETS:
         raise fail(pdir / "prepared.json", f"prepared for unknown dataset {key!r}")
-    if options.image_scale not in (0, 1):
-        raise fail(pdir / "images", "prepared frames have one size; capture.image_scale must stay 0 or 1")
     scene = load_prepared(DATASETS[key], pdir, scene_dir.resolve().name)
     notices: list[str] = [f"frames prepared from a {DATASETS[key].display_name} recording"]
     out = capture_scene(scene_dir, scene.train + scene.test, options, {v.name for v in scene.test},
-                        scene.points, scene.point_colors, notices, {"image_scale": 1})
+                        scene.points, scene.point_colors, notices,
+                        {"image_scale": options.image_scale or 1,
+                         "scale_on_the_fly": (options.image_scale or 1, "the prepared frames")})
     return normalize_scene(out, options, notices)
 
 

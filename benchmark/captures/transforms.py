@@ -84,6 +84,7 @@ def _camera(doc: dict, frame: dict, image: Path, path: Path, where: str, scale: 
 def load(scene_dir: Path, options: CaptureOptions):
     notices: list[str] = []
     s = options.image_scale or 1
+    s_read = s if s == 1 or _has_scaled_copy(scene_dir, s) else 1  # no copy: scaled on the fly from the listed files
     entries = []  # (file, doc, frame, name, image)
     test_names: set[str] = set()
     for fname in FILES:
@@ -96,9 +97,8 @@ def load(scene_dir: Path, options: CaptureOptions):
         for i, fr in enumerate(frames):
             where = f"frame {i}"
             rel = str(field(fr, "file_path", path, where)).removeprefix("./")
-            if s > 1:  # images_<s>/ beside the listed folder, as for COLMAP
-                parts = Path(rel).parts
-                rel = str(Path(f"{parts[0]}_{s}", *parts[1:])) if len(parts) > 1 else rel
+            if s_read > 1:  # <folder>_<s>/ beside the listed folder, as COLMAP's images_<s>
+                rel = _scaled_rel(rel, s_read)
             image = find_image(scene_dir, rel)
             name = Path(rel).with_suffix("").as_posix() if Path(rel).suffix in (".png", ".jpg", ".jpeg") else rel
             entries.append((path, doc, fr, name, image, where))
@@ -121,7 +121,7 @@ def load(scene_dir: Path, options: CaptureOptions):
 
     views = []
     for path, doc, fr, name, image, where in entries:
-        cam = _camera(doc, fr, image, path, where, s)
+        cam = _camera(doc, fr, image, path, where, s_read)
         frame, t = times[name]
         cam = cam.with_time(t)
         w, h = image_size(image)
@@ -137,8 +137,23 @@ def load(scene_dir: Path, options: CaptureOptions):
     if points is None:
         points = points_in_view(views)
         notices.append(f"no {' / '.join(POINT_FILES)}: {len(points)} random initial points where the cameras look")
-    scene = capture_scene(scene_dir, views, options, test_names, points, colors, notices, {"image_scale": s})
+    scene = capture_scene(scene_dir, views, options, test_names, points, colors, notices,
+                          {"image_scale": s, "scale_on_the_fly": (s / s_read, "the listed images")})
     return normalize_scene(scene, options, notices)
+
+
+def _scaled_rel(rel: str, s: int) -> str:
+    """The frame's file in the copy at 1/s: ``<folder>_<s>/<rest>`` for ``<folder>/<rest>``."""
+    parts = Path(rel).parts
+    return str(Path(f"{parts[0]}_{s}", *parts[1:])) if len(parts) > 1 else rel
+
+
+def _has_scaled_copy(scene_dir: Path, s: int) -> bool:
+    """Whether the first frame's folder has a copy at 1/s beside it (``<folder>_<s>/``)."""
+    _, frames = _frames(scene_dir / FILES[0])
+    rel = str(field(frames[0], "file_path", scene_dir / FILES[0], "frame 0")).removeprefix("./")
+    parts = Path(rel).parts
+    return len(parts) > 1 and (scene_dir / f"{parts[0]}_{s}").is_dir()
 
 
 LAYOUT = CaptureLayout("transforms_train.json (+ transforms_test.json)", detect, load)

@@ -90,7 +90,9 @@ CASES = [
      "times.json", r"no time for 1 image\(s\)"),
     ("colmap", "times.json NaN", lambda d: _edit_json(d / "times.json", lambda j: j.update({min(j): float("nan")})),
      "times.json", "is NaN or Inf"),
-    ("colmap", "image folder scale", lambda d: None, "images_2", r"missing image folder \(found: images\)"),
+    # images at 1/3 asked with only a copy at 1/2: 2 does not divide 3 (1/2 -> 1/4 would be scaled on the fly)
+    ("colmap", "image folder scale", lambda d: (d / "images").rename(d / "images_2"), "images_3",
+     r"missing image folder \(found: images_2\), and none finer to scale from"),
     ("transforms", "malformed", lambda d: (d / "transforms_train.json").write_text('{"frames": [}'),
      "transforms_train.json", "malformed JSON"),
     ("transforms", "no frames", lambda d: _edit_json(d / "transforms_train.json", lambda j: j.update(frames=[])),
@@ -117,7 +119,7 @@ CASES = [
 def test_bad_capture_is_one_line_naming_the_file(layout, broken, corrupt, culprit, says, capture_copy):
     d = capture_copy(layout)
     corrupt(d)
-    options = CaptureOptions(format=layout, image_scale=2 if broken == "image folder scale" else 0)
+    options = CaptureOptions(format=layout, image_scale=3 if broken == "image folder scale" else 0)
     with pytest.raises(DatasetError) as err:
         load_capture(d, options)
     msg = str(err.value)

@@ -48,14 +48,21 @@ def test_nerfies_capture_uses_colmap_points_in_the_camera_frame_and_counts_dropp
     assert [v.time for v in sorted(scene.train, key=lambda v: v.frame)] == [f / max(frames) for f in frames]
 
 
-def test_nerfies_points_npy_wins_and_rgb_scale_is_a_setting(capture_copy):
+def test_nerfies_points_npy_wins_and_rgb_scale_is_a_setting(capture_copy, tmp_path, monkeypatch):
+    monkeypatch.setenv("TRASE_BENCH_CACHE", str(tmp_path / "cache"))
     d = capture_copy("nerfies")
     np.save(d / "points.npy", np.array([[2.25, -0.5, 0.125], [0.25, 1.5, 0.125]]))  # raw frame
     scene = load_capture(d, CaptureOptions(image_scale=4))
     assert np.allclose(scene.points, [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])  # (p - center) * scale
-    assert scene.train[0].camera.width * 4 == json.loads((d / "camera" / f"{scene.train[0].name}.json").read_text())["image_size"][0]
-    with pytest.raises(DatasetError, match=r"rgb/8x: missing image folder rgb/8x \(found: 2x, 4x\)"):
-        load_capture(d, CaptureOptions(image_scale=8))
+    native = json.loads((d / "camera" / f"{scene.train[0].name}.json").read_text())["image_size"][0]
+    assert scene.train[0].camera.width * 4 == native
+    assert not (tmp_path / "cache").exists()  # the layout's own copy: nothing scaled
+    # no rgb/8x: the 4x copy is scaled the rest of the way
+    eighth = load_capture(d, CaptureOptions(image_scale=8))
+    assert eighth.train[0].camera.width == round(native / 8)
+    assert any("no copy at 1/8: scaled 1/2 from rgb/4x" in n for n in eighth.extras["notices"])
+    with pytest.raises(DatasetError, match=r"rgb/3x: missing image folder rgb/3x \(found: 2x, 4x\), and none finer"):
+        load_capture(d, CaptureOptions(image_scale=3))
 
 
 def test_colmap_time_rules(capture_copy, tiny_scene):
@@ -127,7 +134,7 @@ def test_order_times_and_detection_errors(tmp_path):
         detect_format(tmp_path / "nope")
 
 
-def test_a_prepared_multiview_recording_is_a_capture(tmp_path):
+def test_a_prepared_multiview_recording_is_a_capture(tmp_path, monkeypatch):
     from benchmark.datasets import load_scene
     from benchmark.datasets.synthetic import generate
 
@@ -139,5 +146,43 @@ def test_a_prepared_multiview_recording_is_a_capture(tmp_path):
     held = load_capture(d, CaptureOptions(holdout="layout", normalize=False))
     assert [v.name for v in held.test] == [v.name for v in bench.test]  # the registry's test camera
     assert np.array_equal(held.points, bench.points)
-    with pytest.raises(DatasetError, match="capture.image_scale must stay 0 or 1"):
-        load_capture(d, CaptureOptions(image_scale=2))
+    # prepared frames have one size: any other is scaled on the fly, the cameras with them
+    monkeypatch.setenv("TRASE_BENCH_CACHE", str(tmp_path / "cache"))
+    half = load_capture(d, CaptureOptions(image_scale=2, holdout="layout", normalize=False))
+    a, b = held.train[0].camera, half.train[0].camera
+    assert (b.width, b.height) == (round(a.width / 2), round(a.height / 2))
+    assert np.allclose(b.K[0], a.K[0] * b.width / a.width) and np.allclose(b.K[1], a.K[1] * b.height / a.height)
+    assert np.array_equal(b.w2c, a.w2c) and b.time == a.time
+    from benchmark.datasets.images import image_size
+
+    assert image_size(half.train[0].image_path) == (b.width, b.height)
+    assert image_size(half.test[0].image_path) == (half.test[0].camera.width, half.test[0].camera.height)
+
+
+def test_scaled_files_are_premultiplied_area_averages_cached_by_source(tmp_path):
+    import cv2
+
+    from benchmark.captures.scaling import rescale, scaled_file
+    from imagefiles import read_rgb
+
+    # a 4x4 RGBA: left half opaque red, right half transparent (its colour, green, must not
+    # bleed into the edge), one half-transparent white pixel
+    img = np.zeros((4, 4, 4), np.uint8)
+    img[:, :2] = (0, 0, 255, 255)  # BGRA red, opaque
+    img[:, 2:] = (0, 255, 0, 0)  # green, fully transparent
+    img[0, 0] = (255, 255, 255, 128)
+    src = tmp_path / "a.png"
+    cv2.imwrite(str(src), img)
+    out = scaled_file(src, (2, 2), tmp_path / "cache")
+    for bg in ((0.0, 0.0, 0.0), (1.0, 1.0, 1.0)):
+        want = cv2.resize(read_rgb(src, bg), (2, 2), interpolation=cv2.INTER_AREA)  # scaled composite
+        assert np.allclose(read_rgb(out, bg), want, atol=2e-5)
+    small = cv2.imread(str(out), cv2.IMREAD_UNCHANGED)
+    assert small.dtype == np.uint16 and small.shape == (2, 2, 4)
+    assert small[1, 1, 3] == 0 and small[1, 0, 3] == 65535  # alpha kept
+    # written once: the same source and size give the same file, a changed source another
+    mtime = out.stat().st_mtime_ns
+    assert scaled_file(src, (2, 2), tmp_path / "cache") == out and out.stat().st_mtime_ns == mtime
+    cv2.imwrite(str(src), img[::-1])
+    assert scaled_file(src, (2, 2), tmp_path / "cache") != out
+    assert rescale([], 2.0) == []
