@@ -86,15 +86,30 @@ def evaluate_psnr(gaussians: GaussianModel, deformation, views: Sequence, backgr
     """Mean over views of the PSNR (dB) of the clamped render against the view's image."""
     if not views:
         raise ValueError("evaluate_psnr: no views")
+    return evaluate_images(gaussians, deformation, views, background, backend, downscale, ssim_too=False)["psnr"]
+
+
+@torch.no_grad()
+def evaluate_images(gaussians: GaussianModel, deformation, views: Sequence, background=None,
+                    backend: str = "auto", downscale: float = 1.0, ssim_too: bool = True) -> dict:
+    """The field's image measures of the clamped renders against the views' images (alpha
+    composited over ``background``, black by default, as in training): mean PSNR (dB) and mean
+    SSIM (3DGS's 11x11 gaussian window, ``losses.ssim``) over the views, and the views' PSNRs."""
+    if not views:
+        raise ValueError("evaluate_images: no views")
     bg = torch.zeros(3) if background is None else torch.as_tensor(background, dtype=torch.float32).cpu()
     dev = gaussians.means.device
-    vals = []
+    psnrs, ssims = [], []
     for v in views:
         cam = v.camera if downscale == 1 else v.camera.scaled(downscale)
         gt = torch.from_numpy(load_image(Path(v.image_path), cam, bg.numpy())).to(dev)
         out, _ = render_view(gaussians, deformation, cam, bg.to(dev), backend)
-        vals.append(psnr(out.color.clamp(0, 1), gt))
-    return float(np.mean(vals))
+        img = out.color.clamp(0, 1)
+        psnrs.append(psnr(img, gt))
+        if ssim_too:
+            ssims.append(float(ssim(img, gt)))
+    return {"psnr": float(np.mean(psnrs)), "ssim": float(np.mean(ssims)) if ssims else None,
+            "per_view_psnr": [float(x) for x in psnrs]}
 
 
 # -- training --------------------------------------------------------------------------------

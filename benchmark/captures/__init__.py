@@ -76,6 +76,7 @@ def _scaled_scene(scene, options: CaptureOptions):
     w0, h0 = views[0].camera.width, views[0].camera.height
     scene.train = scaling.rescale(scene.train, total)
     scene.test = scaling.rescale(scene.test, total)
+    scene.validation = scaling.rescale(scene.validation, total)
     w1, h1 = scene.train[0].camera.width, scene.train[0].camera.height
     why = []
     if factor > 1:

@@ -76,6 +76,7 @@ def normalize_scene(scene: Scene, options: CaptureOptions, notices: list[str]) -
     notices.append(f"world normalised: (p - {np.round(center, 4).tolist()}) x {scale:.4g}")
     scene.train = [move(v) for v in scene.train]
     scene.test = [move(v) for v in scene.test]
+    scene.validation = [move(v) for v in scene.validation]
     scene.points = (scene.points - center) * scale
     scene.extras["normalization"] = {"center": center.tolist(), "scale": scale}
     return scene

@@ -104,7 +104,8 @@ def export(ctx: SequenceRun, out: Path, opts: FitOptions) -> Path:
             atomic_write_bytes(d / f"{_file_name(v.name)}.png", png_bytes(pair))
     atomic_write_json(out / VIEWS_FILE, {split: [{"name": v.name, "image": str(v.image_path), "frame": int(v.frame),
                                                    "camera": v.camera.to_dict()} for v in views]
-                                         for split, views in (("train", scene.train), ("test", scene.test))})
+                                         for split, views in (("train", scene.train), ("test", scene.test),
+                                                              ("validation", scene.validation))})
     record = {
         "kind": "capture-fit",  # not a benchmark result: no ground truth, never in a leaderboard
         "scene_dir": str(Path(opts.scene_dir).resolve()),
@@ -116,8 +117,11 @@ def export(ctx: SequenceRun, out: Path, opts: FitOptions) -> Path:
         "config_hash": config_hash(ctx.settings.to_dict()),
         "overrides": list(opts.overrides),
         "stages": {name: rec.to_dict() for name, rec in ctx.records.items()},
-        "views": {"train": len(scene.train), "test": len(scene.test)},
+        "views": {"train": len(scene.train), "test": len(scene.test), "validation": len(scene.validation)},
         "holdout_psnr": geo_rec.info.get("test_psnr"),
+        # the field's image measures on the held-out and the validation views (geometry stage)
+        "image_measures": {k: geo_rec.info[k] for k in ("test_psnr", "test_ssim", "validation_psnr",
+                                                         "validation_ssim") if geo_rec.info.get(k) is not None},
         "n_gaussians": int(fitted.features.shape[0]),
         "n_clusters": int(fitted.stats.get("n_clusters", 0)),
         "previews": [f"previews/{_file_name(v.name)}.png" for v in shown],
@@ -154,7 +158,11 @@ def next_steps(fit_json: Path) -> list[str]:
             f"render a clip: trase-bench render --run {out} --cameras orbit --mode clusters",
             f"edit it: trase-bench edit remove --run {out} --click {v['name']}:{u},{w} --out {out}-edited",
             f"{rec['n_clusters']} clusters over {rec['n_gaussians']} gaussians"
-            + (f"; held-out PSNR {rec['holdout_psnr']:.2f} dB" if rec.get("holdout_psnr") is not None else "")]
+            + (f"; held-out PSNR {rec['holdout_psnr']:.2f} dB" if rec.get("holdout_psnr") is not None else "")
+            + (f", SSIM {m['test_ssim']:.4f}" if (m := rec.get("image_measures") or {}).get("test_ssim") is not None
+               else "")
+            + (f"; validation PSNR {m['validation_psnr']:.2f} dB, SSIM {m['validation_ssim']:.4f}"
+               if m.get("validation_psnr") is not None else "")]
 
 
 __all__ = ["FitOptions", "fit_capture", "monocular", "next_steps"]

@@ -33,6 +33,7 @@ from benchmark.datasets.scene import View
 from trase.camera import Camera, CameraError
 
 FILES = ("transforms_train.json", "transforms_test.json")
+VAL_FILE = "transforms_val.json"  # D-NeRF's validation split: read, never trained on
 POINT_FILES = ("points3d.ply", "points3D.ply", "fused.ply")
 GL_TO_CV = np.diag([1.0, -1.0, -1.0, 1.0])  # camera axes: OpenGL (y up, z back) -> OpenCV
 
@@ -87,7 +88,8 @@ def load(scene_dir: Path, options: CaptureOptions):
     s_read = s if s == 1 or _has_scaled_copy(scene_dir, s) else 1  # no copy: scaled on the fly from the listed files
     entries = []  # (file, doc, frame, name, image)
     test_names: set[str] = set()
-    for fname in FILES:
+    val_names: set[str] = set()
+    for fname in (*FILES, VAL_FILE):
         path = scene_dir / fname
         if not path.is_file():
             if fname == FILES[0]:
@@ -104,6 +106,8 @@ def load(scene_dir: Path, options: CaptureOptions):
             entries.append((path, doc, fr, name, image, where))
             if fname == FILES[1]:
                 test_names.add(name)
+            elif fname == VAL_FILE:
+                val_names.add(name)
     names = [e[3] for e in entries]
     if len(set(names)) != len(names):
         raise fail(scene_dir / FILES[0], "two frames name the same image")
@@ -129,6 +133,15 @@ def load(scene_dir: Path, options: CaptureOptions):
             raise fail(image, f"image is {w}x{h} but {path.name} {where} says {cam.width}x{cam.height}")
         views.append(View(name=name, camera=cam, image_path=image, frame=frame))
 
+    _notice_unlisted([e[4] for e in entries], notices)
+    if _has_alpha(views[0].image_path):
+        notices.append("the images carry alpha: composited over the run's background "
+                       "(geometry.train.white_background; black unless set)")
+    validation = [v for v in views if v.name in val_names]
+    views = [v for v in views if v.name not in val_names]
+    if validation:
+        notices.append(f"{len(validation)} validation views ({VAL_FILE}): never trained on, measured beside the test views")
+
     points, colors = None, None
     for fname in POINT_FILES:
         if (scene_dir / fname).is_file():
@@ -139,7 +152,27 @@ def load(scene_dir: Path, options: CaptureOptions):
         notices.append(f"no {' / '.join(POINT_FILES)}: {len(points)} random initial points where the cameras look")
     scene = capture_scene(scene_dir, views, options, test_names, points, colors, notices,
                           {"image_scale": s, "scale_on_the_fly": (s / s_read, "the listed images")})
+    scene.validation = validation
     return normalize_scene(scene, options, notices)
+
+
+def _notice_unlisted(listed: list[Path], notices: list[str]) -> None:
+    """Images in the listed frames' folders that no frame names (renders, depth maps, copies):
+    ignored, said once per folder."""
+    from benchmark.datasets.images import IMAGE_SUFFIXES
+
+    names = {p.resolve() for p in listed}
+    for folder in sorted({p.parent for p in listed}):
+        stray = sorted(q.name for q in folder.iterdir() if q.suffix in IMAGE_SUFFIXES and q.resolve() not in names)
+        if stray:
+            notices.append(f"ignored {len(stray)} image(s) in {folder.name}/ that no frame lists (e.g. {stray[0]})")
+
+
+def _has_alpha(image: Path) -> bool:
+    from PIL import Image
+
+    with Image.open(image) as im:
+        return "A" in im.getbands()
 
 
 def _scaled_rel(rel: str, s: int) -> str:

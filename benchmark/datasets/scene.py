@@ -47,6 +47,9 @@ class Scene:
     variant: Variant = "real"
     truth: SceneTruth | None = None  # synthetic scenes: objects, instance maps, geometry (datasets.truth)
     extras: dict = dataclasses.field(default_factory=dict)  # format-specific facts (scene.json ...)
+    # views held out of training for choosing settings (D-NeRF's transforms_val.json): never
+    # trained on and never a test view
+    validation: list[View] = dataclasses.field(default_factory=list)
 
     def __post_init__(self) -> None:
         if self.gt_masks and len(self.gt_masks) != len(self.test):

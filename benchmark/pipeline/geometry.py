@@ -21,7 +21,7 @@ def run(ctx: SequenceRun) -> list[StageRecord]:
 
     def work(d: Path) -> dict:
         from trase.devices import peak_memory_mib, reset_peak_memory, resolve_device
-        from trase.reconstruct import evaluate_psnr, reconstruct
+        from trase.reconstruct import evaluate_images, reconstruct
 
         src = geometry.source
         device = resolve_device(geometry.train.device) if src == "reconstruct" else "cpu"
@@ -38,10 +38,14 @@ def run(ctx: SequenceRun) -> list[StageRecord]:
         else:
             raise ConfigError(f"--set geometry.source={src}: choose {', '.join(SOURCES)}")
         gaussians, deformation = load_geometry(d)
-        psnr = evaluate_psnr(gaussians, deformation, scene.test) if scene.test else None
+        # the held-out views composited over the background the reconstruction trained on
+        bg = (1.0, 1.0, 1.0) if geometry.train.white_background else None
+        info = {"source": src, "n_gaussians": int(gaussians.num_gaussians), "test_psnr": None}
+        for split, views in (("test", scene.test), ("validation", scene.validation)):
+            if views:
+                m = evaluate_images(gaussians, deformation, views, bg)
+                info.update({f"{split}_psnr": round(m["psnr"], 3), f"{split}_ssim": round(m["ssim"], 4)})
         peak = peak_memory_mib(device)
-        return {"source": src, "n_gaussians": int(gaussians.num_gaussians),
-                "test_psnr": None if psnr is None else round(float(psnr), 3),
-                **({"peak_gpu_mib": peak} if peak is not None else {})}
+        return {**info, **({"peak_gpu_mib": peak} if peak is not None else {})}
 
     return [ctx.cache.run("geometry", key, work, keyed)]

@@ -107,7 +107,7 @@ def test_fit_exports_a_folder_that_select_reads(capture_dirs, tmp_path):
     fit_json = fit_capture(FitOptions(capture_dirs["nerfies"], out, holdout="every:2", overrides=FAST,
                                       cache_dir=tmp_path / "cache", progress=False))
     rec = json.loads(fit_json.read_text())
-    assert rec["kind"] == "capture-fit" and rec["format"] == "nerfies" and rec["views"] == {"train": 2, "test": 2}
+    assert rec["kind"] == "capture-fit" and rec["format"] == "nerfies" and rec["views"] == {"train": 2, "test": 2, "validation": 0}
     assert rec["holdout_psnr"] is not None and np.isfinite(rec["holdout_psnr"])
     assert set(rec["stages"]) == {"masks", "geometry", "features", "fit"}
     assert any("ignored 2 image(s)" in n for n in rec["notices"])
