@@ -111,6 +111,61 @@ def points_in_view(views: list[View], n: int = 20000, seed: int = 0) -> np.ndarr
     return np.concatenate(out)[:n]
 
 
+def points_from_alpha(views: list[View], n: int = 20000, seed: int = 0, min_share: float = 0.5,
+                      rounds: int = 20) -> tuple[np.ndarray, np.ndarray] | None:
+    """([m, 3] points, [m, 3] colours in [0, 1]) inside the objects the images' alpha outlines,
+    for a capture with no points whose images carry alpha (D-NeRF): random points where the
+    cameras look (``points_in_view``), kept where they project inside the silhouette (alpha >=
+    0.5) in at least ``min_share`` of the views that see them, coloured by the mean of those
+    views' pixels. A soft visual hull: the object moves between the views' times, and the hull
+    of every view would carve its moving parts away. None where the alpha outlines nothing (or
+    too little to keep a tenth of ``n`` in ``rounds`` draws). Deterministic."""
+    from imagefiles import read_rgb
+
+    alphas, colours = [], []
+    for v in views:
+        import cv2
+
+        raw = cv2.imread(str(v.image_path), cv2.IMREAD_UNCHANGED)
+        if raw is None or raw.ndim != 3 or raw.shape[2] != 4:
+            return None
+        alphas.append(raw[:, :, 3] >= (128 if raw.dtype == np.uint8 else 32768))
+        colours.append(read_rgb(v.image_path))
+    kept_p, kept_c = [], []
+    rng = np.random.default_rng(seed)
+    box = None  # after the first draw: the box of the points kept, where the next draws go
+    for _ in range(rounds):
+        if box is None:
+            p = points_in_view(views, n, seed + 1)
+        else:
+            p = rng.uniform(box[0], box[1], (4 * n, 3))
+        inside = np.zeros(len(p), int)
+        seen = np.zeros(len(p), int)
+        col = np.zeros((len(p), 3))
+        for v, a, img in zip(views, alphas, colours):
+            uv, z = v.camera.project(p)
+            u, w = np.floor(uv[:, 0]).astype(int), np.floor(uv[:, 1]).astype(int)
+            ok = (z > 1e-6) & (u >= 0) & (u < a.shape[1]) & (w >= 0) & (w < a.shape[0])
+            seen += ok
+            hit = np.zeros(len(p), bool)
+            hit[ok] = a[w[ok], u[ok]]
+            inside += hit
+            col[hit] += img[w[hit], u[hit]]
+        keep = (seen > 0) & (inside >= min_share * np.maximum(seen, 1))
+        kept_p.append(p[keep])
+        kept_c.append(col[keep] / np.maximum(inside[keep], 1)[:, None])
+        if sum(len(k) for k in kept_p) >= n:
+            break
+        if box is None and keep.sum() >= 8:
+            lo, hi = p[keep].min(axis=0), p[keep].max(axis=0)
+            pad = 0.1 * (hi - lo) + 1e-9
+            box = (lo - pad, hi + pad)
+    pts, cols = np.concatenate(kept_p)[:n], np.concatenate(kept_c)[:n]
+    if len(pts) < max(n // 10, 1):
+        return None
+    return pts, np.clip(cols, 0.0, 1.0)
+
+
 def read_colmap_model(sparse_dir: Path):
     """COLMAP's sparse model (cameras, images, points3D; .bin or .txt, with or without COLMAP
     4's rigs/frames) through pycolmap, or a one-line error naming the folder."""

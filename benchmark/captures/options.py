@@ -33,12 +33,18 @@ class CaptureOptions:
     # the unit ball, the frame the deformation network's positional encoding expects (nerfies
     # captures carry their own scene.json for this). A similarity: images do not change.
     normalize: bool = True
+    # initial points of a capture that ships none: "auto" carves them from the images' alpha
+    # where the images have one (common.points_from_alpha), else random where the cameras look;
+    # "random" always draws at random (the reader's only rule before the carving)
+    initial_points: str = "auto"
 
     def __post_init__(self) -> None:
         if self.time not in TIME_RULES:
             raise DatasetError(f"--set capture.time={self.time}: choose {', '.join(TIME_RULES)}")
         if self.image_scale < 0:
             raise DatasetError(f"--set capture.image_scale={self.image_scale}: a whole number >= 1 (0: the layout's default)")
+        if self.initial_points not in ("auto", "random"):
+            raise DatasetError(f"--set capture.initial_points={self.initial_points}: choose auto or random")
         if self.max_side < 0:
             raise DatasetError(f"--set capture.max_side={self.max_side}: pixels >= 1 (0: no limit)")
         holdout_every(self.holdout)  # checks the rule

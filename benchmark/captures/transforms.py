@@ -21,6 +21,7 @@ from benchmark.captures.common import (
     capture_scene,
     normalize_scene,
     order_times,
+    points_from_alpha,
     points_in_view,
     times_from_values,
 )
@@ -147,7 +148,13 @@ def load(scene_dir: Path, options: CaptureOptions):
         if (scene_dir / fname).is_file():
             points, colors = read_points(scene_dir / fname)
             break
-    if points is None:
+    carve = points is None and options.initial_points == "auto" and _has_alpha(views[0].image_path)
+    carved = points_from_alpha([v for v in views if v.name not in test_names]) if carve else None
+    if carved is not None:
+        points, colors = carved
+        notices.append(f"no {' / '.join(POINT_FILES)}: {len(points)} initial points carved from the images' alpha "
+                       "(inside the silhouette in at least half the views that see them, coloured by them)")
+    elif points is None:
         points = points_in_view(views)
         notices.append(f"no {' / '.join(POINT_FILES)}: {len(points)} random initial points where the cameras look")
     scene = capture_scene(scene_dir, views, options, test_names, points, colors, notices,

@@ -29,7 +29,7 @@ def test_dnerf_splits_alpha_and_stray_files(hook):
     assert "the images carry alpha: composited over the run's background" in notes
     assert "2 validation views (transforms_val.json)" in notes
     assert "ignored 1 image(s) in train/ that no frame lists (e.g. r_000_depth.png)" in notes
-    assert "random initial points" in notes  # D-NeRF ships no point cloud
+    assert "initial points carved from the images' alpha" in notes  # D-NeRF ships no point cloud
     cam = scene.train[0].camera  # intrinsics from camera_angle_x at the images' size
     assert (cam.width, cam.height) == (40, 40) and cam.K[0, 0] == pytest.approx(20 / np.tan(0.6911112070083618 / 2))
     # without --holdout layout the test views train too; the validation views never do
@@ -71,3 +71,39 @@ def test_fit_measures_the_held_out_and_validation_views_on_the_runs_background(h
     black = evaluate_images(g, d, scene.test)
     assert m["test_psnr"] == pytest.approx(white["psnr"], abs=1e-3) and abs(white["psnr"] - black["psnr"]) > 0.5
     assert any("validation PSNR" in line for line in next_steps(fit_json))
+
+
+def test_initial_points_carved_from_alpha_lie_inside_the_silhouettes(hook):
+    import cv2
+
+    from benchmark.captures.common import points_from_alpha
+
+    scene = load_capture(hook, CaptureOptions(normalize=False))
+    pts, cols = points_from_alpha(scene.train, n=500)
+    again, _ = points_from_alpha(scene.train, n=500)
+    assert pts.shape == (500, 3) and cols.shape == (500, 3) and np.array_equal(pts, again)  # deterministic
+    assert cols.min() >= 0 and cols.max() <= 1
+    inside, seen = np.zeros(len(pts)), np.zeros(len(pts))
+    for v in scene.train:
+        alpha = cv2.imread(str(v.image_path), cv2.IMREAD_UNCHANGED)[:, :, 3] >= 128
+        uv, z = v.camera.project(pts)
+        u, w = np.floor(uv[:, 0]).astype(int), np.floor(uv[:, 1]).astype(int)
+        ok = (z > 0) & (u >= 0) & (u < 40) & (w >= 0) & (w < 40)
+        seen += ok
+        inside[ok] += alpha[w[ok], u[ok]]
+    assert np.all(inside >= 0.5 * seen) and np.all(seen > 0)
+    # the random points the reader drew before: most of them fall outside the silhouettes
+    from benchmark.captures.common import points_in_view
+
+    rand = points_in_view(scene.train, 500)
+    hits = np.zeros(len(rand))
+    for v in scene.train:
+        alpha = cv2.imread(str(v.image_path), cv2.IMREAD_UNCHANGED)[:, :, 3] >= 128
+        uv, z = v.camera.project(rand)
+        u, w = np.clip(np.floor(uv[:, 0]).astype(int), 0, 39), np.clip(np.floor(uv[:, 1]).astype(int), 0, 39)
+        hits += alpha[w, u]
+    assert np.mean(hits >= 0.5 * len(scene.train)) < 0.5
+    # images without alpha outline nothing: no carving
+    for v in scene.train:
+        cv2.imwrite(str(v.image_path), cv2.imread(str(v.image_path))[:, :, :3])
+    assert points_from_alpha(scene.train, n=50) is None
