@@ -21,11 +21,15 @@ from benchmark.perf import SUITES, get_suite, machine_info
 @click.option("--dataset", default=None,
               help="The built-in scene's format for suites that take one (reconstruct, captures; "
                    "default: each suite's own, hypernerf).")
+@click.option("--scene", "scenes", multiple=True, type=click.Path(file_okay=False, exists=True),
+              help="Scene folders for suites that take them (dnerf: D-NeRF scenes as published; repeatable).")
+@click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
+              help="Settings for the fits of suites that take them (dnerf), e.g. --set preset=paper.")
 @click.option("--threads", type=click.IntRange(min=1), default=None,
               help="Threads for torch and numba (default: theirs, all cores). On a shared, loaded "
                    "machine --threads 1 gives the steadiest side-by-side ratios.")
 def perf(suites: tuple[str, ...], quick: bool, json_out: str | None, out_dir: str | None,
-         dataset: str | None, threads: int | None) -> None:
+         dataset: str | None, scenes: tuple[str, ...], overrides: tuple[str, ...], threads: int | None) -> None:
     """Run performance SUITES (default: all that this machine can run) and print their figures."""
     names = suites or tuple(SUITES.names())
     if dataset is not None:
@@ -48,6 +52,8 @@ def perf(suites: tuple[str, ...], quick: bool, json_out: str | None, out_dir: st
         click.echo(f"== {name} ==")
         fn = get_suite(name)
         why = getattr(inspect.getmodule(fn), "unavailable", lambda: None)()  # e.g. no GPU here
+        if why and scenes and "scenes" in inspect.signature(fn).parameters:
+            why = None  # the scenes it lacked are given
         if why and not suites:  # "all": what this machine can run; a suite named is run (and fails)
             click.echo(f"skipped: {why}")
             result["suites"][name] = {"skipped": why}
@@ -57,6 +63,10 @@ def perf(suites: tuple[str, ...], quick: bool, json_out: str | None, out_dir: st
             extra["out_dir"] = Path(out_dir) if out_dir else (Path(json_out).parent if json_out else Path("perf-out"))
         if dataset is not None and "dataset" in inspect.signature(fn).parameters:
             extra["dataset"] = dataset
+        if scenes and "scenes" in inspect.signature(fn).parameters:
+            extra["scenes"] = list(scenes)
+        if overrides and "overrides" in inspect.signature(fn).parameters:
+            extra["overrides"] = list(overrides)
         result["suites"][name] = fn(quick=quick, echo=click.echo, **extra)
     if json_out:
         with open(json_out, "w") as f:

@@ -34,6 +34,8 @@ SUITES.add("captures", "benchmark.perf.captures:run",
            "trase-bench fit on the built-in scene written as nerfies / COLMAP / transforms captures: click IoU, stage times.")
 SUITES.add("viewer", "benchmark.perf.viewer:run",
            "The web viewer's frame rate at 320x240 and 640x480 per render mode, and click-selection latency.")
+SUITES.add("dnerf", "benchmark.perf.dnerf:run",
+           "trase-bench fit on D-NeRF scenes as published (--scene): test/validation PSNR, SSIM beside Deformable-3DGS's, foreground IoU.")
 SUITES.add("pareto", "benchmark.perf.pareto:run",
            "mIoU vs features+fit+evaluate time over a settings grid for one scene; PNG with the Pareto front.")
 

@@ -13,6 +13,7 @@ def test_all_suites_quick(tmp_path, monkeypatch, capsys):
     from benchmark.perf import raster
 
     monkeypatch.setenv("TRASE_CACHE", str(tmp_path / "cache"))  # synthetic scenes generated here
+    monkeypatch.delenv("TRASE_DNERF", raising=False)  # perf dnerf has its own test (test_dnerf_suite.py)
     monkeypatch.setattr(raster, "QUICK", [(150, 32, 24, 4, True)])  # raster's own test covers its sizes
     out = tmp_path / "perf.json"
     assert main(["perf", "--quick", "--json", str(out)]) == 0  # no suite named: all this machine can run
@@ -24,6 +25,7 @@ def test_all_suites_quick(tmp_path, monkeypatch, capsys):
 
     if not torch.cuda.is_available():
         assert s["gpu"] == {"skipped": "torch sees no CUDA GPU here"}
+    assert s["dnerf"]["skipped"].startswith("no D-NeRF scenes: pass --scene DIR")
 
     knn = s["knn"]["sizes"][0]["methods"]
     for m in knn.values():

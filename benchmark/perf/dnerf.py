@@ -1,0 +1,142 @@
+"""``trase-bench perf dnerf --scene DIR [--scene DIR ...]``: ``trase-bench fit`` on D-NeRF scenes
+as published (no preparation), measured beside the geometry's published figures.
+
+Per scene: the fit at half size (``capture.image_scale=2``, scaled on the fly), black background
+(Deformable-3DGS's protocol), the test split held out (``--holdout layout``), the validation
+split measured and never trained on; then one click on the object (the deepest interior pixel
+of its alpha in the middle training view) through ``trase-bench select``, whose masks at the
+held-out views are scored against their alpha (the exact ground truth of "the object" on
+D-NeRF). Printed: test PSNR / SSIM and validation PSNR beside Deformable-3DGS's published test
+PSNR / SSIM / LPIPS (benchmark/data/published/deformable3dgs_dnerf.csv: full resolution, 40k
+iterations on a GPU, so a like-for-like row only under the same settings), the foreground IoU
+(mean and worst view) and the fit's stage times. Settings are compared on the validation views.
+
+Scenes: ``--scene`` folders (the eight D-NeRF scenes keep their folder names: hook, mutant,
+...), else every such folder under $TRASE_DNERF.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+SCENES = ("hellwarrior", "mutant", "hook", "bouncingballs", "lego", "trex", "standup", "jumpingjacks")
+QUICK_SET = ["geometry.train.iterations=60", "method.features.iterations=30"]
+
+
+def published() -> dict[str, dict]:
+    """scene -> {name, psnr, ssim, lpips_vgg} of Deformable-3DGS's Table 1 (package data)."""
+    import csv
+
+    path = resources.files("benchmark") / "data" / "published" / "deformable3dgs_dnerf.csv"
+    with path.open() as f:
+        return {r["scene"]: {"name": r["name"], **{k: float(r[k]) for k in ("psnr", "ssim", "lpips_vgg")}}
+                for r in csv.DictReader(f)}
+
+
+def default_scenes() -> list[Path]:
+    root = os.environ.get("TRASE_DNERF")
+    return [Path(root) / s for s in SCENES if (Path(root) / s).is_dir()] if root else []
+
+
+def unavailable() -> str | None:
+    if not default_scenes():
+        return "no D-NeRF scenes: pass --scene DIR (or set TRASE_DNERF to the folder holding them)"
+    return None
+
+
+def foreground_click(alpha: np.ndarray) -> tuple[int, int]:
+    """(x, y) of the deepest interior pixel of alpha >= 0.5 (the click on the object)."""
+    import cv2
+
+    m = (alpha >= 0.5).astype(np.uint8)
+    if not m.any():
+        raise ValueError("the view's alpha outlines nothing to click on")
+    d = cv2.distanceTransform(m, cv2.DIST_L2, 3)
+    y, x = np.unravel_index(int(np.argmax(d)), d.shape)
+    return int(x), int(y)
+
+
+def read_alpha(path: Path) -> np.ndarray:
+    """[H, W] float alpha in [0, 1] of an RGBA image (8 or 16 bit)."""
+    import cv2
+
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None or img.ndim != 3 or img.shape[2] != 4:
+        raise ValueError(f"{path}: no alpha channel to score the foreground against")
+    return img[:, :, 3].astype(np.float64) / (255.0 if img.dtype == np.uint8 else 65535.0)
+
+
+def foreground_iou(fit_dir: Path, echo=print) -> dict:
+    """One click on the object in the middle training view; IoU of the selection's masks
+    against the alpha at every held-out view."""
+    from benchmark.captures.select import select_clicks
+
+    views = json.loads((fit_dir / "views.json").read_text())
+    v = views["train"][len(views["train"]) // 2]
+    x, y = foreground_click(read_alpha(Path(v["image"])))
+    res = select_clicks(fit_dir, [f"{v['name']}:{x},{y}"], fit_dir / "selection")
+    ious = {}
+    for t in views["test"]:
+        gt = read_alpha(Path(t["image"])) >= 0.5
+        pred = res["masks"][t["name"]]
+        union = int((gt | pred).sum())
+        ious[t["name"]] = 1.0 if union == 0 else float((gt & pred).sum()) / union
+    vals = list(ious.values())
+    return {"click": f"{v['name']}:{x},{y}", "clusters": res["clusters"], "per_view": ious,
+            "mean": float(np.mean(vals)) if vals else None, "worst": float(np.min(vals)) if vals else None}
+
+
+def run(quick: bool = False, echo=print, out_dir: Path | None = None, scenes: list | None = None,
+        image_scale: int = 2, overrides: list[str] | None = None) -> dict:
+    from benchmark.captures.fit import FitOptions, fit_capture
+
+    scenes = [Path(s) for s in (scenes or default_scenes())]
+    if not scenes:
+        raise ValueError(unavailable())
+    out_dir = Path(out_dir or "perf-out") / "dnerf"
+    pub = published()
+    rows = []
+    for scene in scenes:
+        sets = [f"capture.image_scale={image_scale}", *(QUICK_SET if quick else []), *(overrides or [])]
+        t0 = time.perf_counter()
+        fit_json = fit_capture(FitOptions(scene, out_dir / scene.name, holdout="layout", overrides=sets,
+                                          cache_dir=out_dir / ".cache", progress=False))
+        seconds = time.perf_counter() - t0
+        rec = json.loads(fit_json.read_text())
+        fg = foreground_iou(fit_json.parent, echo)
+        row = {"scene": scene.name, "settings": sets, "measures": rec.get("image_measures", {}), "foreground_iou": fg, "fit_seconds": round(seconds, 1),
+               "stage_seconds": {k: s.get("seconds") for k, s in rec["stages"].items()},
+               "n_gaussians": rec["n_gaussians"], "published": pub.get(scene.name)}
+        rows.append(row)
+        echo(_line(row))
+    echo("")
+    echo(render_table(rows))
+    return {"rows": rows}
+
+
+def _line(row: dict) -> str:
+    m, fg = row["measures"], row["foreground_iou"]
+    return (f"{row['scene']}: test PSNR {m.get('test_psnr', float('nan')):.2f} dB, SSIM {m.get('test_ssim', float('nan')):.4f}"
+            f"; validation PSNR {m.get('validation_psnr', float('nan')):.2f} dB; foreground IoU {fg['mean']:.3f} "
+            f"(worst {fg['worst']:.3f}); fit {row['fit_seconds']:.0f} s, {row['n_gaussians']} gaussians")
+
+
+def render_table(rows: list[dict]) -> str:
+    """The scenes beside Deformable-3DGS's published row (markdown)."""
+    lines = [("| scene | test PSNR (dB) | test SSIM | validation PSNR | published PSNR / SSIM / LPIPS (VGG) "
+             "| PSNR gap | foreground IoU: mean / worst | fit (s) |"), "|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        m, p, fg = r["measures"], r["published"], r["foreground_iou"]
+        ours = m.get("test_psnr")
+        pub = f"{p['psnr']:.2f} / {p['ssim']:.4f} / {p['lpips_vgg']:.4f}" if p else "—"
+        gap = f"{ours - p['psnr']:+.2f}" if p and ours is not None else "—"
+        lines.append(f"| {p['name'] if p else r['scene']} | {ours:.2f} | {m.get('test_ssim', float('nan')):.4f} | "
+                     f"{m.get('validation_psnr', float('nan')):.2f} | {pub} | {gap} | "
+                     f"{fg['mean']:.3f} / {fg['worst']:.3f} | {r['fit_seconds']:.0f} |")
+    return "\n".join(lines)
