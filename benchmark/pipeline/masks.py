@@ -20,12 +20,22 @@ def make_mask_generator(settings: MaskSettings):
 
     g = settings.generator
     if g == "sam":
-        if not settings.checkpoint:
-            raise ConfigError("masks.generator=sam needs --set masks.checkpoint=PATH (a SAM .pth file)")
-        return make_generator("sam", checkpoint=settings.checkpoint)
+        if settings.checkpoint:
+            return make_generator("sam", checkpoint=settings.checkpoint, **_model_type(settings))
+        if settings.model:
+            from masks.checkpoints import sam_checkpoint
+
+            return make_generator("sam", checkpoint=sam_checkpoint(settings.model), model_type=settings.model)
+        raise ConfigError("masks.generator=sam needs --set masks.model=vit_b|vit_l|vit_h (the official checkpoint, "
+                          "fetched once) or --set masks.checkpoint=PATH (a SAM .pth file)")
     if g == "synthetic":
         return make_generator("synthetic", seed=settings.seed)
     return make_generator(g)
+
+
+def _model_type(settings: MaskSettings) -> dict:
+    """A local checkpoint's architecture: masks.model where named (the generator's default vit_h else)."""
+    return {"model_type": settings.model} if settings.model else {}
 
 
 def _candidates(src: Path, view) -> list[Path]:
@@ -74,6 +84,8 @@ def run(ctx: SequenceRun) -> list[StageRecord]:
     settings = ctx.settings.masks
     # what the key hashes: the anything masks do not depend on tracking (the tracks stage's own)
     mcfg = {k: v for k, v in dataclasses.asdict(settings).items() if k not in TRACKING_FIELDS}
+    if mcfg.get("model") is None:
+        mcfg.pop("model", None)  # keys of runs that name no SAM model stay as they were
     if settings.generator == "files":
         if not getattr(settings, "dir", None):
             raise ConfigError("masks.generator=files (trase-bench fit) needs --set masks.dir=PATH (a folder of mask files)")

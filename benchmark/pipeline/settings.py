@@ -36,6 +36,7 @@ SEED_PATHS = (("geometry", "train", "seed"), ("method", "features", "seed"), ("m
 
 
 TRACKING = ("none", "synthetic", "files", "classical")  # masks.tracking (benchmark.pipeline.tracks)
+SAM_MODELS = ("vit_b", "vit_l", "vit_h")  # masks.checkpoints.SAM_CHECKPOINTS
 TRACKING_FIELDS = ("tracking", "tracks_dir")  # recorded only where tracking is on (untracked runs keep their hash)
 
 
@@ -43,6 +44,9 @@ TRACKING_FIELDS = ("tracking", "tracks_dir")  # recorded only where tracking is 
 class MaskSettings:
     generator: str = "classical"  # synthetic | classical | sam (benchmark runs); files (captures)
     checkpoint: str | None = None  # SAM checkpoint path (generator "sam")
+    # generator "sam" without a checkpoint: the official one of this model (vit_b, vit_l,
+    # vit_h), fetched once into the cache and checked against its SHA-256 (masks.checkpoints)
+    model: str | None = None
     seed: int = 0
     # ids consistent across views (masks.tracked): none | synthetic (the synthetic scene's
     # instance maps) | files (tracks_dir, e.g. DEVA's output) | classical (the project's tracker)
@@ -50,6 +54,8 @@ class MaskSettings:
     tracks_dir: str | None = None  # tracking "files": the folder of per-frame id images
 
     def __post_init__(self) -> None:
+        if self.model is not None and self.model not in SAM_MODELS:
+            raise ConfigError(f"--set masks.model={self.model}: choose {', '.join(SAM_MODELS)}")
         if self.tracking not in TRACKING:
             raise ConfigError(f"--set masks.tracking={self.tracking}: choose {', '.join(TRACKING)}")
         if self.tracking == "files" and not self.tracks_dir:
@@ -61,11 +67,15 @@ class MaskSettings:
 
 def recorded_masks(masks: dict) -> dict:
     """The masks section as a run records and hashes it: the tracking fields only where tracking
-    is on, so every untracked run keeps the config hash, name and stage keys it had before
-    tracking existed (as plugins' packages are keyed only where a plugin is used)."""
-    if masks.get("tracking", "none") == "none" and masks.get("tracks_dir") is None:
-        return {k: v for k, v in masks.items() if k not in TRACKING_FIELDS}
-    return dict(masks)
+    is on, and the SAM model only where one is named, so every run without them keeps the
+    config hash, name and stage keys it had before they existed (as plugins' packages are
+    keyed only where a plugin is used)."""
+    out = dict(masks)
+    if out.get("model") is None:
+        out.pop("model", None)
+    if out.get("tracking", "none") == "none" and out.get("tracks_dir") is None:
+        return {k: v for k, v in out.items() if k not in TRACKING_FIELDS}
+    return out
 
 
 @dataclasses.dataclass

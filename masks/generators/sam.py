@@ -11,8 +11,8 @@ copied by default:
     score" ablation uses it) and its ``predicted_iou`` in ``info``.
 
 ``segment_anything`` is imported on first use; a missing package or checkpoint is a one-line
-``MaskError``. Install with ``pip install 'trase-bench[sam]'`` and download a checkpoint
-(e.g. sam_vit_h_4b8939.pth) yourself.
+``MaskError``. Install with ``pip install 'trase-bench[sam]'``; the checkpoint is a local file, or
+the official one fetched by ``masks.checkpoints.sam_checkpoint`` (``masks.model`` in a run).
 """
 
 from __future__ import annotations
