@@ -83,6 +83,18 @@ def test_filter_threshold_paper_values_one_value_on_cpu():
     assert m.settings("paper").filter_threshold == 0.9  # a capture of one's own
 
 
+def test_trase_hard_has_its_own_cpu_clustering_and_the_paper_values_otherwise():
+    hard, trase = get_method("trase-hard"), TraseMethod()
+    for key in ("hypernerf", "neu3d"):
+        cpu = hard.settings("cpu", key)
+        assert (cpu.clustering.params["min_cluster_size"], cpu.filter_threshold) == (25, 0.6)  # chosen on seed 1
+        same = lambda a: dataclasses.replace(a, features=dataclasses.replace(a.features, objective="x"))  # noqa: E731
+        assert cpu.clustering.params["cluster_selection_epsilon"] == 0.01
+        assert same(cpu).features == same(trase.settings("cpu", key)).features  # only the objective differs
+        assert same(hard.settings("paper", key)) == same(trase.settings("paper", key))  # the paper's are the paper's
+    assert get_method("trase-all").settings("cpu", "hypernerf").clustering.params["min_cluster_size"] == 50  # not chosen yet
+
+
 def test_cpu_preset_clustering_and_steps():
     m = TraseMethod()
     cpu, paper = m.settings("cpu", "hypernerf"), m.settings("paper", "hypernerf")
