@@ -88,7 +88,7 @@ def test_trase_hard_has_its_own_cpu_clustering_and_the_paper_values_otherwise():
     for key in ("hypernerf", "neu3d"):
         cpu = hard.settings("cpu", key)
         assert (cpu.clustering.params["min_cluster_size"], cpu.filter_threshold) == (25, 0.6)  # chosen on seed 1
-        same = lambda a: dataclasses.replace(a, features=dataclasses.replace(a.features, objective="x"))  # noqa: E731
+        same = lambda a: dataclasses.replace(a, features=dataclasses.replace(a.features, objective="x"))
         assert cpu.clustering.params["cluster_selection_epsilon"] == 0.01
         assert same(cpu).features == same(trase.settings("cpu", key)).features  # only the objective differs
         assert same(hard.settings("paper", key)) == same(trase.settings("paper", key))  # the paper's are the paper's
