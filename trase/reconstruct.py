@@ -91,15 +91,16 @@ def evaluate_psnr(gaussians: GaussianModel, deformation, views: Sequence, backgr
 
 @torch.no_grad()
 def evaluate_images(gaussians: GaussianModel, deformation, views: Sequence, background=None,
-                    backend: str = "auto", downscale: float = 1.0, ssim_too: bool = True) -> dict:
+                    backend: str = "auto", downscale: float = 1.0, ssim_too: bool = True, lpips=None) -> dict:
     """The field's image measures of the clamped renders against the views' images (alpha
     composited over ``background``, black by default, as in training): mean PSNR (dB) and mean
-    SSIM (3DGS's 11x11 gaussian window, ``losses.ssim``) over the views, and the views' PSNRs."""
+    SSIM (3DGS's 11x11 gaussian window, ``losses.ssim``) over the views, the views' PSNRs, and
+    with ``lpips`` (a ``trase.lpips.LPIPS``) the mean LPIPS."""
     if not views:
         raise ValueError("evaluate_images: no views")
     bg = torch.zeros(3) if background is None else torch.as_tensor(background, dtype=torch.float32).cpu()
     dev = gaussians.means.device
-    psnrs, ssims = [], []
+    psnrs, ssims, lps = [], [], []
     for v in views:
         cam = v.camera if downscale == 1 else v.camera.scaled(downscale)
         gt = torch.from_numpy(load_image(Path(v.image_path), cam, bg.numpy())).to(dev)
@@ -108,8 +109,10 @@ def evaluate_images(gaussians: GaussianModel, deformation, views: Sequence, back
         psnrs.append(psnr(img, gt))
         if ssim_too:
             ssims.append(float(ssim(img, gt)))
+        if lpips is not None:
+            lps.append(lpips(img, gt))
     return {"psnr": float(np.mean(psnrs)), "ssim": float(np.mean(ssims)) if ssims else None,
-            "per_view_psnr": [float(x) for x in psnrs]}
+            "lpips": float(np.mean(lps)) if lps else None, "per_view_psnr": [float(x) for x in psnrs]}
 
 
 # -- training --------------------------------------------------------------------------------

@@ -25,11 +25,15 @@ from benchmark.perf import SUITES, get_suite, machine_info
               help="Scene folders for suites that take them (dnerf: D-NeRF scenes as published; repeatable).")
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
               help="Settings for the fits of suites that take them (dnerf), e.g. --set preset=paper.")
+@click.option("--lpips-weights", type=click.Path(file_okay=False, exists=True), default=None,
+              help="A folder with torchvision's vgg16-397923af.pth and the lpips package's vgg.pth: LPIPS (VGG) "
+                   "for the suites that measure images (dnerf).")
 @click.option("--threads", type=click.IntRange(min=1), default=None,
               help="Threads for torch and numba (default: theirs, all cores). On a shared, loaded "
                    "machine --threads 1 gives the steadiest side-by-side ratios.")
 def perf(suites: tuple[str, ...], quick: bool, json_out: str | None, out_dir: str | None,
-         dataset: str | None, scenes: tuple[str, ...], overrides: tuple[str, ...], threads: int | None) -> None:
+         dataset: str | None, scenes: tuple[str, ...], overrides: tuple[str, ...], lpips_weights: str | None,
+         threads: int | None) -> None:
     """Run performance SUITES (default: all that this machine can run) and print their figures."""
     names = suites or tuple(SUITES.names())
     if dataset is not None:
@@ -67,6 +71,8 @@ def perf(suites: tuple[str, ...], quick: bool, json_out: str | None, out_dir: st
             extra["scenes"] = list(scenes)
         if overrides and "overrides" in inspect.signature(fn).parameters:
             extra["overrides"] = list(overrides)
+        if lpips_weights and "lpips_weights" in inspect.signature(fn).parameters:
+            extra["lpips_weights"] = lpips_weights
         result["suites"][name] = fn(quick=quick, echo=click.echo, **extra)
     if json_out:
         with open(json_out, "w") as f:

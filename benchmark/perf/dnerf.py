@@ -92,9 +92,32 @@ def foreground_iou(fit_dir: Path, echo=print) -> dict:
             "mean": float(np.mean(vals)) if vals else None, "worst": float(np.min(vals)) if vals else None}
 
 
+def test_lpips(fit_dir: Path, scene_dir: Path, sets: list[str], lpips) -> float:
+    """Mean LPIPS of the fitted model's renders of the held-out views (read as the fit read them)."""
+    from benchmark.captures import CaptureOptions, load_capture
+    from benchmark.config import merge, parse_overrides, typed
+    from trase.checkpoint import load_model
+    from trase.reconstruct import evaluate_images
+
+    rec = json.loads((fit_dir / "fit.json").read_text())
+    capture = merge(CaptureOptions(holdout="layout").to_dict(), parse_overrides(sets).get("capture", {}), "capture.")
+    scene = load_capture(scene_dir, typed(CaptureOptions, capture, "capture"))
+    g, d = load_model(fit_dir / "model")
+    bg = (1.0, 1.0, 1.0) if rec["config"]["geometry"]["train"]["white_background"] else None
+    return evaluate_images(g, d, scene.test, bg, ssim_too=False, lpips=lpips)["lpips"]
+
+
 def run(quick: bool = False, echo=print, out_dir: Path | None = None, scenes: list | None = None,
-        image_scale: int = 2, overrides: list[str] | None = None) -> dict:
+        image_scale: int = 2, overrides: list[str] | None = None, lpips_weights: str | None = None) -> dict:
+    """``lpips_weights``: a folder with torchvision's ``vgg16-397923af.pth`` and the lpips
+    package's ``vgg.pth`` (trase.lpips); without it LPIPS is not measured."""
     from benchmark.captures.fit import FitOptions, fit_capture
+
+    lpips = None
+    if lpips_weights:
+        from trase.lpips import LPIPS
+
+        lpips = LPIPS.from_files(Path(lpips_weights) / "vgg16-397923af.pth", Path(lpips_weights) / "vgg.pth")
 
     scenes = [Path(s) for s in (scenes or default_scenes())]
     if not scenes:
@@ -110,6 +133,8 @@ def run(quick: bool = False, echo=print, out_dir: Path | None = None, scenes: li
         seconds = time.perf_counter() - t0
         rec = json.loads(fit_json.read_text())
         fg = foreground_iou(fit_json.parent, echo)
+        if lpips is not None:
+            rec.setdefault("image_measures", {})["test_lpips"] = round(test_lpips(fit_json.parent, scene, sets, lpips), 4)
         row = {"scene": scene.name, "settings": sets, "measures": rec.get("image_measures", {}), "foreground_iou": fg, "fit_seconds": round(seconds, 1),
                "stage_seconds": {k: s.get("seconds") for k, s in rec["stages"].items()},
                "n_gaussians": rec["n_gaussians"], "published": pub.get(scene.name)}
@@ -129,14 +154,15 @@ def _line(row: dict) -> str:
 
 def render_table(rows: list[dict]) -> str:
     """The scenes beside Deformable-3DGS's published row (markdown)."""
-    lines = [("| scene | test PSNR (dB) | test SSIM | validation PSNR | published PSNR / SSIM / LPIPS (VGG) "
-             "| PSNR gap | foreground IoU: mean / worst | fit (s) |"), "|---|---|---|---|---|---|---|---|"]
+    lines = [("| scene | test PSNR (dB) | test SSIM | test LPIPS (VGG) | validation PSNR | published PSNR / SSIM / "
+              "LPIPS (VGG) | PSNR gap | foreground IoU: mean / worst | fit (s) |"), "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         m, p, fg = r["measures"], r["published"], r["foreground_iou"]
         ours = m.get("test_psnr")
         pub = f"{p['psnr']:.2f} / {p['ssim']:.4f} / {p['lpips_vgg']:.4f}" if p else "—"
         gap = f"{ours - p['psnr']:+.2f}" if p and ours is not None else "—"
-        lines.append(f"| {p['name'] if p else r['scene']} | {ours:.2f} | {m.get('test_ssim', float('nan')):.4f} | "
+        lp = f"{m['test_lpips']:.4f}" if m.get("test_lpips") is not None else "— (no weights)"
+        lines.append(f"| {p['name'] if p else r['scene']} | {ours:.2f} | {m.get('test_ssim', float('nan')):.4f} | {lp} | "
                      f"{m.get('validation_psnr', float('nan')):.2f} | {pub} | {gap} | "
                      f"{fg['mean']:.3f} / {fg['worst']:.3f} | {r['fit_seconds']:.0f} |")
     return "\n".join(lines)

@@ -26,11 +26,18 @@ def test_published_rows_and_the_foreground_click():
 def test_the_suite_fits_a_scene_and_scores_the_object_against_alpha(tmp_path, monkeypatch):
     monkeypatch.setenv("TRASE_BENCH_CACHE", str(tmp_path / "cache"))
     scene = Path(shutil.copytree(HOOK, tmp_path / "hook"))  # named as the published scene
+    from tests.trase.test_lpips import _weights
+
+    weights = tmp_path / "lpips"
+    weights.mkdir()
+    _weights(weights)  # random weights under the names the suite looks for
+    (weights / "vgg16.pth").rename(weights / "vgg16-397923af.pth")
     lines: list[str] = []
     out = dnerf.run(quick=True, echo=lines.append, out_dir=tmp_path / "out", scenes=[scene],
-                    overrides=["capture.image_scale=1"])
+                    overrides=["capture.image_scale=1"], lpips_weights=str(weights))
     (row,) = out["rows"]
     assert row["published"]["psnr"] == 37.42 and np.isfinite(row["measures"]["test_psnr"])
+    assert row["measures"]["test_lpips"] > 0
     fg = row["foreground_iou"]
     assert set(fg["per_view"]) == {"test/r_000", "test/r_010"} and 0 <= fg["worst"] <= fg["mean"] <= 1
     table = lines[-1]
