@@ -21,8 +21,9 @@ from pathlib import Path
 import torch
 from torch import nn
 
-# torchvision's VGG16 "D" configuration; "M" = 2x2 max pooling
-VGG16 = (64, 64, "M", 128, 128, "M", 256, 256, 256, "M", 512, 512, 512, "M", 512, 512, 512, "M")
+from trase.io import read_torch
+from trase.vgg import vgg16_features
+
 TAPS = (3, 8, 15, 22, 29)  # indices of relu1_2, relu2_2, relu3_3, relu4_3, relu5_3 in features
 CHANNELS = (64, 128, 256, 512, 512)
 SHIFT = (-0.030, -0.088, -0.188)  # the lpips package's ScalingLayer
@@ -33,18 +34,6 @@ class LPIPSError(ValueError):
     """Weights that are missing or not the networks they should be (one line, naming the file)."""
 
     user_facing = True
-
-
-def vgg16_features() -> nn.Sequential:
-    layers: list[nn.Module] = []
-    c_in = 3
-    for v in VGG16:
-        if v == "M":
-            layers.append(nn.MaxPool2d(2, 2))
-        else:
-            layers += [nn.Conv2d(c_in, v, 3, padding=1), nn.ReLU(inplace=False)]
-            c_in = v
-    return nn.Sequential(*layers)
 
 
 class LPIPS(nn.Module):
@@ -102,13 +91,10 @@ def _read(path: str | Path) -> dict:
     path = Path(path)
     if not path.is_file():
         raise LPIPSError(f"{path}: weights file not found")
-    try:
-        sd = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # noqa: BLE001 - torch raises many types for an unreadable file
-        raise LPIPSError(f"{path}: unreadable weights ({type(exc).__name__})") from None
+    sd = read_torch(path, LPIPSError, "unreadable weights")
     if not isinstance(sd, dict):
         raise LPIPSError(f"{path}: not a state dict")
     return sd
 
 
-__all__ = ["LPIPS", "LPIPSError", "vgg16_features"]
+__all__ = ["LPIPS", "LPIPSError"]

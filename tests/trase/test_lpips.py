@@ -5,7 +5,8 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from trase.lpips import CHANNELS, LPIPS, SCALE, SHIFT, VGG16, LPIPSError
+from trase.lpips import CHANNELS, LPIPS, SCALE, SHIFT, LPIPSError
+from trase.vgg import VGG16_LAYOUT as VGG16
 
 
 def _weights(tmp_path, seed=0):

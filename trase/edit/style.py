@@ -23,9 +23,10 @@ from torch import nn
 
 from trase.edit.model import EditableModel, EditError
 from trase.io import read_torch
+from trase.vgg import vgg16_features
 
-# torchvision's vgg16 "features" up to conv3_3's ReLU: channels per conv, "M" = max pool
-VGG16_LAYOUT = (64, 64, "M", 128, 128, "M", 256, 256, 256)
+# torchvision's vgg16 "features" up to conv3_3's ReLU: the first 9 entries of its layout
+STYLE_ENTRIES = 9
 STYLE_LAYERS = (11, 13, 15)  # relu3_1, relu3_2, relu3_3 in torchvision's numbering
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
@@ -36,15 +37,7 @@ class VGG16Features(nn.Module):
 
     def __init__(self) -> None:
         super().__init__()
-        layers: list[nn.Module] = []
-        c_in = 3
-        for v in VGG16_LAYOUT:
-            if v == "M":
-                layers.append(nn.MaxPool2d(2, 2))
-            else:
-                layers += [nn.Conv2d(c_in, int(v), 3, padding=1), nn.ReLU(inplace=False)]
-                c_in = int(v)
-        self.features = nn.Sequential(*layers)
+        self.features = vgg16_features(STYLE_ENTRIES)
         self.register_buffer("mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1))
         self.register_buffer("std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1))
 
