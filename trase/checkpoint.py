@@ -63,7 +63,8 @@ def deform_path(model_dir: str | Path, iteration: int) -> Path:
 
 def deform_options_path(model_dir: str | Path, iteration: int) -> Path:
     """The network's options the weights do not say (its scale rule): this project's addition
-    to the layout, beside deform.pth; a folder without it is the public code's (rule mirror)."""
+    to the layout, beside deform.pth; a folder without it is the public code's (rule mirror), or
+    this project's from before the rule was recorded (rule clamp: ``load_deformation``)."""
     return Path(model_dir) / "deform" / f"iteration_{iteration}" / "deform_options.json"
 
 
@@ -122,7 +123,10 @@ def load_deformation(path: Path) -> DeformMLP:
     if not isinstance(sd, dict) or not all(torch.is_tensor(v) for v in sd.values()):
         raise CheckpointError(f"{path}: expected a state dict of tensors, got {type(sd).__name__}")
     options = path.parent / "deform_options.json"
-    rule = "mirror"
+    # without the file: the public code's rule, unless this project's trainer wrote the folder
+    # (its trainer_state/, which the public code never writes) before the rule was recorded,
+    # when every preset trained with the floor
+    rule = "clamp" if (path.parent.parent.parent / "trainer_state").is_dir() else "mirror"
     if options.is_file():
         try:
             rule = json.loads(options.read_text())["scale_rule"]

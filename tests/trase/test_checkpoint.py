@@ -148,6 +148,9 @@ def test_scale_rule_is_saved_beside_the_weights(tmp_path):
     save_model(tmp_path / "public", g, DeformMLP.preset("small"), 3)
     (tmp_path / "public/deform/iteration_3/deform_options.json").unlink()
     assert load_model(tmp_path / "public")[1].scale_rule == "mirror"
+    # a folder this project's trainer wrote before the rule was recorded: every preset floored then
+    (tmp_path / "public/trainer_state").mkdir()
+    assert load_model(tmp_path / "public")[1].scale_rule == "clamp"
     (tmp_path / "clamp/deform/iteration_3/deform_options.json").write_text("{not json")
     with pytest.raises(CheckpointError, match="deform_options.json: unreadable"):
         load_model(tmp_path / "clamp")
