@@ -144,13 +144,10 @@ def train_features(
 ) -> TrainResult:
     """Train per-gaussian features [N, D] with geometry frozen. ``views`` have ``.camera`` and
     ``.name``; ``load_masks(view) -> MaskSet``. Returns the saved (smoothed) features."""
-    old_threads = torch.get_num_threads()
-    if config.torch_threads > 0:
-        torch.set_num_threads(int(config.torch_threads))
-    try:
+    from trase.threads import torch_threads
+
+    with torch_threads(config.torch_threads):
         return _train(gaussians, deformation, views, load_masks, config, cache_dir, progress, log_every)
-    finally:
-        torch.set_num_threads(old_threads)
 
 
 def _train(gaussians, deformation, views, load_masks, config, cache_dir, progress, log_every) -> TrainResult:

@@ -259,15 +259,11 @@ def reconstruct(
     ``torch_threads`` sets torch's intra-op threads for the run (restored afterwards); None
     takes ``config.torch_threads``.
     """
-    old_threads = torch.get_num_threads()
-    if torch_threads is None:
-        torch_threads = config.torch_threads
-    if torch_threads is not None:
-        torch.set_num_threads(max(1, int(torch_threads)))
-    try:
+    from trase.threads import torch_threads as threads_for
+
+    n = config.torch_threads if torch_threads is None else torch_threads
+    with threads_for(None if n is None else max(1, int(n))):
         return _reconstruct(views, points, point_colors, config, Path(out_dir), resume, progress, backend, max_seconds)
-    finally:
-        torch.set_num_threads(old_threads)
 
 
 def _reconstruct(views, points, point_colors, config, out_dir, resume, progress, backend, max_seconds):

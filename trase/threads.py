@@ -1,4 +1,4 @@
-"""How many threads numba's parallel kernels get, shared by every numba module of trase."""
+"""How many threads numba's parallel kernels and torch get, shared by every module that trains."""
 
 from __future__ import annotations
 
@@ -28,3 +28,16 @@ def numba_threads(work: int = 0, min_work: int = 0):
     finally:
         numba.set_num_threads(old)
         torch.set_num_threads(torch_n)
+
+
+@contextlib.contextmanager
+def torch_threads(n: int | None):
+    """torch's intra-op threads set to ``n`` inside the block (``None`` or < 1: as they are),
+    restored on exit: a stage's thread count is part of its config, not the process's."""
+    old = torch.get_num_threads()
+    if n is not None and int(n) > 0:
+        torch.set_num_threads(int(n))
+    try:
+        yield
+    finally:
+        torch.set_num_threads(old)

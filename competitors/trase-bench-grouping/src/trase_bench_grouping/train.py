@@ -54,11 +54,9 @@ def train_identity(gaussians, deformation, views: Sequence, load_ids: Callable, 
     from trase.devices import resolve_device
     from trase.fastpath import RasterizerPath, ViewWeights
     from trase.features import use_fastpath
+    from trase.threads import torch_threads
 
-    old_threads = torch.get_num_threads()
-    if cfg.torch_threads > 0:
-        torch.set_num_threads(int(cfg.torch_threads))
-    try:
+    with torch_threads(cfg.torch_threads):
         dev = resolve_device(cfg.device)
         n = gaussians.num_gaussians
         gen = torch.Generator().manual_seed(int(cfg.seed))
@@ -146,8 +144,6 @@ def train_identity(gaussians, deformation, views: Sequence, load_ids: Callable, 
         train = time.perf_counter() - t1
         timings.update(train=train, per_step=train / max(int(cfg.iterations), 1))
         return IdentityResult(encoder.cpu(), classifier.cpu(), history, timings, path.stats())
-    finally:
-        torch.set_num_threads(old_threads)
 
 
 __all__ = ["IdentityResult", "IdentityTrainingError", "make_encoder", "train_identity"]

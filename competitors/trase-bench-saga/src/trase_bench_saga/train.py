@@ -92,13 +92,10 @@ def draw_scales(scales: np.ndarray, upper: float, n_scales: int, rng: np.random.
 
 def train_saga(gaussians, deformation, views, load_masks, cfg, cache_dir=None, progress: bool = False,
                log_every: int = 50) -> SagaResult:
-    old = torch.get_num_threads()
-    if cfg.torch_threads > 0:
-        torch.set_num_threads(int(cfg.torch_threads))
-    try:
+    from trase.threads import torch_threads
+
+    with torch_threads(cfg.torch_threads):
         return _train(gaussians, deformation, views, load_masks, cfg, cache_dir, progress, log_every)
-    finally:
-        torch.set_num_threads(old)
 
 
 def _train(gaussians, deformation, views, load_masks, cfg, cache_dir, progress, log_every) -> SagaResult:
