@@ -120,17 +120,16 @@ def points_from_alpha(views: list[View], n: int = 20000, seed: int = 0, min_shar
     views' pixels. A soft visual hull: the object moves between the views' times, and the hull
     of every view would carve its moving parts away. None where the alpha outlines nothing (or
     too little to keep a tenth of ``n`` in ``rounds`` draws). Deterministic."""
-    from imagefiles import read_rgb
+    import cv2
 
     alphas, colours = [], []
-    for v in views:
-        import cv2
-
+    for v in views:  # one decode per image: its alpha and its straight (not composited) colour
         raw = cv2.imread(str(v.image_path), cv2.IMREAD_UNCHANGED)
         if raw is None or raw.ndim != 3 or raw.shape[2] != 4:
             return None
-        alphas.append(raw[:, :, 3] >= (128 if raw.dtype == np.uint8 else 32768))
-        colours.append(read_rgb(v.image_path))
+        top = 255.0 if raw.dtype == np.uint8 else 65535.0
+        alphas.append(raw[:, :, 3] >= (top + 1) / 2)
+        colours.append(raw[:, :, 2::-1].astype(np.float32) / np.float32(top))
     kept_p, kept_c = [], []
     rng = np.random.default_rng(seed)
     box = None  # after the first draw: the box of the points kept, where the next draws go
