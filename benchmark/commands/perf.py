@@ -28,12 +28,14 @@ from benchmark.perf import SUITES, get_suite, machine_info
 @click.option("--lpips-weights", type=click.Path(file_okay=False, exists=True), default=None,
               help="A folder with torchvision's vgg16-397923af.pth and the lpips package's vgg.pth: LPIPS (VGG) "
                    "for the suites that measure images (dnerf).")
+@click.option("--method", "methods", multiple=True,
+              help="Methods for suites that compare them (methods; default: every registered method).")
 @click.option("--threads", type=click.IntRange(min=1), default=None,
               help="Threads for torch and numba (default: theirs, all cores). On a shared, loaded "
                    "machine --threads 1 gives the steadiest side-by-side ratios.")
 def perf(suites: tuple[str, ...], quick: bool, json_out: str | None, out_dir: str | None,
          dataset: str | None, scenes: tuple[str, ...], overrides: tuple[str, ...], lpips_weights: str | None,
-         threads: int | None) -> None:
+         methods: tuple[str, ...], threads: int | None) -> None:
     """Run performance SUITES (default: all that this machine can run) and print their figures."""
     names = suites or tuple(SUITES.names())
     if dataset is not None:
@@ -43,7 +45,7 @@ def perf(suites: tuple[str, ...], quick: bool, json_out: str | None, out_dir: st
         takes = [n for n in names if "dataset" in inspect.signature(get_suite(n)).parameters]
         if not takes:
             raise click.UsageError(f"--dataset: none of {', '.join(names)} takes a dataset "
-                                   "(suites that do: reconstruct, captures)")
+                                   "(suites that do: reconstruct, captures, methods)")
     if threads:
         import numba
         import torch
@@ -71,6 +73,8 @@ def perf(suites: tuple[str, ...], quick: bool, json_out: str | None, out_dir: st
             extra["scenes"] = list(scenes)
         if overrides and "overrides" in inspect.signature(fn).parameters:
             extra["overrides"] = list(overrides)
+        if methods and "methods" in inspect.signature(fn).parameters:
+            extra["methods"] = list(methods)
         if lpips_weights and "lpips_weights" in inspect.signature(fn).parameters:
             extra["lpips_weights"] = lpips_weights
         result["suites"][name] = fn(quick=quick, echo=click.echo, **extra)

@@ -36,6 +36,8 @@ SUITES.add("viewer", "benchmark.perf.viewer:run",
            "The web viewer's frame rate at 320x240 and 640x480 per render mode, and click-selection latency.")
 SUITES.add("dnerf", "benchmark.perf.dnerf:run",
            "trase-bench fit on D-NeRF scenes as published (--scene): test/validation PSNR, SSIM beside Deformable-3DGS's, foreground IoU.")
+SUITES.add("methods", "benchmark.perf.methods:run",
+           "Every method's feature stage on one scene, a fresh process each: ms per step, stage time, peak memory.")
 SUITES.add("pareto", "benchmark.perf.pareto:run",
            "mIoU vs features+fit+evaluate time over a settings grid for one scene; PNG with the Pareto front.")
 

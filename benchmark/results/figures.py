@@ -82,8 +82,12 @@ def collect(out_dir: Path, formats=FORMATS, geometries=GEOMETRIES, methods=("tra
         psnr = [(r["stages"]["geometry"].get("info") or {}).get("test_psnr") for r in sibs]
         seconds = [sum(s.get("seconds", 0.0) for k, s in r["stages"].items() if k in ("geometry", "features"))
                    for r in sibs]
+        feats = [r["stages"].get("features") or {} for r in sibs]
+        timings = [(f.get("info") or {}).get("timings") or {} for f in feats]
         rows.append({"method": method, "format": ds, "geometry": geo, "summary": summary,
                      "test_psnr": [p for p in psnr if p is not None], "seconds": seconds,
+                     "features_seconds": [float(f["seconds"]) for f in feats if "seconds" in f],
+                     "features_per_step": [float(t["features_per_step"]) for t in timings if "features_per_step" in t],
                      "scene": sibs[0].get("synthetic_scene"), "config_group": sibs[0]["run"]["group"],
                      "preset": sibs[0]["config"]["geometry"]["preset"]})
     if not rows:
@@ -233,7 +237,34 @@ def render_methods_block(data: dict) -> str:
             orders.append(_order(sc) if len(sc) > 1 else "—")
         pb = {m: pub[(m, f)] for m in methods if (m, f) in pub}
         lines.append(f"| {NAMES[f]} | {orders[0]} | {orders[1]} | {_order(pb) if len(pb) > 1 else '—'} |")
+    lines += _feature_time_lines(by, methods)
     return "\n".join(lines) + "\n"
+
+
+DEFAULT_FORMAT = "hypernerf"  # the default scene (`make demo`)
+
+
+def _feature_time_lines(by: dict, methods: list[str]) -> list[str]:
+    """Each method's feature stage on the default scene: median seconds and ms per step over
+    its seeds, per geometry (measured inside the runs above: the machine's load at the time is
+    in them; `trase-bench perf methods` measures them side by side)."""
+    have = [m for m in methods if any(by.get((m, DEFAULT_FORMAT, g), {}).get("features_seconds") for g in GEOMETRIES)]
+    if not have:
+        return []
+    import numpy as np
+
+    title = (f"**Feature stage on the default scene** ({NAMES[DEFAULT_FORMAT]} format; median over the seeds "
+             "of the runs above, each measured under the machine's load at its time)")
+    lines = ["", title, "",
+             "| method | reconstructed: s | ms per step | ground truth: s | ms per step |", "|---|---|---|---|---|"]
+    for m in have:
+        cells = []
+        for geo in GEOMETRIES:
+            r = by.get((m, DEFAULT_FORMAT, geo)) or {}
+            sec, step = r.get("features_seconds") or [], r.get("features_per_step") or []
+            cells += [f"{np.median(sec):.0f}" if sec else "—", f"{np.median(step) * 1e3:.0f}" if step else "—"]
+        lines.append(f"| {m} | " + " | ".join(cells) + " |")
+    return lines
 
 
 def read_figures(path: Path) -> dict:

@@ -53,6 +53,13 @@ def test_all_suites_quick(tmp_path, monkeypatch, capsys):
     stages = pl["runs"][0]["stages"]
     assert {"masks", "geometry", "fit", "prompts", "evaluate"} <= set(stages)
 
+    me = s["methods"]  # one fresh process per method
+    assert not me["failed"] and [r["method"] for r in me["methods"]] == ["trase"]
+    r = me["methods"][0]
+    assert r["per_step_seconds"] > 0 and r["peak_rss_mb"] >= r["baseline_rss_mb"] > 0
+    assert r["preset_steps"] > 100 and r["stage_seconds_at_preset_steps"] > 100 * r["per_step_seconds"]
+    assert "ms/step" in text
+
     pa = s["pareto"]
     assert not pa["failed"] and len(pa["runs"]) == 2 and pa["pareto_front"]
     assert (tmp_path / "pareto.png").stat().st_size > 1000  # next to the --json file

@@ -108,3 +108,19 @@ def test_competitors_page_methods_table_is_the_rendering_of_its_data_file():
     assert page_block(page, markers=(METHODS_BEGIN, METHODS_END)) == render_methods_block(data), \
         ("docs/competitors.md methods table differs from docs/methods-figures.json: run `trase-bench figures "
          "--collect-only --method ... --data docs/methods-figures.json --write-page docs/competitors.md`")
+
+
+def test_methods_block_gives_each_methods_feature_stage_on_the_default_scene():
+    from benchmark.results.figures import render_methods_block
+
+    data = _methods_data()
+    assert "Feature stage" not in render_methods_block(data)  # data files from before these fields
+    for r in data["rows"]:
+        if r["method"] == "saga" and r["format"] == "hypernerf":
+            r.update(features_seconds=[300.0, 100.0, 200.0], features_per_step=[0.1, 0.2, 0.3])
+        if r["method"] == "trase" and r["format"] == "neu3d":  # not the default scene: not shown
+            r.update(features_seconds=[50.0], features_per_step=[0.02])
+    block = render_methods_block(data)
+    part = block.split("**Feature stage on the default scene**")[1]
+    assert "| saga | 200 | 200 | — | — |" in part  # medians: seconds, ms per step
+    assert "| trase |" not in part and "| cgc |" not in part
