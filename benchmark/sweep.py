@@ -2,10 +2,15 @@
 SLURM cluster through submitit, sharing one stage cache.
 
 A spec (TOML) names what to run; each job is one ``trase-bench run`` of one method on one
-sequence with one variant's ``--set`` overrides and one run seed. Jobs write their state to
-``<out>/.sweep/<name>/jobs/<id>.json`` (running, done, failed with the one-line error and the
-log's path), so ``sweep-status`` answers without the scheduler and a rerun submits only what is
-not done. Jobs that share a scene share its stages through the cache, whose per-stage locks
+sequence with one variant's ``--set`` overrides and one run seed. A job's id comes from what it
+runs (method, dataset, sequence, variant and its overrides, seed), so editing the spec never
+renames a job. Submission freezes each job: its state file ``<out>/.sweep/<name>/jobs/<id>.json``
+holds its definition and where its runs go, and the task a worker runs carries the same, never
+the live TOML. Workers write their state there (running, done, failed with the one-line error
+and the log's path); ``status`` reconciles it with the scheduler's view (queued, running,
+requeued, cancelled, timed out: ``benchmark.scheduler``), and a rerun submits only jobs that are
+neither done nor in flight. A task whose job failed exits non-zero, so the scheduler sees it.
+Jobs that share a scene share its stages through the cache, whose per-stage locks
 (``benchmark.stage_lock``) let concurrent workers compute each stage once.
 
 Runs land where ``run`` puts them (``<out>/<method>/<dataset>/<sequence>/<name>``): the
@@ -15,7 +20,10 @@ variant ``main`` (no overrides) is each method's main run, any other variant is 
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import hashlib
+import io
 import json
 import os
 import socket
@@ -28,6 +36,8 @@ from benchmark.stage_lock import known_dead
 
 MAIN = "main"
 EXECUTORS = ("local", "slurm")
+IN_FLIGHT = ("queued", "running", "requeued")  # a rerun leaves these alone
+DEFAULT_CPUS, DEFAULT_MEM_GB = 4, 16  # per job, each capped at the partition's largest node when not given
 SLURM_KEYS = {"partition": str, "gpus_per_node": int, "cpus_per_task": int, "mem_gb": int, "timeout_min": int,
               "array_parallelism": int, "account": str, "qos": str, "constraint": str, "additional": dict}
 
@@ -38,7 +48,6 @@ class SweepError(UserError):
 
 @dataclasses.dataclass(frozen=True)
 class SweepJob:
-    index: int
     method: str
     dataset: str
     sequence: str | None  # None: the built-in synthetic scene
@@ -48,11 +57,54 @@ class SweepJob:
 
     @property
     def id(self) -> str:
+        """Readable and from content: the same job keeps its id whatever else the spec holds."""
         seq = self.sequence or "synthetic"
-        return f"{self.index:04d}-{self.method}-{self.dataset}-{seq}-{self.variant}-s{self.seed}"
+        what = json.dumps([self.method, self.dataset, seq, self.variant, list(self.overrides), self.seed])
+        return f"{self.method}-{self.dataset}-{seq}-{self.variant}-s{self.seed}-{hashlib.sha1(what.encode()).hexdigest()[:8]}"
 
     def label(self) -> str:
         return f"{self.method} {self.dataset}/{self.sequence or 'synthetic'} {self.variant} seed {self.seed}"
+
+    def to_dict(self) -> dict:
+        return {**dataclasses.asdict(self), "overrides": list(self.overrides)}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> SweepJob:
+        return cls(d["method"], d["dataset"], d["sequence"], d["variant"], tuple(d["overrides"]), int(d["seed"]))
+
+
+@dataclasses.dataclass(frozen=True)
+class SweepTarget:
+    """Where a sweep's jobs put their runs, cache and states: what a submitted job is frozen with."""
+
+    name: str
+    out: Path
+    data_root: Path | None = None
+    cache: Path | None = None
+
+    @property
+    def state_dir(self) -> Path:
+        return self.out / ".sweep" / self.name
+
+    @property
+    def cache_root(self) -> Path:
+        return self.cache or self.out / ".cache"
+
+    def run_options(self, job: SweepJob):
+        from benchmark.runner import RunOptions
+
+        return RunOptions(method=job.method, dataset=job.dataset, sequences=[job.sequence] if job.sequence else None,
+                          data_root=self.data_root, out_dir=self.out, cache_dir=self.cache,
+                          overrides=[*job.overrides, f"seed={job.seed}"], progress=False,
+                          name=None if job.variant == MAIN else job.variant, keep_existing=True)
+
+    def to_dict(self) -> dict:
+        return {k: None if v is None else str(v) for k, v in dataclasses.asdict(self).items()}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> SweepTarget:
+        path = lambda v: None if v is None else Path(v)
+        return cls(d["name"], Path(d["out"]), path(d.get("data_root")), path(d.get("cache")))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -72,12 +124,16 @@ class SweepSpec:
     path: Path | None = None
 
     @property
+    def target(self) -> SweepTarget:
+        return SweepTarget(self.name, self.out, self.data_root, self.cache)
+
+    @property
     def state_dir(self) -> Path:
-        return self.out / ".sweep" / self.name
+        return self.target.state_dir
 
     @property
     def cache_root(self) -> Path:
-        return self.cache or self.out / ".cache"
+        return self.target.cache_root
 
     def jobs(self) -> list[SweepJob]:
         from benchmark.datasets import get_dataset
@@ -90,16 +146,11 @@ class SweepSpec:
                 for seq in seqs:
                     for variant, overrides in self.variants.items():
                         for seed in self.seeds:
-                            out.append(SweepJob(len(out), method, dataset, seq, variant, tuple(overrides), seed))
+                            out.append(SweepJob(method, dataset, seq, variant, tuple(overrides), seed))
         return out
 
     def run_options(self, job: SweepJob):
-        from benchmark.runner import RunOptions
-
-        return RunOptions(method=job.method, dataset=job.dataset, sequences=[job.sequence] if job.sequence else None,
-                          data_root=self.data_root, out_dir=self.out, cache_dir=self.cache,
-                          overrides=[*job.overrides, f"seed={job.seed}"], progress=False,
-                          name=None if job.variant == MAIN else job.variant, keep_existing=True)
+        return self.target.run_options(job)
 
 
 def load_spec(path: Path | str, overrides: dict | None = None) -> SweepSpec:
@@ -172,67 +223,128 @@ def load_spec(path: Path | str, overrides: dict | None = None) -> SweepSpec:
 
 
 # -- job state ----------------------------------------------------------------------------
-def state_path(spec: SweepSpec, job: SweepJob) -> Path:
-    return spec.state_dir / "jobs" / f"{job.id}.json"
+def state_path(where, job: SweepJob) -> Path:
+    """``where``: a SweepTarget, or a SweepSpec (its target)."""
+    return where.state_dir / "jobs" / f"{job.id}.json"
 
 
-def write_state(spec: SweepSpec, job: SweepJob, **fields) -> None:
+def write_state(where, job: SweepJob, **fields) -> None:
     from benchmark.io import atomic_write_json
 
-    atomic_write_json(state_path(spec, job), {"job": job.id, "label": job.label(), "time": time.time(), **fields})
+    atomic_write_json(state_path(where, job), {"job": job.id, "label": job.label(), "definition": job.to_dict(),
+                                               "time": time.time(), **fields})
 
 
-def read_state(spec: SweepSpec, job: SweepJob) -> dict:
-    """The job's state: done / running / failed / died / pending (with what the worker wrote)."""
-    p = state_path(spec, job)
+def _read_file(target, job: SweepJob) -> dict | None:
+    p = state_path(target, job)
     try:
-        st = json.loads(p.read_text())
+        return json.loads(p.read_text())
     except FileNotFoundError:
-        return {"state": "pending"}
+        return None
     except (OSError, ValueError):
         return {"state": "pending", "note": f"{p}: unreadable state"}
-    if st.get("state") == "running" and known_dead(st.get("host"), st.get("pid")):
-        st["state"] = "died"
-        st.setdefault("error", "the worker stopped without a word (killed?)")
-    if st.get("state") == "done" and not all(Path(r).is_file() for r in st.get("results", [])):
-        st["state"] = "pending"
-        st["note"] = "its results are gone"
+
+
+def read_state(target, job: SweepJob, scheduler: dict | None = None) -> dict:
+    """The job's state as its worker wrote it, reconciled with the scheduler's view
+    (``scheduler``: {scheduler id: benchmark.scheduler.SchedulerJob}, None: not asked):
+    pending, queued, running, requeued, done, failed, cancelled, timed out, died or lost."""
+    st = _read_file(target, job)
+    if st is None:
+        return {"state": "pending"}
+    state = st.get("state")
+    if state == "done" and not all(Path(r).is_file() for r in st.get("results", [])):
+        return {**st, "state": "pending", "note": "its results are gone"}
+    if state not in ("submitted", "running"):
+        return st
+    sched = (scheduler or {}).get(str(st.get("scheduler_id") or st.get("task") or ""))
+    alive = not known_dead(st.get("host"), st.get("pid")) if st.get("pid") else None
+    if sched is not None and sched.state != "unknown":
+        said = f"SLURM: {sched.raw}" + (f" ({sched.reason})" if sched.reason else "") + (
+            f", exit code {sched.exit_code}" if sched.exit_code and sched.state != "queued" else "")
+        if sched.state in IN_FLIGHT:
+            seen = sched.state if state == "submitted" or sched.state != "queued" else "requeued"
+            return {**st, "state": seen, "scheduler": said}
+        if state == "running" and alive:  # the scheduler finished before the worker's last write
+            return {**st, "scheduler": said}
+        ended = {"cancelled": "cancelled", "timed out": "timed out", "preempted": "cancelled"}.get(sched.state)
+        if ended:
+            return {**st, "state": ended, "scheduler": said}
+        why = "before it started" if state == "submitted" else "without a word from the worker"
+        return {**st, "state": "died", "scheduler": said, "error": f"ended {why} ({said})"}
+    if state == "submitted":
+        if st.get("executor") == "local" and alive:
+            return {**st, "state": "queued"}  # its local worker is alive and will come to it
+        if st.get("executor") == "slurm" and scheduler is None:
+            return {**st, "state": "queued", "note": "SLURM not asked"}
+        return {**st, "state": "lost", "error": "it never started and its scheduler no longer holds it"}
+    if alive is False:
+        return {**st, "state": "died", "error": st.get("error") or "the worker stopped without a word (killed?)"}
     return st
 
 
-def run_job(spec: SweepSpec, job: SweepJob, log: str | None = None, task_id: str | None = None) -> list[str]:
+def scheduler_view(target, jobs: list[SweepJob]) -> dict | None:
+    """SLURM's view of the jobs submitted to it that are not finished by their own account
+    (None when none was, so no SLURM command runs)."""
+    ids = []
+    for job in jobs:
+        st = _read_file(target, job) or {}
+        if st.get("executor") == "slurm" and st.get("state") in ("submitted", "running"):
+            ids.append(str(st.get("scheduler_id") or st.get("task") or ""))
+    ids = [i for i in ids if i]
+    if not ids:
+        return None
+    from benchmark.scheduler import slurm_jobs
+
+    return slurm_jobs(ids)
+
+
+def run_job(target, job: SweepJob, log: str | None = None, task_id: str | None = None,
+            executor: str | None = None) -> list[str]:
     """Run one job here and record its state (with the scheduler's task id when run by one);
     returns its results.json paths."""
     from benchmark.errors import is_user_error
     from benchmark.runner import run
 
-    write_state(spec, job, state="running", host=socket.gethostname(), pid=os.getpid(), started=time.time(), log=log,
-                task=task_id)
+    target = getattr(target, "target", target)
+    write_state(target, job, state="running", host=socket.gethostname(), pid=os.getpid(), started=time.time(),
+                log=log, task=task_id, scheduler_id=task_id, executor=executor)
     print(f"[{time.strftime('%H:%M:%S')}] job {job.id}: {job.label()}", flush=True)
     t0 = time.time()
     try:
-        paths = [str(p) for p in run(spec.run_options(job))]
+        paths = [str(p) for p in run(target.run_options(job))]
     except Exception as exc:
         line = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         error = line if is_user_error(exc) else f"{type(exc).__name__}: {line}"
-        write_state(spec, job, state="failed", error=error, log=log, seconds=time.time() - t0)
+        write_state(target, job, state="failed", error=error, log=log, seconds=time.time() - t0, task=task_id,
+                    scheduler_id=task_id, executor=executor)
         print(f"[{time.strftime('%H:%M:%S')}] job {job.id} failed: {error}", flush=True)
         raise
-    write_state(spec, job, state="done", results=paths, log=log, seconds=time.time() - t0)
+    write_state(target, job, state="done", results=paths, log=log, seconds=time.time() - t0, task=task_id,
+                scheduler_id=task_id, executor=executor)
     print(f"[{time.strftime('%H:%M:%S')}] job {job.id} done in {time.time() - t0:.0f}s: {', '.join(paths)}", flush=True)
     return paths
 
 
-class SweepTask:
-    """What a submitit job runs: its share of the sweep's jobs, in order. Checkpointable: on
-    preemption SLURM requeues it, and the stage cache makes the rerun resume."""
+class SweepJobsFailed(RuntimeError):
+    """A task's jobs failed: raised after all of them ran, so the worker exits non-zero."""
 
-    def __init__(self, spec_path: str, overrides: dict, job_ids: list[str]) -> None:
-        self.spec_path, self.overrides, self.job_ids = spec_path, overrides, job_ids
+
+class SweepTask:
+    """What a submitit job runs: its share of the sweep's jobs, in order, as they were frozen at
+    submission (the spec file is not read again). Checkpointable: on preemption or timeout
+    SLURM requeues it, and the stage cache (and the stages' own checkpoints) make the rerun
+    resume. Ends with an error when any of its jobs failed, so the scheduler records FAILED."""
+
+    def __init__(self, target: dict, jobs: list[dict], executor: str = "local") -> None:
+        self.target, self.jobs, self.executor = target, jobs, executor
+
+    @property
+    def job_ids(self) -> list[str]:
+        return [SweepJob.from_dict(d).id for d in self.jobs]
 
     def __call__(self) -> dict:
-        spec = load_spec(self.spec_path, self.overrides)
-        by_id = {j.id: j for j in spec.jobs()}
+        target = SweepTarget.from_dict(self.target)
         log, task_id = None, None
         try:
             import submitit
@@ -242,19 +354,19 @@ class SweepTask:
         except RuntimeError:  # not inside a submitit job (tests call it directly)
             pass
         done, failed = [], []
-        for jid in self.job_ids:
-            job = by_id.get(jid)
-            if job is None:
-                failed.append(jid)
-                continue
-            if read_state(spec, job)["state"] == "done":
-                done.append(jid)
+        for d in self.jobs:
+            job = SweepJob.from_dict(d)
+            if read_state(target, job)["state"] == "done":
+                done.append(job.id)
                 continue
             try:
-                run_job(spec, job, log, task_id)
-                done.append(jid)
+                run_job(target, job, log, task_id, self.executor)
+                done.append(job.id)
             except Exception:  # noqa: BLE001 - recorded in the job's state; the next job runs
-                failed.append(jid)
+                failed.append(job.id)
+        if failed:
+            raise SweepJobsFailed(f"{len(failed)} of {len(self.jobs)} job(s) failed: {', '.join(failed)} "
+                                  "(their errors: trase-bench sweep-status)")
         return {"done": done, "failed": failed}
 
     def checkpoint(self, *args, **kwargs):
@@ -264,25 +376,65 @@ class SweepTask:
 
 
 # -- submission ---------------------------------------------------------------------------
-def pending_jobs(spec: SweepSpec) -> list[SweepJob]:
-    """The jobs not done (a rerun submits only these)."""
-    return [j for j in spec.jobs() if read_state(spec, j)["state"] != "done"]
+def status(spec: SweepSpec, ask_scheduler: bool = True) -> list[tuple[SweepJob, dict]]:
+    """Every job of the spec with its reconciled state, then the jobs of earlier versions of the
+    spec that are still in flight or finished (their state files), marked ``earlier_spec``."""
+    jobs = spec.jobs()
+    ids = {j.id for j in jobs}
+    earlier = []
+    for p in sorted((spec.state_dir / "jobs").glob("*.json")):
+        if p.stem not in ids:
+            try:
+                earlier.append(SweepJob.from_dict(json.loads(p.read_text())["definition"]))
+            except (OSError, ValueError, KeyError, TypeError):
+                continue  # a state file of an older layout or unreadable: not this sweep's business
+    everything = jobs + earlier
+    view = scheduler_view(spec.target, everything) if ask_scheduler else None
+    out = [(j, read_state(spec.target, j, view)) for j in jobs]
+    return out + [(j, {**read_state(spec.target, j, view), "earlier_spec": True}) for j in earlier]
+
+
+def pending_jobs(spec: SweepSpec, states: list[tuple[SweepJob, dict]] | None = None) -> list[SweepJob]:
+    """The spec's jobs neither done nor queued/running/requeued (a rerun submits only these)."""
+    states = status(spec) if states is None else states
+    return [j for j, st in states if not st.get("earlier_spec") and st["state"] not in ("done", *IN_FLIGHT)]
 
 
 def slurm_parameters(spec: SweepSpec) -> dict:
-    """submitit's ``AutoExecutor.update_parameters`` arguments for the spec's [slurm] table."""
+    """submitit's ``AutoExecutor.update_parameters`` arguments for the spec's [slurm] table
+    (after ``resolve_resources``, the defaults capped to the partition's nodes)."""
     s = spec.slurm
     extra = {k: s[k] for k in ("account", "qos", "constraint") if k in s} | dict(s.get("additional", {}))
     p = {"name": f"trase-{spec.name}", "timeout_min": s.get("timeout_min", 60), "slurm_partition": s.get("partition"),
-         "gpus_per_node": s.get("gpus_per_node", 0), "cpus_per_task": s.get("cpus_per_task", 4),
-         "mem_gb": s.get("mem_gb", 16), "slurm_array_parallelism": s.get("array_parallelism", 16),
+         "gpus_per_node": s.get("gpus_per_node", 0), "cpus_per_task": s.get("cpus_per_task", DEFAULT_CPUS),
+         "mem_gb": s.get("mem_gb", DEFAULT_MEM_GB), "slurm_array_parallelism": s.get("array_parallelism", 16),
          "slurm_additional_parameters": extra or None}
     return {k: v for k, v in p.items() if v is not None}
 
 
+def resolve_resources(spec: SweepSpec, echo=print) -> SweepSpec:
+    """The spec with each job's request checked against the partition's nodes (sinfo): a
+    request no node can satisfy is an error before submission; cpus and memory not given
+    default to DEFAULT_CPUS / DEFAULT_MEM_GB, capped at the largest node (said so)."""
+    from benchmark.scheduler import check_request, partition_nodes
+
+    s = dict(spec.slurm)
+    partition, nodes = partition_nodes(s.get("partition"))
+    for key, default, have, unit in (("cpus_per_task", DEFAULT_CPUS, max(n.cpus for n in nodes), 1),
+                                     ("mem_gb", DEFAULT_MEM_GB, max(n.mem_mb for n in nodes) // 1024, 1)):
+        if key not in s:
+            s[key] = max(min(default, have), 1)
+            if s[key] < default:
+                echo(f"note: slurm.{key} not given: {s[key]} (the largest node of partition {partition!r} has "
+                     f"{have}; default {default})")
+    check_request(partition, s["cpus_per_task"], s["mem_gb"], s.get("gpus_per_node", 0))
+    return dataclasses.replace(spec, slurm=s)
+
+
 def sbatch_script(spec: SweepSpec, n_tasks: int) -> str:
     """The sbatch file submitit writes for the spec's job array of ``n_tasks`` (one task per
-    job), made here without a cluster (submitit's own writer, fed the same parameters)."""
+    job), made here without a cluster (submitit's own writer, fed the same parameters and the
+    same log folder, so the log paths are the submitted ones)."""
     from submitit.slurm.slurm import _make_sbatch_string  # the writer SlurmExecutor submits with
 
     p = slurm_parameters(spec)
@@ -291,35 +443,76 @@ def sbatch_script(spec: SweepSpec, n_tasks: int) -> str:
               "array_parallelism": p["slurm_array_parallelism"],
               "additional_parameters": p.get("slurm_additional_parameters")}
     command = f"{sys.executable} -u -m submitit.core._submit {spec.state_dir / 'logs'}"
-    return _make_sbatch_string(command=command, folder=spec.state_dir / "logs" / "%j", map_count=n_tasks,
+    return _make_sbatch_string(command=command, folder=spec.state_dir / "logs", map_count=n_tasks,
                                **{k: v for k, v in native.items() if v is not None})
 
 
-def submit(spec: SweepSpec, wait: bool = True, echo=print) -> dict:
-    """Submit the pending jobs: ``local``, ``workers`` processes on this machine (submitit's
-    local executor), each running its share in order; ``slurm``, one array task per job."""
+def log_path(spec: SweepSpec, scheduler_id: str) -> Path:
+    """Where submitit writes a task's output (``<logs>/<id>_0_log.out``; arrays ``123_4``)."""
+    return spec.state_dir / "logs" / f"{scheduler_id}_0_log.out"
+
+
+def submission_error(exc: BaseException) -> str:
+    """A failed ``sbatch`` (submitit's FailedJobError with the command's whole output, or a
+    missing program) -> its one telling line."""
+    text = str(exc)
+    said = [ln.strip() for ln in text.splitlines() if "sbatch: error:" in ln]
+    if said:
+        return "sbatch refused the jobs: " + said[0].split("sbatch: error:", 1)[1].strip()
+    lines = [ln.strip() for ln in text.strip().splitlines() if ln.strip()]
+    return f"submission failed: {type(exc).__name__}: {lines[-1] if lines else ''}"
+
+
+def submit(spec: SweepSpec, wait: bool = True, echo=print, states: list | None = None) -> dict:
+    """Submit the jobs neither done nor in flight: ``local``, ``workers`` processes on this
+    machine (submitit's local executor), each running its share in order; ``slurm``, one array
+    task per job, after checking the request against the partition. Each job is frozen in its
+    state file before submission; if the submission fails, the earlier states are put back."""
     import submitit
 
-    jobs = pending_jobs(spec)
+    from benchmark.io import atomic_write_json
+
+    states = status(spec) if states is None else states
+    jobs = pending_jobs(spec, states)
+    flying = [j for j, st in states if not st.get("earlier_spec") and st["state"] in IN_FLIGHT]
+    if flying:
+        echo(f"{len(flying)} job(s) already queued or running: not submitted again")
     if not jobs:
         return {"submitted": 0, "tasks": 0}
-    spec_path = str(spec.path.resolve())
-    cli = {"kind": spec.executor, "workers": spec.workers, "slurm": spec.slurm}
+    if spec.executor == "slurm":
+        spec = resolve_resources(spec, echo)
     logs = spec.state_dir / "logs"
+    target = spec.target.to_dict()
     if spec.executor == "local":
         ex = submitit.AutoExecutor(folder=logs, cluster="local")
         ex.update_parameters(timeout_min=int(spec.slurm.get("timeout_min", 24 * 60)))
         n = min(spec.workers, len(jobs))
-        shares = [[j.id for j in jobs[i::n]] for i in range(n)]
+        shares = [jobs[i::n] for i in range(n)]
     else:
         ex = submitit.AutoExecutor(folder=logs, cluster="slurm")
         ex.update_parameters(**slurm_parameters(spec))
-        shares = [[j.id] for j in jobs]
-    tasks = [SweepTask(spec_path, cli, share) for share in shares]
+        shares = [[j] for j in jobs]
+    tasks = [SweepTask(target, [j.to_dict() for j in share], spec.executor) for share in shares]
+    before = {j.id: _read_file(spec.target, j) for j in jobs}
+    _freeze_spec(spec)
     for job in jobs:  # before submitting: a worker that starts at once overwrites it with running
-        write_state(spec, job, state="submitted", executor=spec.executor)
-    with ex.batch():
-        handles = [ex.submit(t) for t in tasks]
+        write_state(spec.target, job, state="submitted", executor=spec.executor, target=target,
+                    host=socket.gethostname(), submitted=time.time())
+    said = io.StringIO()  # sbatch's own output, which submitit copies to ours: the error below says it once
+    try:
+        with contextlib.redirect_stderr(said), contextlib.redirect_stdout(said), ex.batch():
+            handles = [ex.submit(t) for t in tasks]
+    except Exception as exc:  # noqa: BLE001 - nothing was queued: the states go back, one line says why
+        _restore(spec, jobs, before)
+        raise SweepError(submission_error(exc)) from None
+    for handle, share in zip(handles, shares):  # the scheduler's id, where no worker has written yet
+        for job in share:
+            st = _read_file(spec.target, job) or {}
+            if st.get("state") == "submitted":
+                fields = {"scheduler_id": str(handle.job_id), "log": str(handle.paths.stdout)}
+                if spec.executor == "local":  # submitit's local job id is its worker's pid
+                    fields["pid"] = int(handle.job_id)
+                atomic_write_json(state_path(spec.target, job), {**st, **fields})
     echo(f"submitted {len(jobs)} job(s) as {len(handles)} {spec.executor} task(s); logs in {logs}")
     out = {"submitted": len(jobs), "tasks": len(handles), "scheduler_ids": [str(h.job_id) for h in handles]}
     if wait:
@@ -331,8 +524,24 @@ def submit(spec: SweepSpec, wait: bool = True, echo=print) -> dict:
     return out
 
 
-def status(spec: SweepSpec) -> list[tuple[SweepJob, dict]]:
-    return [(j, read_state(spec, j)) for j in spec.jobs()]
+def _freeze_spec(spec: SweepSpec) -> None:
+    """A copy of the spec as submitted, for the record (the jobs carry their own definitions)."""
+    from benchmark.io import atomic_write_text
+
+    if spec.path is not None and Path(spec.path).is_file():
+        stamp = time.strftime("%Y%m%d-%H%M%S")
+        atomic_write_text(spec.state_dir / "specs" / f"{stamp}-{os.getpid()}.toml", Path(spec.path).read_text())
+
+
+def _restore(spec: SweepSpec, jobs: list[SweepJob], before: dict) -> None:
+    from benchmark.io import atomic_write_json
+
+    for job in jobs:
+        p = state_path(spec.target, job)
+        if before[job.id] is None:
+            p.unlink(missing_ok=True)
+        else:
+            atomic_write_json(p, before[job.id])
 
 
 def results_table(spec: SweepSpec) -> str:
@@ -343,8 +552,8 @@ def results_table(spec: SweepSpec) -> str:
     from benchmark.results import load_results
 
     rows = []
-    for job, st in status(spec):
-        for r in st.get("results", []) if st["state"] == "done" else []:
+    for job, st in status(spec, ask_scheduler=False):
+        for r in st.get("results", []) if st["state"] == "done" and not st.get("earlier_spec") else []:
             rec = load_results(r)
             rows.append({"method": job.method, "variant": job.variant, "dataset": job.dataset,
                          "miou": rec["metrics"]["official"]["miou"]})
@@ -356,5 +565,6 @@ def results_table(spec: SweepSpec) -> str:
     return agg.pivot(index=["method", "variant"], columns="dataset", values="cell").fillna("").to_string()
 
 
-__all__ = ["MAIN", "SweepError", "SweepJob", "SweepSpec", "SweepTask", "load_spec", "pending_jobs", "read_state",
-           "results_table", "run_job", "sbatch_script", "slurm_parameters", "status", "submit"]
+__all__ = ["IN_FLIGHT", "MAIN", "SweepError", "SweepJob", "SweepJobsFailed", "SweepSpec", "SweepTarget", "SweepTask",
+           "load_spec", "pending_jobs", "read_state", "resolve_resources", "results_table", "run_job", "sbatch_script",
+           "slurm_parameters", "status", "submit"]

@@ -141,16 +141,23 @@ def train_features(
     cache_dir: str | Path | None = None,
     progress: bool = True,
     log_every: int = 50,
+    checkpoint: str | Path | None = None,
+    checkpoint_every_s: float = 30.0,
 ) -> TrainResult:
     """Train per-gaussian features [N, D] with geometry frozen. ``views`` have ``.camera`` and
-    ``.name``; ``load_masks(view) -> MaskSet``. Returns the saved (smoothed) features."""
+    ``.name``; ``load_masks(view) -> MaskSet``. Returns the saved (smoothed) features.
+
+    ``checkpoint``: a file where the loop's whole state is saved every ``checkpoint_every_s``
+    seconds of training; when it exists at the start, training continues from it bit for bit
+    (a killed or requeued job resumes inside the stage); removed when training ends."""
     from trase.threads import torch_threads
 
+    ckpt = None if checkpoint is None else _Checkpoint(Path(checkpoint), checkpoint_every_s)
     with torch_threads(config.torch_threads):
-        return _train(gaussians, deformation, views, load_masks, config, cache_dir, progress, log_every)
+        return _train(gaussians, deformation, views, load_masks, config, cache_dir, progress, log_every, ckpt)
 
 
-def _train(gaussians, deformation, views, load_masks, config, cache_dir, progress, log_every) -> TrainResult:
+def _train(gaussians, deformation, views, load_masks, config, cache_dir, progress, log_every, ckpt) -> TrainResult:
     n = gaussians.num_gaussians
     _check_config(config)
     dev = resolve_device(config.device)
@@ -172,8 +179,8 @@ def _train(gaussians, deformation, views, load_masks, config, cache_dir, progres
         return _result(feats, knn, [], timings, path)
 
     step = _FeatureStep(config, objective, path, usable, masks_of, knn, xyz, whole_view, rng, gen, dev)
-    history, t_train = _optimise(feats, step, views, progress, log_every)
-    timings.update(train=t_train, per_step=t_train / config.iterations)
+    history, t_train, start = _optimise(feats, step, views, progress, log_every, ckpt)
+    timings.update(train=t_train, per_step=t_train / config.iterations, resumed_from_step=start)
     return _result(feats, knn, history, timings, path)
 
 
@@ -266,17 +273,56 @@ class _FeatureStep:
         return loss, stats
 
 
+class _Checkpoint:
+    """The feature loop's state in one file: features, Adam's moments, the next step, both
+    random streams, the history and the training seconds so far. Saved atomically every
+    ``every_s`` seconds; a file for other features (count or width) is not resumed from."""
+
+    def __init__(self, path: Path, every_s: float) -> None:
+        self.path, self.every_s = path, float(every_s)
+        self.last = time.perf_counter()
+
+    def load(self, feats: torch.nn.Parameter, opt, step: _FeatureStep) -> tuple[int, list[dict], float]:
+        """Restore into ``feats``/``opt``/``step``'s generators -> (next step, history, seconds)."""
+        if not self.path.is_file():
+            return 0, [], 0.0
+        state = torch.load(self.path, map_location="cpu", weights_only=False)
+        if tuple(state["features"].shape) != tuple(feats.shape):
+            return 0, [], 0.0
+        with torch.no_grad():
+            feats.copy_(state["features"].to(feats.device))
+        opt.load_state_dict(state["optimizer"])
+        step.rng.bit_generator.state = state["rng"]
+        step.gen.set_state(state["gen"])
+        return int(state["step"]), list(state["history"]), float(state["seconds"])
+
+    def maybe_save(self, feats, opt, step: _FeatureStep, next_step: int, history: list[dict], seconds: float) -> None:
+        if time.perf_counter() - self.last < self.every_s:
+            return
+        from trase.checkpoint import atomic_torch_save
+
+        atomic_torch_save({"features": feats.detach().cpu(), "optimizer": opt.state_dict(), "step": next_step,
+                           "rng": step.rng.bit_generator.state, "gen": step.gen.get_state(),
+                           "history": history, "seconds": seconds}, self.path)
+        self.last = time.perf_counter()
+
+    def remove(self) -> None:
+        self.path.unlink(missing_ok=True)
+
+
 def _optimise(feats: torch.nn.Parameter, step: _FeatureStep, views: Sequence, progress: bool,
-              log_every: int) -> tuple[list[dict], float]:
+              log_every: int, ckpt: _Checkpoint | None = None) -> tuple[list[dict], float, int]:
     """``config.iterations`` Adam steps on features [N, D] in place -> (history every
-    ``log_every`` steps and the last, seconds of the loop)."""
+    ``log_every`` steps and the last, seconds of the loop, the step it resumed from)."""
     config = step.config
     opt = torch.optim.Adam([feats], lr=config.lr, eps=config.eps)
+    start, history, before = ckpt.load(feats, opt, step) if ckpt is not None else (0, [], 0.0)
     bar = _progress(progress, config.iterations)
-    history: list[dict] = []
+    if bar is not None and start:
+        bar.p.update(bar.task, completed=start)
     t1 = time.perf_counter()
     try:
-        for it in range(config.iterations):
+        for it in range(start, config.iterations):
             vi, ms, sample = step.draw()
             loss, stats = step.loss(feats, vi, ms, sample)
             opt.zero_grad(set_to_none=True)
@@ -289,10 +335,14 @@ def _optimise(feats: torch.nn.Parameter, step: _FeatureStep, views: Sequence, pr
                 history.append({"step": it, "loss": float(loss.detach()), **stats})
             if bar is not None:
                 bar.advance(float(loss.detach()))
+            if ckpt is not None and it + 1 < config.iterations:
+                ckpt.maybe_save(feats, opt, step, it + 1, history, before + time.perf_counter() - t1)
     finally:
         if bar is not None:
             bar.close()
-    return history, time.perf_counter() - t1
+    if ckpt is not None:
+        ckpt.remove()
+    return history, before + time.perf_counter() - t1, start
 
 
 def _result(feats: torch.Tensor, knn: torch.Tensor, history: list[dict], timings: dict, path) -> TrainResult:

@@ -5,9 +5,10 @@ from __future__ import annotations
 import click
 
 
-def _overrides(executor, workers, partition, gpus, time_min, mem, array_parallelism) -> dict:
+def _overrides(executor, workers, partition, gpus, time_min, mem, array_parallelism, cpus=None) -> dict:
     slurm = {k: v for k, v in {"partition": partition, "gpus_per_node": gpus, "timeout_min": time_min,
-                               "mem_gb": mem, "array_parallelism": array_parallelism}.items() if v is not None}
+                               "mem_gb": mem, "array_parallelism": array_parallelism,
+                               "cpus_per_task": cpus}.items() if v is not None}
     out = {"slurm": slurm}
     if executor:
         out["kind"] = executor
@@ -22,19 +23,24 @@ def _overrides(executor, workers, partition, gpus, time_min, mem, array_parallel
 @click.option("--executor", type=click.Choice(["local", "slurm"]), default=None, help="Overrides the spec's.")
 @click.option("--workers", type=click.IntRange(min=1), default=None, help="local: processes in parallel.")
 @click.option("--partition", default=None, help="slurm: partition.")
-@click.option("--gpus", type=int, default=None, help="slurm: GPUs per job.")
-@click.option("--time", "time_min", type=int, default=None, help="slurm: minutes per job.")
-@click.option("--mem", type=int, default=None, help="slurm: GB of memory per job.")
+@click.option("--gpus", type=click.IntRange(min=0), default=None, help="slurm: GPUs per job.")
+@click.option("--cpus-per-task", "cpus", type=click.IntRange(min=1), default=None,
+              help="slurm: CPU cores per job (default 4, capped at the partition's largest node).")
+@click.option("--time", "time_min", type=click.IntRange(min=1), default=None, help="slurm: minutes per job.")
+@click.option("--mem", type=click.IntRange(min=1), default=None,
+              help="slurm: GB of memory per job (default 16, capped at the partition's largest node).")
 @click.option("--array-parallelism", type=int, default=None, help="slurm: array tasks running at once.")
 @click.option("--wait/--no-wait", default=None, help="Wait for the jobs (default: local yes, slurm no).")
-def sweep(spec_path, dry_run, executor, workers, partition, gpus, time_min, mem, array_parallelism, wait) -> None:
+def sweep(spec_path, dry_run, executor, workers, partition, gpus, cpus, time_min, mem, array_parallelism,
+          wait) -> None:
     """Run a sweep (methods x datasets x sequences x variants x seeds) from a TOML spec;
     a rerun runs only what is not done."""
     import time
 
-    from benchmark.sweep import load_spec, pending_jobs, submit
+    from benchmark.sweep import IN_FLIGHT, load_spec, pending_jobs, status, submit
 
-    spec = load_spec(spec_path, _overrides(executor, workers, partition, gpus, time_min, mem, array_parallelism))
+    spec = load_spec(spec_path, _overrides(executor, workers, partition, gpus, time_min, mem, array_parallelism,
+                                           cpus))
     if not any(o.startswith(("preset=", "geometry.preset=")) for v in spec.variants.values() for o in v):
         click.echo("note: no variant pins the preset (preset=...); 'auto' resolves on each worker (paper where torch "
                    "sees a GPU, cpu elsewhere), so jobs on mixed nodes would run different presets", err=True)
@@ -42,9 +48,12 @@ def sweep(spec_path, dry_run, executor, workers, partition, gpus, time_min, mem,
         _dry_run(spec)
         return
     t0 = time.time()
-    todo = pending_jobs(spec)
-    click.echo(f"sweep {spec.name}: {len(spec.jobs())} jobs, {len(todo)} to run ({spec.executor}); runs {spec.out}")
-    res = submit(spec, wait=(spec.executor == "local") if wait is None else wait, echo=click.echo)
+    states = status(spec)
+    todo = pending_jobs(spec, states)
+    flying = sum(st["state"] in IN_FLIGHT for _, st in states if not st.get("earlier_spec"))
+    click.echo(f"sweep {spec.name}: {len(spec.jobs())} jobs, {len(todo)} to run, {flying} in flight "
+               f"({spec.executor}); runs {spec.out}")
+    res = submit(spec, wait=(spec.executor == "local") if wait is None else wait, echo=click.echo, states=states)
     if res["submitted"] and (wait or (wait is None and spec.executor == "local")):
         click.echo(f"wall time {time.time() - t0:.1f}s")
         _summary(spec)
@@ -58,7 +67,7 @@ def _dry_run(spec) -> None:
 
     rows, planned = [], set()  # (stage, key) an earlier job of the sweep computes
     for job in spec.jobs():
-        st = read_state(spec, job)["state"]
+        st = read_state(spec, job)["state"]  # as the workers wrote it (the scheduler is not asked)
         try:
             plan = plan_sequence(spec.run_options(job), job.sequence)
             marks = ["=" if done else "^" if (stage, key) in planned else "+" for stage, key, done in plan]
@@ -68,14 +77,19 @@ def _dry_run(spec) -> None:
             if not is_user_error(exc):
                 raise
             reuse = f"(cannot plan: {str(exc).splitlines()[0]})"
-        rows.append(f"{job.id:<58} {st:<9} {reuse}")
-    click.echo("job                                                        state     stages "
+        rows.append(f"{job.id:<66} {st:<9} {reuse}")
+    click.echo(f"{'job':<66} state     stages "
                "(= in the cache, ^ computed by an earlier job of this sweep, + computed by this job)")
     for r in rows:
         click.echo(r)
     if spec.executor == "slurm":
-        from benchmark.sweep import sbatch_script, slurm_parameters
+        from benchmark.scheduler import SchedulerError
+        from benchmark.sweep import resolve_resources, sbatch_script, slurm_parameters
 
+        try:
+            spec = resolve_resources(spec, echo=click.echo)
+        except SchedulerError as exc:  # a dry run away from the cluster still shows the script
+            click.echo(f"note: the request was not checked against the partition: {exc}")
         click.echo(f"\nsubmitit parameters: {slurm_parameters(spec)}")
         click.echo(sbatch_script(spec, len(spec.jobs())))
 
@@ -99,24 +113,30 @@ def _summary(spec) -> None:
 @click.argument("spec_path", metavar="SPEC", type=click.Path(dir_okay=False))
 @click.option("--table", is_flag=True, help="Also the mIoU table of the finished runs (method x variant x dataset).")
 def sweep_status(spec_path, table) -> None:
-    """done / running / failed / pending per job, with each failure's error and log."""
+    """Each job's state (done, running, queued, requeued, failed, cancelled, timed out, died, lost,
+    pending), reconciled with SLURM's view where jobs went to SLURM, with errors and logs."""
     from benchmark.sweep import load_spec, status
 
     spec = load_spec(spec_path)
     counts: dict[str, int] = {}
     for job, st in status(spec):
-        state = "pending" if st["state"] == "submitted" else st["state"]
+        state = st["state"]
         counts[state] = counts.get(state, 0) + 1
-        line = f"{job.id:<58} {state}"
-        if state in ("failed", "died"):
-            line += f"  {st.get('error', '')}  log: {st.get('log') or 'none'}"
+        line = f"{job.id:<66} {state}"
+        if state in ("failed", "died", "lost", "cancelled", "timed out"):
+            line += f"  {st.get('error', '')}".rstrip() + f"  log: {st.get('log') or 'none'}"
         elif state == "done":
             line += f"  {st.get('seconds', 0):.0f}s"
         elif state == "running":
             task = f", {st['task']}" if st.get("task") else ""
-            line += f"  on {st.get('host')} (pid {st.get('pid')}{task}), log {st.get('log') or 'none'}"
-        elif st["state"] == "submitted":
-            line += f"  submitted ({st.get('executor')}), not started"
+            where = f"on {st.get('host')} (pid {st.get('pid')}{task})" if st.get("started") else "starting"
+            line += f"  {where}, log {st.get('log') or 'none'}"
+        elif state in ("queued", "requeued"):
+            line += f"  {st.get('executor')} {st.get('scheduler_id') or ''}".rstrip()
+        if st.get("scheduler"):
+            line += f"  [{st['scheduler']}]"
+        if st.get("earlier_spec"):
+            line += "  (not in the spec now: submitted by an earlier version)"
         click.echo(line)
     click.echo(", ".join(f"{n} {k}" for k, n in sorted(counts.items())))
     if table:

@@ -67,6 +67,27 @@ METHODS.add("cgc", "benchmark.methods.baselines:CGCMethod", "Contrastive Gaussia
 METHODS.add("opengaussian", "benchmark.methods.baselines:OpenGaussianMethod", "OpenGaussian-style intra/inter-mask objective")
 
 
+CHECKPOINT_SECONDS_ENV = "TRASE_CHECKPOINT_SECONDS"
+
+
+def checkpoint_seconds(default: float = 30.0) -> float:
+    """How often a method's long training saves its state for a resume inside the stage
+    (seconds; ``$TRASE_CHECKPOINT_SECONDS``). It changes no result: a resumed run continues bit
+    for bit."""
+    import os
+
+    raw = os.environ.get(CHECKPOINT_SECONDS_ENV)
+    if raw is None or raw.strip() == "":
+        return default
+    try:
+        value = float(raw)
+    except ValueError:
+        value = float("nan")
+    if not value > 0:
+        raise MethodError(f"${CHECKPOINT_SECONDS_ENV}={raw!r}: give seconds > 0")
+    return value
+
+
 def register_method(name: str) -> Callable:
     """Class decorator: name a Method class (``cls.name``) and register it (``get_method``)."""
 

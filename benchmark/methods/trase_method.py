@@ -50,6 +50,7 @@ class TraseMethod(Method):
         """Train per-gaussian features [N, D] on frozen geometry -> (features, info)."""
         import masks as masklib
         from trase.devices import peak_memory_mib, reset_peak_memory, resolve_device
+        from benchmark.methods import checkpoint_seconds
         from trase.features import train_features
 
         work_dir = Path(work_dir)
@@ -65,12 +66,14 @@ class TraseMethod(Method):
         device = resolve_device(fcfg.device)
         reset_peak_memory(device)
         res = train_features(gaussians, deformation, scene.train, load_masks, fcfg,
-                             cache_dir=work_dir / "pixel_weights", progress=progress)
+                             cache_dir=work_dir / "pixel_weights", progress=progress,
+                             checkpoint=work_dir / "features_checkpoint.pt", checkpoint_every_s=checkpoint_seconds())
         peak = peak_memory_mib(device)
         feats = res.features.detach().cpu().numpy().astype(np.float32)
         info = {
             "timings": {"features_prepare": res.timings["prepare"], "features_train": res.timings["train"],
                         "features_per_step": res.timings["per_step"]},
+            "resumed_from_step": res.timings["resumed_from_step"],  # > 0: a killed or requeued job went on
             "path": res.path_stats,
             "loss_tail": res.history[-5:],
             "objective": fcfg.objective,

@@ -57,3 +57,27 @@ def tiny_run(tmp_path_factory) -> Path:
     assert main(args) == 0
     (results,) = out.glob("trase/hypernerf/synthetic/*/results.json")
     return results.parent
+
+
+@pytest.fixture(scope="session")
+def slurm(tmp_path_factory):
+    """A running one-node SLURM (tests/benchmark/slurm_cluster.py) with ``SLURM_CONF`` set for
+    this process and its children; skipped with the reason where it cannot start."""
+    import os
+
+    from tests.benchmark.slurm_cluster import SlurmCluster, why_not
+
+    why = why_not()
+    if why:
+        pytest.skip(f"no test SLURM: {why}")
+    cluster = SlurmCluster(tmp_path_factory.mktemp("slurm")).start()
+    old = os.environ.get("SLURM_CONF")
+    os.environ["SLURM_CONF"] = str(cluster.conf)
+    try:
+        yield cluster
+    finally:
+        cluster.stop()
+        if old is None:
+            os.environ.pop("SLURM_CONF", None)
+        else:
+            os.environ["SLURM_CONF"] = old

@@ -157,3 +157,40 @@ def test_norm_regulariser_averages_over_the_image_features_when_given():
         _, stats = get_objective(name)(feats, sample)
         assert abs(stats["reg"] - 0.25) < 1e-6  # (1 - 0.5)^2
         sample.image_features = None
+
+
+def test_a_killed_training_resumes_from_its_checkpoint_bit_for_bit(tmp_path, monkeypatch):
+    import pytest
+
+    import trase.features as tf
+
+    gm, deform, ids, views = tiny_scene()
+    masks = {v.name: exact_masks(gm, deform, ids, v) for v in views}
+    cfg = FeatureConfig(dim=8, iterations=40, n_pixels=300, n_masks=3, knn=4, knn_keep=2, lr=0.02, fastpath=True)
+    train = lambda d, **kw: train_features(gm, deform, views, lambda v: masks[v.name], cfg, cache_dir=d,
+                                           progress=False, **kw)
+    whole = train(tmp_path / "whole")
+    ckpt = tmp_path / "cut" / "features_checkpoint.pt"
+    draw = tf._FeatureStep.draw
+    calls = {"n": 0}
+
+    def killed_at_step_25(self):
+        calls["n"] += 1
+        if calls["n"] > 25:
+            raise KeyboardInterrupt  # the job is killed mid-stage
+        return draw(self)
+
+    monkeypatch.setattr(tf._FeatureStep, "draw", killed_at_step_25)
+    with pytest.raises(KeyboardInterrupt):
+        train(tmp_path / "cut", checkpoint=ckpt, checkpoint_every_s=0.0)  # saved after every step
+    assert torch.load(ckpt, weights_only=False)["step"] == 25
+    monkeypatch.setattr(tf._FeatureStep, "draw", draw)
+    resumed = train(tmp_path / "cut", checkpoint=ckpt, checkpoint_every_s=0.0)
+    assert resumed.timings["resumed_from_step"] == 25 and whole.timings["resumed_from_step"] == 0
+    assert torch.equal(resumed.features, whole.features) and torch.equal(resumed.raw_features, whole.raw_features)
+    assert [h["loss"] for h in resumed.history] == [h["loss"] for h in whole.history]
+    assert not ckpt.exists()  # removed once the training ended
+    # a checkpoint of other features (another width) is not resumed from
+    other = tmp_path / "other.pt"
+    torch.save({"features": torch.zeros(3, 2)}, other)
+    assert train(tmp_path / "o", checkpoint=other).timings["resumed_from_step"] == 0
