@@ -261,7 +261,7 @@ def read_state(target, job: SweepJob, scheduler: dict | None = None) -> dict:
     alive = not known_dead(st.get("host"), st.get("pid")) if st.get("pid") else None
     if sched is not None and sched.state != "unknown":
         said = f"SLURM: {sched.raw}" + (f" ({sched.reason})" if sched.reason else "") + (
-            f", exit code {sched.exit_code}" if sched.exit_code and sched.state != "queued" else "")
+            f", exit code {sched.exit_code}" if sched.exit_code and sched.state not in IN_FLIGHT else "")
         if sched.state in IN_FLIGHT:
             seen = sched.state if state == "submitted" or sched.state != "queued" else "requeued"
             return {**st, "state": seen, "scheduler": said}
@@ -520,7 +520,10 @@ def submit(spec: SweepSpec, wait: bool = True, echo=print, states: list | None =
             try:
                 h.result()
             except Exception as exc:  # noqa: BLE001 - each job's own state says what failed
-                echo(f"task {h.job_id} ended with an error: {str(exc).strip().splitlines()[-1][:200]}")
+                lines = [ln.strip() for ln in str(exc).strip().splitlines() if ln.strip()]
+                ours = [ln for ln in lines if "SweepJobsFailed" in ln]
+                what = (ours[-1].split("SweepJobsFailed:", 1)[-1].strip() if ours else lines[-1] if lines else "")
+                echo(f"task {h.job_id} ended with an error: {what[:300]} (log: {h.paths.stdout})")
     return out
 
 
