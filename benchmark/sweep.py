@@ -258,14 +258,14 @@ def read_state(target, job: SweepJob, scheduler: dict | None = None) -> dict:
     if state not in ("submitted", "running"):
         return st
     sched = (scheduler or {}).get(str(st.get("scheduler_id") or st.get("task") or ""))
-    alive = not known_dead(st.get("host"), st.get("pid")) if st.get("pid") else None
+    alive = _worker_alive(st.get("host"), st.get("pid"))
     if sched is not None and sched.state != "unknown":
         said = f"SLURM: {sched.raw}" + (f" ({sched.reason})" if sched.reason else "") + (
             f", exit code {sched.exit_code}" if sched.exit_code and sched.state not in IN_FLIGHT else "")
         if sched.state in IN_FLIGHT:
             seen = sched.state if state == "submitted" or sched.state != "queued" else "requeued"
             return {**st, "state": seen, "scheduler": said}
-        if state == "running" and alive:  # the scheduler finished before the worker's last write
+        if state == "running" and alive is True:  # the scheduler finished before the worker's last write
             return {**st, "scheduler": said}
         ended = {"cancelled": "cancelled", "timed out": "timed out", "preempted": "cancelled"}.get(sched.state)
         if ended:
@@ -273,7 +273,7 @@ def read_state(target, job: SweepJob, scheduler: dict | None = None) -> dict:
         why = "before it started" if state == "submitted" else "without a word from the worker"
         return {**st, "state": "died", "scheduler": said, "error": f"ended {why} ({said})"}
     if state == "submitted":
-        if st.get("executor") == "local" and alive:
+        if st.get("executor") == "local" and alive is True:
             return {**st, "state": "queued"}  # its local worker is alive and will come to it
         if st.get("executor") == "slurm" and scheduler is None:
             return {**st, "state": "queued", "note": "SLURM not asked"}
@@ -281,6 +281,13 @@ def read_state(target, job: SweepJob, scheduler: dict | None = None) -> dict:
     if alive is False:
         return {**st, "state": "died", "error": st.get("error") or "the worker stopped without a word (killed?)"}
     return st
+
+
+def _worker_alive(host, pid) -> bool | None:
+    """Whether a worker process runs: known only for a pid of this machine (None elsewhere)."""
+    if host != socket.gethostname() or not isinstance(pid, int):
+        return None
+    return not known_dead(host, pid)
 
 
 def scheduler_view(target, jobs: list[SweepJob]) -> dict | None:
