@@ -126,6 +126,8 @@ def _make_optimizers(g: GaussianModel, deform: DeformMLP, cfg: ReconstructionCon
         {"params": [g.quats], "lr": cfg.rotation_lr, "name": "quats"},
     ]
     opt_g = torch.optim.Adam(groups, lr=0.0, eps=1e-15, fused=True)
+    if deform is None:  # a motionless capture: plain 3DGS
+        return opt_g, None
     opt_d = torch.optim.Adam(
         [{"params": list(deform.parameters()), "lr": cfg.position_lr_init * cfg.spatial_lr_scale, "name": "deform"}],
         lr=0.0, eps=1e-15, fused=True,
@@ -149,9 +151,9 @@ class _Trainer:
     a resumed run restores, so a resumed run continues bit for bit."""
 
     gaussians: GaussianModel
-    deform: DeformMLP
+    deform: DeformMLP | None  # None: a motionless capture, trained as plain 3DGS
     opt_g: torch.optim.Optimizer  # the gaussians' parameters, one group each (_make_optimizers)
-    opt_d: torch.optim.Optimizer  # the deformation network's
+    opt_d: torch.optim.Optimizer | None  # the deformation network's
     strategy: DensifyStrategy
     gen: torch.Generator  # the run's draws: view order, time noise, splits
     view_stack: list[int]  # views left in the current random pass (popped from the end)
@@ -180,7 +182,7 @@ class _Trainer:
             "iteration": it,
             "active_sh_degree": self.gaussians.active_sh_degree,
             "opt_g": self.opt_g.state_dict(),
-            "opt_d": self.opt_d.state_dict(),
+            "opt_d": None if self.opt_d is None else self.opt_d.state_dict(),
             **self.strategy.state_dict(),
             "rng": self.gen.get_state(),
             "view_stack": torch.tensor(self.view_stack, dtype=torch.int64),
@@ -188,28 +190,41 @@ class _Trainer:
         }
 
 
+def is_motionless(views: Sequence) -> bool:
+    """Every view at one time (a static capture, ``capture.time=static``): nothing for a
+    deformation network to learn, so the scene trains as plain 3DGS."""
+    times = {round(float(v.camera.time), 9) for v in views}
+    return len(times) <= 1
+
+
 def _new_trainer(points, point_colors, cfg: ReconstructionConfig, dev, strategy: DensifyStrategy,
-                 gen: torch.Generator) -> _Trainer:
+                 gen: torch.Generator, static: bool = False) -> _Trainer:
     """A run from the point cloud: gaussians and network initialised on the CPU (alike on
-    every device), then moved."""
+    every device), then moved; ``static``: no network (plain 3DGS)."""
     gaussians = GaussianModel.from_points(points, point_colors, sh_degree=cfg.sh_degree)
-    deform = DeformMLP.preset(cfg.deform_preset, scale_rule=cfg.deform_scale_rule)
-    if cfg.deform_zero_init:
-        deform.zero_heads()
-    gaussians, deform = gaussians.to(dev), deform.to(dev)
+    deform = None
+    if not static:
+        deform = DeformMLP.preset(cfg.deform_preset, scale_rule=cfg.deform_scale_rule)
+        if cfg.deform_zero_init:
+            deform.zero_heads()
+        deform = deform.to(dev)
+    gaussians = gaussians.to(dev)
     opt_g, opt_d = _make_optimizers(gaussians, deform, cfg)
     strategy.initialize_state(gaussians.num_gaussians, dev)
     return _Trainer(gaussians, deform, opt_g, opt_d, strategy, gen, [])
 
 
 def _resumed_trainer(out_dir: Path, start: int, cfg: ReconstructionConfig, dev,
-                     strategy: DensifyStrategy, gen: torch.Generator) -> _Trainer:
+                     strategy: DensifyStrategy, gen: torch.Generator, static: bool = False) -> _Trainer:
     """The run saved at iteration ``start``: its model and its trainer state (CheckpointError
     when either is missing, unreadable or incomplete)."""
     gaussians, deform = load_model(out_dir, start)
-    if deform is None:
+    if deform is None and not static:
         raise CheckpointError(f"{out_dir}: checkpoint {start} has no deformation network to resume")
-    gaussians, deform = gaussians.to(dev), deform.to(dev)
+    if deform is not None and static:
+        raise CheckpointError(f"{out_dir}: checkpoint {start} has a deformation network, but every view is at one "
+                              "time (a motionless capture trains none): remove the folder to start over")
+    gaussians = gaussians.to(dev)
     sp = _state_path(out_dir, start)
     if not sp.is_file():
         raise CheckpointError(f"{sp}: trainer state for iteration {start} is missing; cannot resume")
@@ -222,11 +237,14 @@ def _resumed_trainer(out_dir: Path, start: int, cfg: ReconstructionConfig, dev,
     except ValueError as exc:
         raise CheckpointError(f"{sp}: {exc}") from None
     gaussians.active_sh_degree = int(state["active_sh_degree"])
-    deform.scale_rule = cfg.deform_scale_rule  # the run's rule (older checkpoints do not record it)
-    deform.train()
+    if deform is not None:
+        deform = deform.to(dev)
+        deform.scale_rule = cfg.deform_scale_rule  # the run's rule (older checkpoints do not record it)
+        deform.train()
     opt_g, opt_d = _make_optimizers(gaussians, deform, cfg)
     opt_g.load_state_dict(state["opt_g"])
-    opt_d.load_state_dict(state["opt_d"])
+    if opt_d is not None:
+        opt_d.load_state_dict(state["opt_d"])
     gen.set_state(state["rng"])
     return _Trainer(gaussians, deform, opt_g, opt_d, strategy, gen, [int(i) for i in state["view_stack"]],
                     float(state["ema_loss"]), float(state["ema_psnr"]))
@@ -249,9 +267,10 @@ def reconstruct(
     backend: str = "auto",
     max_seconds: float | None = None,
     torch_threads: int | None = None,
-) -> tuple[GaussianModel, DeformMLP]:
+) -> tuple[GaussianModel, DeformMLP | None]:
     """Train canonical gaussians and a deformation MLP on ``views`` (objects with .camera, a
-    pinhole Camera whose .time is the frame time, and .image_path).
+    pinhole Camera whose .time is the frame time, and .image_path). A motionless capture
+    (every view at one time, ``is_motionless``) trains plain 3DGS: no network, None returned.
 
     Checkpoints go to out_dir in the public layout every ``checkpoint_interval`` iterations
     and at the end; with ``resume`` the latest one (with its sidecar state) is continued.
@@ -281,12 +300,14 @@ def _reconstruct(views, points, point_colors, config, out_dir, resume, progress,
     gen = torch.Generator().manual_seed(cfg.seed)
     existing = available_iterations(out_dir) if resume else []
     start = existing[-1] if existing else 0
+    static = is_motionless(views)
     if existing:
-        tr = _resumed_trainer(out_dir, start, cfg, dev, strategy, gen)
+        tr = _resumed_trainer(out_dir, start, cfg, dev, strategy, gen, static)
     else:
-        tr = _new_trainer(points, point_colors, cfg, dev, strategy, gen)
+        tr = _new_trainer(points, point_colors, cfg, dev, strategy, gen, static)
     _train(tr, data, bg, cfg, out_dir, start, progress, backend, max_seconds)
-    tr.deform.eval()
+    if tr.deform is not None:
+        tr.deform.eval()
     return tr.gaussians, tr.deform
 
 
@@ -349,8 +370,9 @@ def _schedule(tr: _Trainer, it: int, cfg: ReconstructionConfig) -> None:
         if grp["name"] == "means":
             grp["lr"] = expon_lr(it, cfg.position_lr_init * cfg.spatial_lr_scale,
                                  cfg.position_lr_final * cfg.spatial_lr_scale, cfg.position_lr_max_steps)
-    tr.opt_d.param_groups[0]["lr"] = expon_lr(it, cfg.position_lr_init * cfg.spatial_lr_scale,
-                                              cfg.position_lr_final, cfg.deform_lr_max_steps)
+    if tr.opt_d is not None:
+        tr.opt_d.param_groups[0]["lr"] = expon_lr(it, cfg.position_lr_init * cfg.spatial_lr_scale,
+                                                  cfg.position_lr_final, cfg.deform_lr_max_steps)
     if cfg.sh_interval > 0 and it % cfg.sh_interval == 0:
         g = tr.gaussians
         g.active_sh_degree = min(g.active_sh_degree + 1, g.max_sh_degree)
@@ -367,7 +389,7 @@ def _forward_backward(tr: _Trainer, it: int, data: ImageCache, bg: torch.Tensor,
     vi = tr.view_stack.pop()
     cam, gt = data.cameras[vi], data.images[vi]
 
-    use_deform = it >= cfg.warm_up
+    use_deform = tr.deform is not None and it >= cfg.warm_up
     offset = 0.0
     if use_deform:
         noise = float(torch.randn(1, generator=tr.gen))
@@ -393,6 +415,8 @@ def _optimizer_step(tr: _Trainer, use_deform: bool) -> None:
     """Adam steps (the network's only past the warm-up), then the gradients cleared."""
     tr.opt_g.step()
     tr.opt_g.zero_grad(set_to_none=True)
+    if tr.opt_d is None:
+        return
     if use_deform:
         tr.opt_d.step()
     tr.opt_d.zero_grad(set_to_none=True)

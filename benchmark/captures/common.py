@@ -234,8 +234,13 @@ class CaptureLayout:
 def capture_scene(scene_dir: Path, views: list[View], options: CaptureOptions, layout_test: set[str],
                   points: np.ndarray, colors: np.ndarray | None, notices: list[str], extras: dict) -> Scene:
     """The ``Scene`` of a capture: views split by the holdout rule, no ground truth."""
+    from trase.reconstruct import is_motionless
+
     check_views(views, scene_dir)
     train, test = split_views(views, options, layout_test, notices)
+    if is_motionless(train):
+        notices.append(f"every training view at one time ({train[0].camera.time:g}): a motionless capture, "
+                       "reconstructed as plain 3DGS (no deformation network)")
     return Scene(dataset="capture", sequence=scene_dir.resolve().name, root=scene_dir, train=train, test=test,
                  points=points, point_colors=colors, variant="real",
                  extras={**extras, "notices": notices, "capture": options.to_dict()})

@@ -40,7 +40,8 @@ def run(ctx: SequenceRun) -> list[StageRecord]:
         gaussians, deformation = load_geometry(d)
         # the held-out views composited over the background the reconstruction trained on
         bg = (1.0, 1.0, 1.0) if geometry.train.white_background else None
-        info = {"source": src, "n_gaussians": int(gaussians.num_gaussians), "test_psnr": None}
+        info = {"source": src, "n_gaussians": int(gaussians.num_gaussians), "test_psnr": None,
+                "motion": "dynamic" if deformation is not None else "static (plain 3DGS, no deformation network)"}
         for split, views in (("test", scene.test), ("validation", scene.validation)):
             if views:
                 m = evaluate_images(gaussians, deformation, views, bg)

@@ -53,7 +53,7 @@ def make_cameras(num: int = 6, size: int = 32, times=(0.0, 0.5, 1.0)):
     return cams
 
 
-def write_scene(root: Path, num: int = 6, size: int = 32, backend: str = "numba"):
+def write_scene(root: Path, num: int = 6, size: int = 32, backend: str = "numba", times=(0.0, 0.5, 1.0)):
     """Render the ground truth into PNGs under root; returns (views, points, gt, deform)."""
     import cv2
 
@@ -62,7 +62,7 @@ def write_scene(root: Path, num: int = 6, size: int = 32, backend: str = "numba"
     root.mkdir(parents=True, exist_ok=True)
     g, deform = make_gt()
     views = []
-    for cam in make_cameras(num, size):
+    for cam in make_cameras(num, size, times):
         with torch.no_grad():
             m, q, s = deformed(g, deform, cam.time)
             out = rasterize(m, q, s, g.opacities, cam, colors=g.sh, sh_degree=0,

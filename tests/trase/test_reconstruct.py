@@ -169,3 +169,25 @@ def test_both_densification_statistics_densify(scene, tmp_path, statistic):
     assert np.isfinite(evaluate_psnr(g, d, views))
     with pytest.raises(ValueError, match="densify_statistic must be one of means2d, lstsq"):
         dataclasses.replace(CFG, densify_statistic="screen")
+
+
+def test_a_motionless_capture_trains_plain_3dgs_and_resumes(tmp_path):
+    from trase.reconstruct import is_motionless
+
+    views, pts, _, _ = write_scene(tmp_path / "images", num=6, size=24, times=(0.0,))  # every view at t = 0
+    assert is_motionless(views) and not is_motionless(write_scene(tmp_path / "moving", num=3, size=8)[0])
+    init = GaussianModel.from_points(pts, None, sh_degree=1)
+    g, d = reconstruct(views, pts, None, CFG, tmp_path / "full", progress=False)
+    assert d is None  # no deformation network to learn
+    assert evaluate_psnr(g, None, views) > evaluate_psnr(init, None, views) + 1.0
+    assert not list((tmp_path / "full").glob("deform/*/*"))  # the public layout of a static 3DGS
+    g2, d2 = load_model(tmp_path / "full")
+    assert d2 is None and torch.equal(g2.means, g.means)
+    reconstruct(views, pts, None, dataclasses.replace(CFG, iterations=20), tmp_path / "split", progress=False)
+    g3, _ = reconstruct(views, pts, None, CFG, tmp_path / "split", progress=False)
+    assert g3.num_gaussians == g.num_gaussians and torch.allclose(g3.means, g.means, atol=1e-4)
+    # a moving capture's checkpoint is not continued as a static one
+    moving, mpts, _, _ = write_scene(tmp_path / "m", num=6, size=24)
+    reconstruct(moving, mpts, None, dataclasses.replace(CFG, iterations=20), tmp_path / "mix", progress=False)
+    with pytest.raises(CheckpointError, match="has a deformation network"):
+        reconstruct(views, pts, None, CFG, tmp_path / "mix", progress=False)

@@ -139,3 +139,22 @@ def test_fit_exports_a_folder_that_select_reads(capture_dirs, tmp_path):
         select_clicks(out, [f"{v['name']}:10000,1"])
     with pytest.raises(UserError, match="not a fitted capture"):
         select_clicks(tmp_path, [f"{v['name']}:1,1"])
+
+
+@pytest.mark.slow
+def test_a_motionless_capture_fits_as_plain_3dgs_and_selects(capture_dirs, tmp_path):
+    out = tmp_path / "fit"
+    fit_json = fit_capture(FitOptions(capture_dirs["colmap"], out, holdout="every:3",
+                                      overrides=[*FAST, "capture.time=static"], cache_dir=tmp_path / "cache",
+                                      progress=False))
+    rec = json.loads(fit_json.read_text())
+    assert any("motionless capture, reconstructed as plain 3DGS" in n for n in rec["notices"])
+    assert rec["stages"]["geometry"]["info"]["motion"].startswith("static")
+    from trase.checkpoint import load_model
+
+    g, d = load_model(out / "model")
+    assert d is None and g.num_gaussians == rec["n_gaussians"]
+    views = json.loads((out / "views.json").read_text())
+    v = views["train"][0]
+    res = select_clicks(out, [f"{v['name']}:{v['camera']['width'] // 2},{v['camera']['height'] // 2}"])
+    assert all(m.shape == (v["camera"]["height"], v["camera"]["width"]) for m in res["masks"].values())
