@@ -68,6 +68,13 @@ def deform_options_path(model_dir: str | Path, iteration: int) -> Path:
     return Path(model_dir) / "deform" / f"iteration_{iteration}" / "deform_options.json"
 
 
+def static_rows_path(model_dir: str | Path, iteration: int) -> Path:
+    """The static gaussians of a network trained with them (``trase.static_gaussians``): which
+    rows skip the network and their frozen offsets. This project's addition beside deform.pth;
+    the public code, which reads deform.pth only, would run the network for every row."""
+    return Path(model_dir) / "deform" / f"iteration_{iteration}" / "static_rows.npz"
+
+
 def deform_table_path(model_dir: str | Path, iteration: int) -> Path:
     """Tabulated motion (an edited composition baked per time): this project's addition to
     the layout; the public code reads only deform.pth."""
@@ -99,6 +106,13 @@ def save_model(model_dir: str | Path, gaussians: GaussianModel, deformation, ite
     ``deformation`` is a DeformMLP (deform.pth, the public format), a TabulatedDeformation
     (deform_table.npz, read by ``load_model`` here only) or None for a static model.
     """
+    from trase.static_gaussians import PartlyStaticDeformation
+
+    if isinstance(deformation, PartlyStaticDeformation):
+        buf = io.BytesIO()
+        np.savez_compressed(buf, static=deformation.static.cpu().numpy(), frozen=deformation.frozen.cpu().numpy())
+        atomic_write_bytes(static_rows_path(model_dir, iteration), buf.getvalue())
+        deformation = deformation.net
     if isinstance(deformation, TabulatedDeformation):
         buf = io.BytesIO()
         np.savez_compressed(buf, **{k: getattr(deformation, k).cpu().numpy() for k in ("times", "d_xyz", "d_rot", "d_scale")})
@@ -184,7 +198,22 @@ def load_model(model_dir: str | Path, iteration: int | None = None) -> tuple[Gau
             raise CheckpointError(f"{table}: motion of {deformation.num_gaussians} gaussians for "
                                   f"{gaussians.num_gaussians} in the point cloud")
         return gaussians, deformation
-    return gaussians, load_deformation(dpath)
+    net = load_deformation(dpath)
+    rows = static_rows_path(model_dir, iteration)
+    if not rows.is_file():
+        return gaussians, net
+    from trase.static_gaussians import PartlyStaticDeformation
+
+    try:
+        with np.load(rows, allow_pickle=False) as z:
+            static, frozen = torch.from_numpy(z["static"]), torch.from_numpy(z["frozen"])
+        deformation = PartlyStaticDeformation(net, static, frozen)
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile, EOFError) as exc:
+        raise CheckpointError(f"{rows}: not readable static rows ({type(exc).__name__}: {exc})") from None
+    if deformation.num_gaussians != gaussians.num_gaussians:
+        raise CheckpointError(f"{rows}: static rows of {deformation.num_gaussians} gaussians for "
+                              f"{gaussians.num_gaussians} in the point cloud")
+    return gaussians, deformation
 
 
 # arrays of a tabulated geometry file: gaussians at the first time, per-time offsets [T, N, *]

@@ -302,6 +302,14 @@ class TabulatedDeformation(nn.Module):
         return out[0], out[1], out[2]
 
 
+def deformation_rows(deformation, mask):
+    """The deformation of the gaussians where ``mask`` [N] bool is True: per-row deformations
+    (tables, partly static networks, edits' compositions) keep their rows; a network, which
+    sees positions rather than indices, is shared unchanged."""
+    rows = getattr(deformation, "rows", None)
+    return deformation if rows is None else rows(torch.as_tensor(mask, dtype=torch.bool))
+
+
 def deformed(gaussians, deformation, t: float, detach_xyz_input: bool = True):
     """Means [N, 3], quats [N, 4] wxyz, scales [N, 3] of ``gaussians`` at time t.
 
@@ -340,9 +348,11 @@ def deformed_visible(gaussians, deformation, t: float, visible):
     with torch.no_grad():
         d_xyz, d_rot, d_scale = deformation(xyz, t)
         mask = visible(xyz + d_xyz, quats.detach() + d_rot, offset_scales(scales.detach(), d_scale, rule))
-    idx = torch.nonzero(torch.as_tensor(mask, dtype=torch.bool).reshape(-1)).reshape(-1)  # [V]
+    mask = torch.as_tensor(mask, dtype=torch.bool).reshape(-1)
+    idx = torch.nonzero(mask).reshape(-1)  # [V]
     if idx.numel() > 0 and torch.is_grad_enabled():
-        v_xyz, v_rot, v_scale = deformation(xyz[idx], t)  # [V, 3], [V, 4], [V, 3]
+        rows = deformation_rows(deformation, mask)
+        v_xyz, v_rot, v_scale = rows(xyz[idx], t)  # [V, 3], [V, 4], [V, 3]
         d_xyz = d_xyz.index_copy(0, idx, v_xyz)
         d_rot = d_rot.index_copy(0, idx, v_rot)
         d_scale = d_scale.index_copy(0, idx, v_scale)

@@ -70,11 +70,15 @@ def lstsq_screen_grad_norm(grad_means: torch.Tensor, means: torch.Tensor, camera
 
 @torch.no_grad()
 def densify_and_prune(g: GaussianModel, opt, cfg: ReconstructionConfig, grad_accum, denom,
-                       extent: float, prune_large: bool, gen: torch.Generator) -> None:
+                       extent: float, prune_large: bool, gen: torch.Generator,
+                       carry: dict[str, torch.Tensor] | None = None) -> dict[str, torch.Tensor] | None:
     """3DGS densify_and_prune: clone small / split large high-gradient gaussians, then drop
     transparent ones and, after the first opacity reset, ones larger than 0.1 x the scene
     extent. (3DGS also tests a screen-size limit, but its radii statistic has just been reset
-    to zero by the densification, so that test never fires; it is left out here.)"""
+    to zero by the densification, so that test never fires; it is left out here.)
+
+    ``carry``: other per-gaussian tensors [N, ...] (e.g. static flags) that follow the rows:
+    a clone or a split child gets its parent's row. Returns them renumbered like the model."""
     grads = torch.where(denom > 0, grad_accum / denom.clamp_min(1), torch.zeros_like(grad_accum))
     big = g.scales.max(dim=1).values > cfg.percent_dense * extent
     cand = grads >= cfg.densify_grad_threshold
@@ -91,6 +95,7 @@ def densify_and_prune(g: GaussianModel, opt, cfg: ReconstructionConfig, grad_acc
     n0 = g.num_gaussians
     g.clone_gaussians(clone, opt)
     split = torch.cat([split, torch.zeros(g.num_gaussians - n0, dtype=torch.bool, device=split.device)])
+    n1 = g.num_gaussians
     g.split_gaussians(split, opt, n=2, generator=gen)
     prune = g.opacities < cfg.min_opacity
     if prune_large:
@@ -98,6 +103,16 @@ def densify_and_prune(g: GaussianModel, opt, cfg: ReconstructionConfig, grad_acc
     if bool(prune.all()):
         prune[torch.argmax(g.opacities)] = False  # never delete every gaussian
     g.prune(~prune, opt)
+    if carry is None:
+        return None
+    out = {}
+    for name, t in carry.items():  # the same row operations, in the same order
+        t = torch.cat([t, t[clone]])
+        t = torch.cat([t, t[split].repeat((2,) + (1,) * (t.dim() - 1))])  # split_gaussians' n = 2 children
+        keep = torch.ones(t.shape[0], dtype=torch.bool, device=t.device)
+        keep[:n1][split] = False
+        out[name] = t[keep][~prune]
+    return out
 
 
 @dataclasses.dataclass
@@ -147,21 +162,24 @@ class DensifyStrategy:
 
     @torch.no_grad()
     def step_post_backward(self, step: int, gaussians: GaussianModel, optimizer, out: RenderOutput,
-                           means: torch.Tensor, camera: Camera, generator: torch.Generator) -> None:
+                           means: torch.Tensor, camera: Camera, generator: torch.Generator,
+                           carry: dict[str, torch.Tensor] | None = None) -> dict[str, torch.Tensor] | None:
         """Accumulate this view's statistic; on the schedule densify and prune (through
         ``optimizer``, whose moments follow the gaussians) and reset the opacities.
-        ``means`` [N, 3]: the deformed means the view was rendered with."""
+        ``means`` [N, 3]: the deformed means the view was rendered with. ``carry``: other
+        per-gaussian tensors, returned renumbered like the gaussians (``densify_and_prune``)."""
         cfg = self.cfg
         if step >= cfg.densify_until:
-            return
+            return carry
         self._accumulate(gaussians, out, means, camera)
         if step > cfg.densify_from and step % cfg.densify_interval == 0:
             prune_large = step > cfg.opacity_reset_interval
-            densify_and_prune(gaussians, optimizer, cfg, self.grad_accum, self.denom, self.extent,
-                              prune_large, generator)
+            carry = densify_and_prune(gaussians, optimizer, cfg, self.grad_accum, self.denom, self.extent,
+                                      prune_large, generator, carry)
             self.initialize_state(gaussians.num_gaussians, self.grad_accum.device)
         if step % cfg.opacity_reset_interval == 0 or (cfg.white_background and step == cfg.densify_from):
             gaussians.reset_opacity(optimizer)
+        return carry
 
     def _accumulate(self, gaussians: GaussianModel, out: RenderOutput, means: torch.Tensor,
                     camera: Camera) -> None:

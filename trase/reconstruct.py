@@ -162,6 +162,22 @@ class _Trainer:
     # (iteration, loss [], squared error []) of the steps not yet folded into the smoothed
     # values: read from the device only when the log or a checkpoint needs them (``fold``)
     pending: list = dataclasses.field(default_factory=list)
+    # static gaussians (trase.static_gaussians; None until the first check): [N] bool and
+    # their frozen offsets [N, 10]
+    static: torch.Tensor | None = None
+    frozen: torch.Tensor | None = None
+
+    def deformation(self):
+        """What renders this step: the network, or the network for the moving gaussians only."""
+        if self.deform is None or self.static is None or not bool(self.static.any()):
+            return self.deform
+        from trase.static_gaussians import PartlyStaticDeformation
+
+        return PartlyStaticDeformation(self.deform, self.static, self.frozen)
+
+    @property
+    def n_static(self) -> int:
+        return 0 if self.static is None else int(self.static.sum())
 
     def fold(self) -> None:
         """The pending steps' loss and PSNR folded into ema_loss / ema_psnr, in order: one
@@ -187,6 +203,7 @@ class _Trainer:
             "rng": self.gen.get_state(),
             "view_stack": torch.tensor(self.view_stack, dtype=torch.int64),
             "ema_loss": self.ema_loss, "ema_psnr": self.ema_psnr,
+            **({} if self.static is None else {"static": self.static.cpu(), "frozen": self.frozen.cpu()}),
         }
 
 
@@ -219,6 +236,10 @@ def _resumed_trainer(out_dir: Path, start: int, cfg: ReconstructionConfig, dev,
     """The run saved at iteration ``start``: its model and its trainer state (CheckpointError
     when either is missing, unreadable or incomplete)."""
     gaussians, deform = load_model(out_dir, start)
+    from trase.static_gaussians import PartlyStaticDeformation
+
+    if isinstance(deform, PartlyStaticDeformation):
+        deform = deform.net  # its static rows come back with the trainer state
     if deform is None and not static:
         raise CheckpointError(f"{out_dir}: checkpoint {start} has no deformation network to resume")
     if deform is not None and static:
@@ -246,14 +267,17 @@ def _resumed_trainer(out_dir: Path, start: int, cfg: ReconstructionConfig, dev,
     if opt_d is not None:
         opt_d.load_state_dict(state["opt_d"])
     gen.set_state(state["rng"])
-    return _Trainer(gaussians, deform, opt_g, opt_d, strategy, gen, [int(i) for i in state["view_stack"]],
-                    float(state["ema_loss"]), float(state["ema_psnr"]))
+    tr = _Trainer(gaussians, deform, opt_g, opt_d, strategy, gen, [int(i) for i in state["view_stack"]],
+                  float(state["ema_loss"]), float(state["ema_psnr"]))
+    if "static" in state:
+        tr.static, tr.frozen = state["static"].to(dev), state["frozen"].to(dev)
+    return tr
 
 
 def _save(tr: _Trainer, out_dir: Path, it: int, cfg: ReconstructionConfig) -> None:
     """Trainer state, then the model in the public layout (its PLY last: marks it complete)."""
     atomic_torch_save(tr.state_dict(it), _state_path(out_dir, it))
-    save_model(out_dir, tr.gaussians, tr.deform, it, white_background=cfg.white_background)
+    save_model(out_dir, tr.gaussians, tr.deformation(), it, white_background=cfg.white_background)
 
 
 def reconstruct(
@@ -308,7 +332,7 @@ def _reconstruct(views, points, point_colors, config, out_dir, resume, progress,
     _train(tr, data, bg, cfg, out_dir, start, progress, backend, max_seconds)
     if tr.deform is not None:
         tr.deform.eval()
-    return tr.gaussians, tr.deform
+    return tr.gaussians, tr.deformation()
 
 
 def _train(tr: _Trainer, data: ImageCache, bg: torch.Tensor, cfg: ReconstructionConfig, out_dir: Path,
@@ -326,16 +350,41 @@ def _train(tr: _Trainer, data: ImageCache, bg: torch.Tensor, cfg: Reconstruction
                 if it % cfg.log_interval == 0 or it == cfg.iterations:
                     tr.fold()
                     n = tr.gaussians.num_gaussians
-                    bar.update(it, f"loss {tr.ema_loss:.4f}  psnr {tr.ema_psnr:.2f} dB  N={n}")
-                    log.write(it, tr.ema_loss, tr.ema_psnr, n, time.perf_counter() - t0, time.process_time() - c0)
-                tr.strategy.step_post_backward(it, tr.gaussians, tr.opt_g, step.out, step.means, step.camera,
-                                               tr.gen)
+                    static = f"  static {tr.n_static / max(n, 1):.0%}" if tr.static is not None else ""
+                    bar.update(it, f"loss {tr.ema_loss:.4f}  psnr {tr.ema_psnr:.2f} dB  N={n}{static}")
+                    log.write(it, tr.ema_loss, tr.ema_psnr, n, time.perf_counter() - t0, time.process_time() - c0,
+                              tr.n_static)
+                carry = None if tr.static is None else {"static": tr.static, "frozen": tr.frozen}
+                carry = tr.strategy.step_post_backward(it, tr.gaussians, tr.opt_g, step.out, step.means, step.camera,
+                                                       tr.gen, carry)
+                if carry is not None:
+                    tr.static, tr.frozen = carry["static"], carry["frozen"]
                 _optimizer_step(tr, step.use_deform)
+                _check_static(tr, it, cfg, data)
             if _checkpoint(tr, out_dir, it, cfg, t0, max_seconds):
                 break
     finally:
         bar.close()
         log.close()
+
+
+def _check_static(tr: _Trainer, it: int, cfg: ReconstructionConfig, data: ImageCache) -> None:
+    """On the schedule (``static_*`` settings), re-measure which gaussians move: the still ones
+    skip the network from the next step, the ones that move again are woken up."""
+    if cfg.static_threshold <= 0 or tr.deform is None:
+        return
+    first = cfg.warm_up + cfg.static_from
+    if it < first or (it - first) % cfg.static_interval != 0:
+        return
+    from trase.static_gaussians import FROZEN_WIDTH, check_times, update_static
+
+    g = tr.gaussians
+    if tr.static is None:
+        tr.static = torch.zeros(g.num_gaussians, dtype=torch.bool, device=g.means.device)
+        tr.frozen = torch.zeros(g.num_gaussians, FROZEN_WIDTH, device=g.means.device)
+    times = check_times([c.time for c in data.cameras])
+    tr.static, tr.frozen, _ = update_static(tr.deform, g.means.detach(), g.scales.detach(), times,
+                                            tr.strategy.extent, cfg.static_threshold, tr.static, tr.frozen)
 
 
 def _checkpoint(tr: _Trainer, out_dir: Path, it: int, cfg: ReconstructionConfig, t0: float,
@@ -394,7 +443,7 @@ def _forward_backward(tr: _Trainer, it: int, data: ImageCache, bg: torch.Tensor,
     if use_deform:
         noise = float(torch.randn(1, generator=tr.gen))
         offset = noise * time_noise_scale(it, cfg) / n_views
-    out, means_t = render_view(tr.gaussians, tr.deform, cam, bg, backend, offset, use_deform,
+    out, means_t = render_view(tr.gaussians, tr.deformation(), cam, bg, backend, offset, use_deform,
                                visible_only=cfg.deform_visible_only)
     tr.strategy.step_pre_backward(out, means_t)
     image = out.color  # [H, W, 3]

@@ -73,6 +73,14 @@ class ReconstructionConfig:
     # only when a camera sees a small part of the scene. Measured on the synthetic HyperNeRF
     # scene (30k gaussians, 80-85% of them in view): 353 ms per step against 302 ms without.
     deform_visible_only: bool = False
+    # static gaussians skip the network (trase.static_gaussians): from warm_up + static_from,
+    # every static_interval iterations, gaussians whose offsets move less than static_threshold
+    # over the scene's times (positions as a fraction of the scene extent, rotations and scales
+    # as fractions) are frozen at their mean offsets and the network runs for the others only;
+    # a gaussian whose motion rises again is woken up. 0 = off (the public code)
+    static_threshold: float = 0.0
+    static_from: int = 1_000
+    static_interval: int = 500
     # torch intra-op threads while training (the deformation network; the rasterizer runs on
     # numba's own threads)
     torch_threads: int = 1
@@ -106,6 +114,9 @@ class ReconstructionConfig:
         deform_shape(self.deform_preset)  # a bad name fails here, not after the warm-up
         if self.deform_scale_rule not in ("mirror", "clamp"):
             raise ValueError(f"deform_scale_rule must be mirror or clamp, got {self.deform_scale_rule!r}")
+        if self.static_threshold < 0 or self.static_interval < 1 or self.static_from < 0:
+            raise ValueError("static_threshold must be >= 0, static_interval >= 1 and static_from >= 0, got "
+                             f"{self.static_threshold}, {self.static_interval}, {self.static_from}")
         if self.densify_statistic not in DENSIFY_STATISTICS:
             raise ValueError(f"densify_statistic must be one of {', '.join(DENSIFY_STATISTICS)}, "
                              f"got {self.densify_statistic!r}")

@@ -9,9 +9,11 @@ from pathlib import Path
 class TrainLog:
     """train_log.csv: iteration, smoothed loss and training PSNR, gaussian count, seconds
     since this (possibly resumed) run started, and the process CPU seconds over the same span
-    (all threads; on a busy shared machine it is the fairer measure of the work done). Rows past a resumed checkpoint are dropped."""
+    (all threads; on a busy shared machine it is the fairer measure of the work done), and how
+    many gaussians are static (skip the deformation network, ``trase.static_gaussians``). Rows
+    past a resumed checkpoint are dropped."""
 
-    HEADER = "iteration,loss,psnr,num_gaussians,seconds,cpu_seconds\n"
+    HEADER = "iteration,loss,psnr,num_gaussians,seconds,cpu_seconds,static_gaussians\n"
 
     def __init__(self, path: Path, start: int) -> None:
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -25,8 +27,8 @@ class TrainLog:
         self.f.write(self.HEADER + "".join(rows))
         self.f.flush()
 
-    def write(self, it: int, loss: float, psnr_db: float, n: int, seconds: float, cpu: float) -> None:
-        self.f.write(f"{it},{loss:.6f},{psnr_db:.4f},{n},{seconds:.2f},{cpu:.2f}\n")
+    def write(self, it: int, loss: float, psnr_db: float, n: int, seconds: float, cpu: float, static: int = 0) -> None:
+        self.f.write(f"{it},{loss:.6f},{psnr_db:.4f},{n},{seconds:.2f},{cpu:.2f},{static}\n")
         self.f.flush()
 
     def close(self) -> None:

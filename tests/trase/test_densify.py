@@ -199,3 +199,33 @@ def test_strategy_state_round_trips_through_a_trainer_state_file(tmp_path):
     assert fresh.denom.max() == 2
     with pytest.raises(ValueError, match=f"trainer state is for {g.num_gaussians} gaussians, the point cloud has 3"):
         fresh.load_state_dict(back, 3, "cpu")
+
+
+def test_rows_carried_through_densification_follow_their_gaussians():
+    """Clones and split children get their parent's row of a carried tensor (static flags),
+    pruned gaussians lose theirs."""
+    from trase.reconstruct import _make_optimizers
+
+    rng = np.random.default_rng(1)
+    pts = rng.uniform(-1, 1, (60, 3))
+    g = GaussianModel.from_points(pts, None, sh_degree=0)
+    with torch.no_grad():
+        g.log_scales[:30] = -8.0  # small: cloned; the others large: split
+        g.opacity_logits[::7] = -20.0  # transparent: pruned
+    cfg = ReconstructionConfig.cpu(min_opacity=0.005)
+    opt, _ = _make_optimizers(g, DeformMLP.preset("small"), cfg)
+    before_means, before_scales = g.means.detach().clone(), g.log_scales.detach().clone()
+    grads = torch.zeros(60)
+    grads[10:50] = 1.0  # candidates: 10..29 cloned, 30..49 split
+    carry = {"id": torch.arange(60), "frozen": torch.arange(60).float()[:, None].repeat(1, 10)}
+    out = densify_and_prune(g, opt, cfg, grads, torch.ones(60), 1.0, False, torch.Generator().manual_seed(0), carry)
+    ids = out["id"]
+    assert ids.shape[0] == g.num_gaussians and torch.equal(out["frozen"][:, 0].long(), ids)
+    assert not bool(torch.isin(ids, torch.arange(0, 60, 7)).any())  # the pruned rows are gone
+    for row, k in enumerate(ids.tolist()):
+        if 30 <= k < 50:  # a split child: its parent's scale / 1.6, near its parent
+            assert torch.allclose(g.log_scales[row], before_scales[k] - np.log(1.6), atol=1e-5)
+        else:  # kept or cloned: unchanged
+            assert torch.equal(g.means[row], before_means[k])
+    counts = torch.bincount(ids, minlength=60)
+    assert all(counts[k] == 2 for k in range(10, 50) if k % 7)  # two rows each: original + clone, or 2 children

@@ -9,9 +9,9 @@ def test_train_log_keeps_rows_up_to_the_resumed_iteration(tmp_path):
     for it in (10, 20, 30):
         log.write(it, 0.5, 20.0, 100, 1.0, 2.0)
     log.close()
-    assert path.read_text().splitlines()[1] == "10,0.500000,20.0000,100,1.00,2.00"
+    assert path.read_text().splitlines()[1] == "10,0.500000,20.0000,100,1.00,2.00,0"
     TrainLog(path, 20).close()  # resumed from iteration 20: row 30 is gone
-    assert path.read_text() == TrainLog.HEADER + "10,0.500000,20.0000,100,1.00,2.00\n20,0.500000,20.0000,100,1.00,2.00\n"
+    assert path.read_text() == TrainLog.HEADER + "10,0.500000,20.0000,100,1.00,2.00,0\n20,0.500000,20.0000,100,1.00,2.00,0\n"
     TrainLog(path, 0).close()  # a fresh run starts a fresh log
     assert path.read_text() == TrainLog.HEADER
 

@@ -64,7 +64,7 @@ class EditableModel:
 
 
 def subset_deformation(deformation, mask: np.ndarray):
-    """The deformation of the gaussians in ``mask``: per-row tables keep their rows; a
-    network (which sees positions, not indices) is shared unchanged."""
-    rows = getattr(deformation, "rows", None)
-    return deformation if rows is None else rows(torch.from_numpy(np.asarray(mask, bool)))
+    """The deformation of the gaussians in ``mask`` (``trase.deformation.deformation_rows``)."""
+    from trase.deformation import deformation_rows
+
+    return deformation_rows(deformation, np.asarray(mask, bool))

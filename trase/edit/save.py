@@ -48,8 +48,11 @@ def bake(model: EditableModel, times: Sequence[float]) -> TabulatedDeformation:
 def save_edited(model: EditableModel, out_dir: str | Path, times: Sequence[float] | None = None) -> Path:
     """Write ``model`` (see the module doc); ``times`` are needed when its motion must be baked."""
     out = Path(out_dir)
+    from trase.static_gaussians import PartlyStaticDeformation
+
     deformation = model.deformation
-    if deformation is not None and not isinstance(deformation, (DeformMLP, TabulatedDeformation)):
+    savable = (DeformMLP, TabulatedDeformation, PartlyStaticDeformation)  # row-aligned or row-free: as they are
+    if deformation is not None and not isinstance(deformation, savable):
         if times is None:
             raise EditError("this edited scene's motion (a composition) must be tabulated: give the times to bake")
         deformation = bake(model, times)

@@ -1,0 +1,143 @@
+"""Static gaussians skip the deformation network: the partly static deformation against the
+full network, the motion measure, waking up, and the trainer with them (densified children,
+checkpoints, resume)."""
+
+import csv
+import dataclasses
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).parent))
+
+import pytest
+import torch
+from recon_scene import write_scene
+
+from trase.checkpoint import load_model
+from trase.deformation import DeformMLP, deformed, deformed_visible
+from trase.reconstruct import ReconstructionConfig, evaluate_psnr, reconstruct
+from trase.static_gaussians import PartlyStaticDeformation, check_times, motion, update_static
+
+
+class SideWays(torch.nn.Module):
+    """Gaussians with x > 0 move by ``speed`` t along y; the others sit at a fixed offset."""
+
+    def __init__(self, speed: float = 0.3) -> None:
+        super().__init__()
+        self.speed = torch.nn.Parameter(torch.tensor(speed))
+
+    def forward(self, xyz, t):
+        n = xyz.shape[0]
+        d_xyz = torch.zeros(n, 3) + 0.01
+        d_xyz[:, 1] = d_xyz[:, 1] + torch.where(xyz[:, 0] > 0, self.speed * float(t), 0.0)
+        return d_xyz, torch.zeros(n, 4), torch.zeros(n, 3)
+
+
+def _xyz(n=40):
+    return torch.linspace(-1, 1, n)[:, None] * torch.tensor([[1.0, 0.5, 0.2]])
+
+
+def test_partly_static_matches_the_network_on_moving_rows_and_freezes_the_others():
+    net, xyz = SideWays(), _xyz()
+    scales = torch.full((40, 3), 0.05)
+    times = check_times([0.0, 0.25, 0.5, 0.75, 1.0, 1.0])
+    assert times == [0.0, 0.25, 0.5, 0.75, 1.0]
+    mv, mean = motion(net, xyz, scales, times, extent=1.0)
+    assert torch.all(mv[xyz[:, 0] <= 0] == 0) and torch.all(mv[xyz[:, 0] > 0] > 0.1)
+    static, frozen, counts = update_static(net, xyz, scales, times, 1.0, 1e-3, torch.zeros(40, dtype=torch.bool),
+                                           torch.zeros(40, 10))
+    assert torch.equal(static, xyz[:, 0] <= 0) and counts == {"static": 20, "newly": 20, "woken": 0}
+    d = PartlyStaticDeformation(net, static, frozen)
+    for t in (0.0, 0.6, 1.0):
+        a, b = d(xyz, t), net(xyz, t)
+        for x, y in zip(a, b):  # exact: the static rows' offsets did not change with time
+            assert torch.equal(x, y)
+    # rows: what edits and the visible-only pass evaluate
+    keep = torch.arange(40) % 3 == 0
+    sub = d.rows(keep)
+    assert all(torch.equal(x, y[keep]) for x, y in zip(sub(xyz[keep], 0.6), d(xyz, 0.6)))
+    # gradients reach the network through the moving rows only
+    out = d(xyz, 1.0)[0].sum()
+    out.backward()
+    assert net.speed.grad == pytest.approx(20.0)
+
+
+def test_a_static_gaussian_that_starts_to_move_is_woken_up():
+    net, xyz, scales = SideWays(speed=0.0), _xyz(), torch.full((40, 3), 0.05)
+    times = [0.0, 0.5, 1.0]
+    static, frozen, c = update_static(net, xyz, scales, times, 1.0, 1e-3, torch.zeros(40, dtype=torch.bool),
+                                      torch.zeros(40, 10))
+    assert c["static"] == 40
+    with torch.no_grad():
+        net.speed.fill_(0.3)  # the right half moves now (the network learned it from its neighbours)
+    static, frozen2, c = update_static(net, xyz, scales, times, 1.0, 1e-3, static, frozen)
+    assert c == {"static": 20, "newly": 0, "woken": 20} and torch.equal(static, xyz[:, 0] <= 0)
+    assert torch.equal(frozen2[static], frozen[static])  # the still ones keep their frozen offsets
+
+
+def test_visible_only_pass_takes_the_rows_of_a_partly_static_deformation():
+    from trase.gaussians import GaussianModel
+
+    g = GaussianModel(_xyz(), torch.full((40, 3), -3.0), torch.tensor([[1.0, 0, 0, 0]]).repeat(40, 1),
+                      torch.zeros(40), torch.zeros(40, 3))
+    net = SideWays()
+    static, frozen, _ = update_static(net, g.means, g.scales, [0.0, 1.0], 1.0, 1e-3,
+                                      torch.zeros(40, dtype=torch.bool), torch.zeros(40, 10))
+    d = PartlyStaticDeformation(net, static, frozen)
+    visible = lambda m, q, s: m[:, 1] > -0.2
+    a = deformed_visible(g, d, 0.7, visible)
+    b = deformed(g, d, 0.7)
+    assert all(torch.allclose(x, y) for x, y in zip(a, b))
+
+
+CFG = ReconstructionConfig.cpu(
+    iterations=40, warm_up=10, densify_from=5, densify_until=35, densify_interval=10,
+    checkpoint_interval=20, time_noise_steps=40, position_lr_max_steps=40, deform_lr_max_steps=40,
+    static_threshold=0.05, static_from=5, static_interval=10,
+)
+
+
+def test_training_with_static_gaussians_saves_reloads_and_resumes(tmp_path):
+    views, pts, _, _ = write_scene(tmp_path / "images", num=6, size=24)
+    g, d = reconstruct(views, pts, None, CFG, tmp_path / "full", progress=False)
+    assert isinstance(d, PartlyStaticDeformation) and d.num_gaussians == g.num_gaussians
+    assert 0 < int(d.static.sum()) <= g.num_gaussians
+    rows = list(csv.DictReader((tmp_path / "full" / "train_log.csv").open()))
+    assert int(rows[-1]["static_gaussians"]) == int(d.static.sum()) and int(rows[0]["static_gaussians"]) == 0
+    g2, d2 = load_model(tmp_path / "full")
+    assert isinstance(d2, PartlyStaticDeformation) and torch.equal(d2.static, d.static)
+    assert evaluate_psnr(g2, d2, views) == pytest.approx(evaluate_psnr(g, d, views), abs=1e-6)
+    # stopped at the first checkpoint, resumed: where the whole run lands
+    reconstruct(views, pts, None, dataclasses.replace(CFG, iterations=20), tmp_path / "split", progress=False)
+    g3, d3 = reconstruct(views, pts, None, CFG, tmp_path / "split", progress=False)
+    assert g3.num_gaussians == g.num_gaussians and torch.equal(d3.static, d.static)
+    assert torch.allclose(g3.means, g.means, atol=1e-4)
+    # off (the default): no static rows, a plain network
+    _, plain = reconstruct(views, pts, None, dataclasses.replace(CFG, static_threshold=0.0), tmp_path / "off",
+                           progress=False)
+    assert isinstance(plain, DeformMLP)
+
+
+def test_an_edit_of_a_partly_static_model_keeps_its_rows(tmp_path):
+    import numpy as np
+
+    from trase.edit.model import EditableModel
+    from trase.edit.save import load_edited, save_edited
+    from trase.gaussians import GaussianModel
+
+    g = GaussianModel(_xyz(), torch.full((40, 3), -3.0), torch.tensor([[1.0, 0, 0, 0]]).repeat(40, 1),
+                      torch.zeros(40), torch.zeros(40, 3))
+    net = DeformMLP.preset("small")
+    static, frozen, _ = update_static(net, g.means, g.scales, [0.0, 1.0], 1.0, 1e9,  # everything still
+                                      torch.zeros(40, dtype=torch.bool), torch.zeros(40, 10))
+    static[::2] = False
+    model = EditableModel(g, PartlyStaticDeformation(net, static, frozen), np.zeros(40, int), np.ones(40, bool))
+    keep = np.arange(40) % 3 != 0
+    part = model.subset(keep)
+    save_edited(part, tmp_path / "e")
+    back = load_edited(tmp_path / "e")
+    assert isinstance(back.deformation, PartlyStaticDeformation)
+    assert torch.equal(back.deformation.static, static[torch.from_numpy(keep)])
+    a = deformed(back.gaussians, back.deformation, 0.3)
+    b = deformed(part.gaussians, part.deformation, 0.3)
+    assert all(torch.allclose(x, y, atol=1e-6) for x, y in zip(a, b))

@@ -1,0 +1,125 @@
+"""Gaussians that do not move skip the deformation network.
+
+Most of a dynamic scene (walls, floor, table) does not move, yet Deformable-3DGS evaluates its
+network over every gaussian at every step, which is most of a CPU step. Here a trained
+network's motion is measured per gaussian over the scene's times (``motion``: how far its
+offsets move from their mean over time, in the scene's units); gaussians below a threshold
+become static: their offsets are frozen at that mean, and ``PartlyStaticDeformation``
+evaluates the network for the others only. Training re-measures at intervals, so a gaussian
+that starts to move is woken up (``update_static``); densified children inherit the flag
+with their parent's row (``trase.densify``'s row carry).
+
+Shapes: ``static`` [N] bool, ``frozen`` [N, 10] = d_xyz 3 | d_rot 4 | d_scale 3.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from trase.deformation import deformation_rows
+
+FROZEN_WIDTH = 10  # d_xyz 3, d_rot 4, d_scale 3
+
+
+def split_offsets(frozen: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """[N, 10] -> d_xyz [N, 3], d_rot [N, 4], d_scale [N, 3]."""
+    return frozen[:, :3], frozen[:, 3:7], frozen[:, 7:]
+
+
+class PartlyStaticDeformation(nn.Module):
+    """A deformation whose static rows keep frozen offsets; the network runs on the others.
+    Row-aligned with its gaussians (``rows`` subsets it, as edits and the visible-only
+    training pass do); the network itself is shared, not copied."""
+
+    def __init__(self, net: nn.Module, static: torch.Tensor, frozen: torch.Tensor) -> None:
+        super().__init__()
+        if static.dim() != 1 or frozen.shape != (static.shape[0], FROZEN_WIDTH):
+            raise ValueError(f"static must be [N] and frozen [N, {FROZEN_WIDTH}], got {tuple(static.shape)} "
+                             f"and {tuple(frozen.shape)}")
+        self.net = net
+        self.register_buffer("static", static.to(torch.bool))
+        self.register_buffer("frozen", frozen.to(torch.float32))
+
+    @property
+    def scale_rule(self) -> str | None:
+        return getattr(self.net, "scale_rule", None)
+
+    @property
+    def num_gaussians(self) -> int:
+        return int(self.static.shape[0])
+
+    def rows(self, mask) -> PartlyStaticDeformation:
+        m = torch.as_tensor(mask, dtype=torch.bool, device=self.static.device)
+        return PartlyStaticDeformation(self.net, self.static[m], self.frozen[m])
+
+    def forward(self, xyz: torch.Tensor, t) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        if xyz.shape[0] != self.num_gaussians:
+            raise ValueError(f"PartlyStaticDeformation holds {self.num_gaussians} gaussians, got xyz for "
+                             f"{xyz.shape[0]}")
+        frozen = self.frozen.to(device=xyz.device, dtype=xyz.dtype)
+        moving = torch.nonzero(~self.static.to(xyz.device)).reshape(-1)  # [M]
+        if moving.numel() == self.num_gaussians:
+            return self.net(xyz, t)
+        d_xyz, d_rot, d_scale = split_offsets(frozen)
+        if moving.numel() == 0:
+            return d_xyz, d_rot, d_scale
+        m_xyz, m_rot, m_scale = self.net(xyz[moving], t)  # [M, 3], [M, 4], [M, 3]
+        return d_xyz.index_copy(0, moving, m_xyz), d_rot.index_copy(0, moving, m_rot), \
+            d_scale.index_copy(0, moving, m_scale)
+
+
+@torch.no_grad()
+def offsets_over_time(net: nn.Module, xyz: torch.Tensor, times: list[float]) -> torch.Tensor:
+    """The network's offsets of every gaussian at each time -> [T, N, 10]."""
+    return torch.stack([torch.cat(net(xyz, float(t)), dim=1) for t in times])
+
+
+@torch.no_grad()
+def motion(net: nn.Module, xyz: torch.Tensor, scales: torch.Tensor, times: list[float],
+           extent: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """How much each gaussian moves over ``times`` -> (motion [N], mean offsets [N, 10]).
+
+    motion = the largest, over times, of: the position's distance from its mean offset as a
+    fraction of the scene extent, the rotation offset's distance from its mean (the quaternion
+    is added to a unit quaternion: a fraction of it), and the scale offset's distance from its
+    mean as a fraction of the gaussian's largest scale. A gaussian below a threshold t moves
+    less than t x extent and turns and grows by less than a fraction t."""
+    off = offsets_over_time(net, xyz, times)  # [T, N, 10]
+    mean = off.mean(0)  # [N, 10]
+    dev = off - mean[None]
+    pos = dev[..., :3].norm(dim=-1).amax(0) / max(float(extent), 1e-12)
+    rot = dev[..., 3:7].norm(dim=-1).amax(0)
+    scl = dev[..., 7:].norm(dim=-1).amax(0) / scales.detach().amax(dim=1).clamp_min(1e-12)
+    return torch.maximum(torch.maximum(pos, rot), scl), mean
+
+
+@torch.no_grad()
+def update_static(net: nn.Module, xyz: torch.Tensor, scales: torch.Tensor, times: list[float], extent: float,
+                  threshold: float, static: torch.Tensor, frozen: torch.Tensor
+                  ) -> tuple[torch.Tensor, torch.Tensor, dict]:
+    """Re-measure every gaussian: moving ones below ``threshold`` become static with their mean
+    offsets frozen; static ones whose network motion rose above it wake up (the network then
+    drives them again). A static gaussian that stays static keeps its frozen offsets (the
+    network's output for it is no longer trained, so only its motion over time is read).
+    -> (static [N], frozen [N, 10], counts)."""
+    mv, mean = motion(net, xyz, scales, times, extent)
+    still = mv < threshold
+    newly = still & ~static
+    woken = static & ~still
+    frozen = torch.where(newly[:, None], mean.to(frozen.dtype), frozen)
+    static = (static & still) | newly
+    return static, frozen, {"static": int(static.sum()), "newly": int(newly.sum()), "woken": int(woken.sum())}
+
+
+def check_times(view_times: list[float], n: int = 16) -> list[float]:
+    """Up to ``n`` of the training views' distinct times, evenly spread (the measurement's)."""
+    ts = sorted({round(float(t), 9) for t in view_times})
+    if len(ts) <= n:
+        return ts
+    idx = torch.linspace(0, len(ts) - 1, n).round().long().tolist()
+    return [ts[i] for i in sorted(set(idx))]
+
+
+__all__ = ["FROZEN_WIDTH", "PartlyStaticDeformation", "check_times", "deformation_rows", "motion",
+           "offsets_over_time", "split_offsets", "update_static"]
