@@ -74,9 +74,9 @@ class ReconstructionConfig:
     # scene (30k gaussians, 80-85% of them in view): 353 ms per step against 302 ms without.
     deform_visible_only: bool = False
     # static gaussians skip the network (trase.static_gaussians): from warm_up + static_from,
-    # every static_interval iterations, gaussians whose offsets move less than static_threshold
-    # over the scene's times (positions as a fraction of the scene extent, rotations and scales
-    # as fractions) are frozen at their mean offsets and the network runs for the others only;
+    # every static_interval iterations, gaussians whose centre, size and surface move less than
+    # static_threshold x the scene extent over the scene's times are frozen at their mean
+    # offsets and the network runs for the others only;
     # a gaussian whose motion rises again is woken up. 0 = off (the public code)
     static_threshold: float = 0.0
     static_from: int = 1_000

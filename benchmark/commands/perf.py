@@ -45,7 +45,7 @@ def perf(suites: tuple[str, ...], quick: bool, json_out: str | None, out_dir: st
         takes = [n for n in names if "dataset" in inspect.signature(get_suite(n)).parameters]
         if not takes:
             raise click.UsageError(f"--dataset: none of {', '.join(names)} takes a dataset "
-                                   "(suites that do: reconstruct, captures, methods)")
+                                   "(suites that do: reconstruct, captures, methods, skip)")
     if threads:
         import numba
         import torch

@@ -42,6 +42,9 @@ def run(ctx: SequenceRun) -> list[StageRecord]:
         bg = (1.0, 1.0, 1.0) if geometry.train.white_background else None
         info = {"source": src, "n_gaussians": int(gaussians.num_gaussians), "test_psnr": None,
                 "motion": "dynamic" if deformation is not None else "static (plain 3DGS, no deformation network)"}
+        static = getattr(deformation, "static", None)  # trase.static_gaussians: rows that skip the network
+        if static is not None:
+            info["static_gaussians"] = int(static.sum())
         for split, views in (("test", scene.test), ("validation", scene.validation)):
             if views:
                 m = evaluate_images(gaussians, deformation, views, bg)

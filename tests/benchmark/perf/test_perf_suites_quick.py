@@ -60,6 +60,12 @@ def test_all_suites_quick(tmp_path, monkeypatch, capsys):
     assert r["preset_steps"] > 100 and r["stage_seconds_at_preset_steps"] > 100 * r["per_step_seconds"]
     assert "ms/step" in text
 
+    sk = s["skip"]  # static gaussians on and off
+    assert not sk["failed"] and [r["variant"] for r in sk["runs"]] == ["full", "static"]
+    full, static = sk["runs"]
+    assert full["static_gaussians"] == 0 and static["static_gaussians"] >= 0
+    assert full["seconds"]["geometry"] > 0 and static["seconds"]["geometry"] > 0 and "geometry s vs full" in text
+
     pa = s["pareto"]
     assert not pa["failed"] and len(pa["runs"]) == 2 and pa["pareto_front"]
     assert (tmp_path / "pareto.png").stat().st_size > 1000  # next to the --json file

@@ -1,0 +1,96 @@
+"""What skipping work a scene does not need costs and saves, each skip on and off side by side
+(``trase-bench perf skip``): seconds per stage, test PSNR, geometry ceiling and mIoU.
+
+Skips measured: ``static`` (static gaussians skip the deformation network,
+``geometry.train.static_threshold``). Each format's built-in scene runs the whole pipeline
+(trase, the preset of this machine, reconstructed geometry) once per variant with one stage
+cache per scene, so the variants share the masks and nothing else. One run per variant: no
+spread; the ratios are of runs made one after the other on this machine, so its load is in them.
+"""
+
+from __future__ import annotations
+
+import tempfile
+import time
+import traceback
+from collections.abc import Callable
+from pathlib import Path
+
+from benchmark.perf.common import load_average, table, versions
+
+DATASETS = ["nerfds", "hypernerf", "neu3d", "immersive", "technicolor"]
+STATIC_THRESHOLD = 0.01  # chosen on the seed-1 selection scene of the HyperNeRF format (docs/skip.md)
+STAGES = ("geometry", "features", "fit", "evaluate")
+DEFAULT = {"datasets": DATASETS, "sequence": "synthetic", "overrides": []}
+QUICK = {"datasets": ["hypernerf"], "sequence": "synthetic-tiny",
+         "overrides": ["geometry.train.iterations=60", "geometry.train.warm_up=10", "geometry.train.static_from=10",
+                       "geometry.train.static_interval=20", "method.features.iterations=20"]}
+
+
+def variants(threshold: float) -> dict[str, list[str]]:
+    return {"full": [], "static": [f"geometry.train.static_threshold={threshold}"]}
+
+
+def _figures(rec: dict) -> dict:
+    stages = rec["stages"]
+    geo = stages["geometry"].get("info") or {}
+    return {"seconds": {s: float(stages[s]["seconds"]) for s in STAGES if s in stages},
+            "test_psnr": geo.get("test_psnr"), "gaussians": int(rec["n_gaussians"]),
+            "static_gaussians": geo.get("static_gaussians", 0),
+            "ceiling": (rec.get("ceiling") or {}).get("miou"), "miou": rec["metrics"]["official"]["miou"],
+            "metric": rec["metrics"]["official"]["metric_version"]}
+
+
+def run(quick: bool = False, echo: Callable[[str], None] = print, dataset: str | None = None,
+        overrides: list[str] | None = None) -> dict:
+    from benchmark.perf.pipeline import run_pipeline
+
+    cfg = dict(QUICK if quick else DEFAULT)
+    datasets = [dataset] if dataset else cfg["datasets"]
+    extra = [*cfg["overrides"], *(overrides or [])]
+    vs = variants(STATIC_THRESHOLD)
+    described = ", ".join(f"{k} [{' '.join(v) or 'as the preset'}]" for k, v in vs.items())
+    echo(f"skips on and off, {', '.join(datasets)} ({cfg['sequence']}), trase, settings {' '.join(extra) or '(defaults)'}; "
+         f"variants: {described}")
+    runs, rows = [], []
+    with tempfile.TemporaryDirectory(prefix="trase-perf-skip-") as tmp:
+        for ds in datasets:
+            cache = Path(tmp) / f"cache-{ds}"  # the variants share the scene's masks
+            for name, ov in vs.items():
+                entry = {"dataset": ds, "variant": name, "overrides": [*extra, *ov]}
+                t0 = time.perf_counter()
+                try:
+                    rec = run_pipeline(ds, cfg["sequence"], entry["overrides"], Path(tmp) / f"out-{ds}-{name}", cache)
+                except Exception as exc:  # noqa: BLE001 - reported per run, not hidden
+                    entry |= {"error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc(limit=3)}
+                    runs.append(entry)
+                    rows.append([ds, name, "FAILED", "", "", "", "", "", ""])
+                    continue
+                entry |= _figures(rec) | {"wall_seconds": time.perf_counter() - t0}
+                runs.append(entry)
+                s = entry["seconds"]
+                rows.append([ds, name, f"{s.get('geometry', 0):.0f}", f"{s.get('features', 0):.0f}",
+                             f"{entry['test_psnr']:.2f}" if entry["test_psnr"] is not None else "-",
+                             f"{entry['static_gaussians'] / max(entry['gaussians'], 1):.0%}",
+                             f"{entry['ceiling']:.4f}" if entry["ceiling"] is not None else "-", f"{entry['miou']:.4f}",
+                             _ratio(runs, ds, name)])
+    echo(table(rows, ["format", "variant", "geometry s", "features s", "test PSNR", "static", "ceiling", "mIoU",
+                      "geometry s vs full"]))
+    for r in runs:
+        if "error" in r:
+            echo(f"FAILED {r['dataset']} {r['variant']}: {r['error']}")
+    return {"description": __doc__.strip().splitlines()[0], "quick": quick,
+            "settings": {**cfg, "datasets": datasets, "overrides": extra, "variants": vs},
+            "versions": versions("torch", "numba", "numpy"), "runs": runs,
+            "failed": [f"{r['dataset']} {r['variant']}" for r in runs if "error" in r],
+            "load_average_end": load_average()}
+
+
+def _ratio(runs: list[dict], ds: str, name: str) -> str:
+    if name == "full":
+        return ""
+    by = {r["variant"]: r for r in runs if r["dataset"] == ds and "error" not in r}
+    if "full" not in by or name not in by:
+        return "-"
+    full = by["full"]["seconds"].get("geometry", 0.0)
+    return f"{by[name]['seconds'].get('geometry', 0.0) / full:.2f}" if full > 0 else "-"
