@@ -383,9 +383,11 @@ class SweepTask:
 
 
 # -- submission ---------------------------------------------------------------------------
-def status(spec: SweepSpec, ask_scheduler: bool = True) -> list[tuple[SweepJob, dict]]:
+def status(spec: SweepSpec, ask_scheduler: bool = True, strict: bool = True) -> list[tuple[SweepJob, dict]]:
     """Every job of the spec with its reconciled state, then the jobs of earlier versions of the
-    spec that are still in flight or finished (their state files), marked ``earlier_spec``."""
+    spec that are still in flight or finished (their state files), marked ``earlier_spec``.
+    ``strict``: SLURM not answering is an error (what submission needs: it must not queue a job
+    twice); otherwise the states are the workers' own, with a note saying why."""
     jobs = spec.jobs()
     ids = {j.id for j in jobs}
     earlier = []
@@ -396,9 +398,19 @@ def status(spec: SweepSpec, ask_scheduler: bool = True) -> list[tuple[SweepJob, 
             except (OSError, ValueError, KeyError, TypeError):
                 continue  # a state file of an older layout or unreadable: not this sweep's business
     everything = jobs + earlier
-    view = scheduler_view(spec.target, everything) if ask_scheduler else None
-    out = [(j, read_state(spec.target, j, view)) for j in jobs]
-    return out + [(j, {**read_state(spec.target, j, view), "earlier_spec": True}) for j in earlier]
+    view, why = None, None
+    if ask_scheduler:
+        from benchmark.scheduler import SchedulerError
+
+        try:
+            view = scheduler_view(spec.target, everything)
+        except SchedulerError as exc:
+            if strict:
+                raise
+            why = f"SLURM not asked: {exc}"
+    note = (lambda st: {**st, "note": why} if why and st.get("executor") == "slurm" else st)
+    out = [(j, note(read_state(spec.target, j, view))) for j in jobs]
+    return out + [(j, {**note(read_state(spec.target, j, view)), "earlier_spec": True}) for j in earlier]
 
 
 def pending_jobs(spec: SweepSpec, states: list[tuple[SweepJob, dict]] | None = None) -> list[SweepJob]:

@@ -119,7 +119,10 @@ def sweep_status(spec_path, table) -> None:
 
     spec = load_spec(spec_path)
     counts: dict[str, int] = {}
-    for job, st in status(spec):
+    notes = set()
+    for job, st in status(spec, strict=False):
+        if st.get("note"):
+            notes.add(st["note"])
         state = st["state"]
         counts[state] = counts.get(state, 0) + 1
         line = f"{job.id:<66} {state}"
@@ -139,6 +142,8 @@ def sweep_status(spec_path, table) -> None:
             line += "  (not in the spec now: submitted by an earlier version)"
         click.echo(line)
     click.echo(", ".join(f"{n} {k}" for k, n in sorted(counts.items())))
+    for n in sorted(notes):
+        click.echo(f"note: {n}")
     if table:
         from benchmark.sweep import results_table
 

@@ -73,3 +73,21 @@ def test_ids_come_from_content_and_survive_the_trip_through_a_state_file(tmp_pat
     assert JOB.id.startswith("trase-hypernerf-synthetic-main-s0-")
     target = SweepTarget.from_dict(SweepTarget("s", tmp_path, None, tmp_path / "c").to_dict())
     assert target.cache_root == tmp_path / "c" and target.state_dir == tmp_path / ".sweep" / "s"
+
+
+def test_status_without_slurm_says_so_and_submission_refuses(tmp_path, monkeypatch, capsys):
+    from benchmark.cli import main
+    from benchmark.sweep import load_spec
+
+    spec_path = tmp_path / "s.toml"
+    spec_path.write_text('methods = ["trase"]\ndatasets = ["hypernerf"]\n[sequences]\nhypernerf = ["synthetic-tiny"]\n'
+                         '[executor]\nkind = "slurm"\n')
+    spec = load_spec(spec_path)
+    (job,) = spec.jobs()
+    write_state(spec, job, state="submitted", executor="slurm", scheduler_id="12_0")
+    monkeypatch.setenv("PATH", str(tmp_path / "nothing-here"))  # no scontrol, no sbatch
+    assert main(["sweep-status", str(spec_path)]) == 0
+    out = capsys.readouterr().out
+    assert " queued " in out and "note: SLURM not asked: scontrol not found" in out
+    assert main(["sweep", str(spec_path), "--no-wait"]) == 1
+    assert "scontrol not found" in capsys.readouterr().err
