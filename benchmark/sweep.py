@@ -280,6 +280,8 @@ def read_state(target, job: SweepJob, scheduler: dict | None = None) -> dict:
         return {**st, "state": "lost", "error": "it never started and its scheduler no longer holds it"}
     if alive is False:
         return {**st, "state": "died", "error": st.get("error") or "the worker stopped without a word (killed?)"}
+    if sched is not None and st.get("executor") == "slurm" and alive is not True:
+        return {**st, "state": "lost", "error": "SLURM no longer holds the job its worker said was running"}
     return st
 
 

@@ -46,6 +46,7 @@ JOB = SweepJob("trase", "hypernerf", None, "main", ("preset=cpu",), 0)
     ("submitted", SchedulerJob("unknown", "UNKNOWN"), "lost"),
     ("submitted", SchedulerJob("failed", "FAILED", exit_code="1:0"), "died"),
     ("running", SchedulerJob("queued", "PENDING", "BeginTime"), "requeued"),
+    ("running", SchedulerJob("unknown", "UNKNOWN"), "lost"),
     ("running", SchedulerJob("requeued", "PENDING", "JobHeldUser", restarts=1), "requeued"),
     ("running", SchedulerJob("timed out", "TIMEOUT"), "timed out"),
     ("running", SchedulerJob("preempted", "PREEMPTED"), "cancelled"),
@@ -62,7 +63,7 @@ def test_a_jobs_state_is_reconciled_with_the_schedulers(tmp_path: Path, written,
     st = read_state(target, JOB, {"5_0": scheduler})
     assert st["state"] == expected
     if expected == "lost":
-        assert "no longer holds it" in st["error"]
+        assert "no longer holds" in st["error"]
     elif expected not in ("done", "failed"):
         assert st["scheduler"].startswith(f"SLURM: {scheduler.raw}")
 
