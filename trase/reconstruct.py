@@ -169,7 +169,7 @@ class _Trainer:
 
     def deformation(self):
         """What renders this step: the network, or the network for the moving gaussians only."""
-        if self.deform is None or self.static is None or not bool(self.static.any()):
+        if self.deform is None or self.static is None:  # static rows not measured yet
             return self.deform
         from trase.static_gaussians import PartlyStaticDeformation
 

@@ -6,10 +6,13 @@ network's motion is measured per gaussian over the scene's times (``motion``: ho
 offsets move from their mean over time, in the scene's units); gaussians below a threshold
 become static: their offsets are frozen at that mean, and ``PartlyStaticDeformation``
 evaluates the network for the others only. Training re-measures at intervals, so a gaussian
-that starts to move is woken up (``update_static``); densified children inherit the flag
-with their parent's row (``trase.densify``'s row carry).
+whose network motion rises well above the threshold (``WAKE_FACTOR`` times it) is woken up
+(``update_static``); it goes on from its frozen offsets, not from what the network, untrained
+for it meanwhile, gives it: the difference is kept and added to the network's output.
+Densified children inherit the flag with their parent's row (``trase.densify``'s row carry).
 
-Shapes: ``static`` [N] bool, ``frozen`` [N, 10] = d_xyz 3 | d_rot 4 | d_scale 3.
+Shapes: ``static`` [N] bool, ``frozen`` [N, 10] = d_xyz 3 | d_rot 4 | d_scale 3: a static
+row's offsets; a moving row's correction added to the network's (zero unless it was woken).
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ from torch import nn
 from trase.deformation import deformation_rows
 
 FROZEN_WIDTH = 10  # d_xyz 3, d_rot 4, d_scale 3
+WAKE_FACTOR = 2.0  # a static gaussian wakes when its motion exceeds this x the threshold (no flicker at it)
 
 
 def split_offsets(frozen: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -59,14 +63,13 @@ class PartlyStaticDeformation(nn.Module):
                              f"{xyz.shape[0]}")
         frozen = self.frozen.to(device=xyz.device, dtype=xyz.dtype)
         moving = torch.nonzero(~self.static.to(xyz.device)).reshape(-1)  # [M]
-        if moving.numel() == self.num_gaussians:
-            return self.net(xyz, t)
         d_xyz, d_rot, d_scale = split_offsets(frozen)
         if moving.numel() == 0:
             return d_xyz, d_rot, d_scale
         m_xyz, m_rot, m_scale = self.net(xyz[moving], t)  # [M, 3], [M, 4], [M, 3]
-        return d_xyz.index_copy(0, moving, m_xyz), d_rot.index_copy(0, moving, m_rot), \
-            d_scale.index_copy(0, moving, m_scale)
+        c_xyz, c_rot, c_scale = split_offsets(frozen[moving])  # corrections of woken rows (else zero)
+        return d_xyz.index_copy(0, moving, m_xyz + c_xyz), d_rot.index_copy(0, moving, m_rot + c_rot), \
+            d_scale.index_copy(0, moving, m_scale + c_scale)
 
 
 @torch.no_grad()
@@ -102,16 +105,17 @@ def update_static(net: nn.Module, xyz: torch.Tensor, scales: torch.Tensor, times
                   threshold: float, static: torch.Tensor, frozen: torch.Tensor
                   ) -> tuple[torch.Tensor, torch.Tensor, dict]:
     """Re-measure every gaussian: moving ones below ``threshold`` become static with their mean
-    offsets frozen; static ones whose network motion rose above it wake up (the network then
-    drives them again). A static gaussian that stays static keeps its frozen offsets (the
-    network's output for it is no longer trained, so only its motion over time is read).
-    -> (static [N], frozen [N, 10], counts)."""
+    offsets (the network's plus their correction) frozen; static ones whose network motion rose
+    above WAKE_FACTOR x ``threshold`` wake up, the network driving them again from their frozen
+    offsets (their correction: frozen - the network's mean). A static gaussian that stays static
+    keeps its frozen offsets (the network's output for it is no longer trained, so only its
+    motion over time is read). -> (static [N], frozen [N, 10], counts)."""
     mv, mean = motion(net, xyz, scales, times, extent)
-    still = mv < threshold
-    newly = still & ~static
-    woken = static & ~still
-    frozen = torch.where(newly[:, None], mean.to(frozen.dtype), frozen)
-    static = (static & still) | newly
+    mean = mean.to(frozen.dtype)
+    newly = ~static & (mv < threshold)
+    woken = static & (mv > WAKE_FACTOR * threshold)
+    frozen = torch.where(newly[:, None], mean + frozen, torch.where(woken[:, None], frozen - mean, frozen))
+    static = (static & ~woken) | newly
     return static, frozen, {"static": int(static.sum()), "newly": int(newly.sum()), "woken": int(woken.sum())}
 
 

@@ -70,9 +70,18 @@ def test_a_static_gaussian_that_starts_to_move_is_woken_up():
     assert c["static"] == 40
     with torch.no_grad():
         net.speed.fill_(0.3)  # the right half moves now (the network learned it from its neighbours)
-    static, frozen2, c = update_static(net, xyz, scales, times, 1.0, 1e-3, static, frozen)
-    assert c == {"static": 20, "newly": 0, "woken": 20} and torch.equal(static, xyz[:, 0] <= 0)
-    assert torch.equal(frozen2[static], frozen[static])  # the still ones keep their frozen offsets
+    static2, frozen2, c = update_static(net, xyz, scales, times, 1.0, 1e-3, static, frozen)
+    assert c == {"static": 20, "newly": 0, "woken": 20} and torch.equal(static2, xyz[:, 0] <= 0)
+    assert torch.equal(frozen2[static2], frozen[static2])  # the still ones keep their frozen offsets
+    # a woken gaussian goes on from its frozen offsets: its mean offset over time is unchanged
+    d = PartlyStaticDeformation(net, static2, frozen2)
+    mean_after = torch.stack([torch.cat(d(xyz, t), 1) for t in times]).mean(0)
+    assert torch.allclose(mean_after, frozen, atol=1e-6)
+    # and a motion between the threshold and WAKE_FACTOR x it wakes nobody (no flicker)
+    with torch.no_grad():
+        net.speed.fill_(0.003)  # the right half moves 1.5e-3 from its mean: above 1e-3, below 2 x 1e-3
+    _, _, c = update_static(net, xyz, scales, times, 1.0, 1e-3, static, frozen)
+    assert c["woken"] == 0
 
 
 def test_visible_only_pass_takes_the_rows_of_a_partly_static_deformation():
