@@ -16,7 +16,6 @@ import datetime
 import json
 import os
 import platform
-import subprocess
 from pathlib import Path
 
 from benchmark.errors import UserError
@@ -33,14 +32,9 @@ SCHEMA = "trase-bench/figures/1"
 
 
 def _git_commit(root: Path) -> str:
-    try:
-        out = subprocess.run(["git", "-C", str(root), "rev-parse", "--short", "HEAD"], capture_output=True,
-                             text=True, check=True, timeout=10)
-        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
-                               capture_output=True, text=True, timeout=10, check=False).stdout.strip()
-        return out.stdout.strip() + ("+changes" if dirty else "")
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
+    from benchmark.results.record import code_commit
+
+    return code_commit()
 
 
 def run_all(out_dir: Path, seeds: list[int], formats=FORMATS, geometries=GEOMETRIES, progress: bool = True,
@@ -96,8 +90,10 @@ def collect(out_dir: Path, formats=FORMATS, geometries=GEOMETRIES, methods=("tra
     machine = {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
                "cpus": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
                "instruction_sets": run_instruction_sets(used)}
+    run_commits = sorted({(r.get("versions") or {}).get("trase-bench commit", "unrecorded") for r in used})
     return {"schema": SCHEMA, "commit": _git_commit(Path(__file__).resolve().parent.parent),
-            "date": datetime.date.today().isoformat(), "machine": machine, "rows": rows}
+            "date": datetime.date.today().isoformat(), "machine": machine, "rows": rows,
+            "run_commits": run_commits}
 
 
 def run_instruction_sets(records: list[dict]) -> list[str]:
@@ -200,7 +196,14 @@ def render_methods_block(data: dict) -> str:
     methods = list(dict.fromkeys(r.get("method", "trase") for r in rows))
     formats = [f for f in FORMATS if any(r["format"] == f for r in rows)]
     by = {(r.get("method", "trase"), r["format"], r["geometry"]): r for r in rows}
-    lines = [(f"Measured at commit `{data['commit']}` on {data['date']} ({_where(data)}), `trase-bench figures "
+    code = data.get("run_commits")
+    made = ""
+    if code:
+        made = (" from runs computed with the code of commit " + ", ".join(f"`{c}`" for c in code if c != "unrecorded")
+                + (" and runs that do not record it (made before results recorded their commit)"
+                   if "unrecorded" in code else "")) if any(c != "unrecorded" for c in code) else (
+            " from runs that do not record their code's commit (made before results recorded it)")
+    lines = [(f"Summarised at commit `{data['commit']}` on {data['date']} ({_where(data)}){made}, `trase-bench figures "
              "--method ...` on the built-in synthetic scenes (each method's main protocol and defaults, "
              "official metric): mIoU, mean ± standard deviation over the run seeds; (n): the number of seeds "
              "where fewer than three."), ""]

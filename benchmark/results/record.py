@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import datetime
+import functools
 import os
 import platform
 from importlib import metadata
@@ -33,8 +34,25 @@ class ResultsError(UserError):
     """A results file that cannot be used; the message names the file."""
 
 
+@functools.lru_cache(maxsize=1)
+def code_commit() -> str:
+    """The commit of this code (``abc1234``, ``+changes`` when the checkout differs from it;
+    "unknown" outside a git checkout): which code computed a result, beside the versions."""
+    import subprocess
+
+    root = Path(__file__).resolve().parent.parent.parent
+    try:
+        out = subprocess.run(["git", "-C", str(root), "rev-parse", "--short", "HEAD"], capture_output=True,
+                             text=True, check=True, timeout=10)
+        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
+                               capture_output=True, text=True, timeout=10, check=False).stdout.strip()
+        return out.stdout.strip() + ("+changes" if dirty else "")
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+
+
 def package_versions() -> dict[str, str]:
-    out = {"python": platform.python_version()}
+    out = {"python": platform.python_version(), "trase-bench commit": code_commit()}
     for name in VERSIONED_PACKAGES:
         try:
             out[name] = metadata.version(name)

@@ -124,3 +124,21 @@ def test_methods_block_gives_each_methods_feature_stage_on_the_default_scene():
     part = block.split("**Feature stage on the default scene**")[1]
     assert "| saga | 200 | 200 | — | — |" in part  # medians: seconds, ms per step
     assert "| trase |" not in part and "| cgc |" not in part
+
+
+def test_methods_block_names_the_code_its_runs_were_computed_with():
+    from benchmark.results.figures import render_methods_block
+
+    data = _methods_data()
+    data["run_commits"] = ["abc1234", "unrecorded"]
+    head = render_methods_block(data).splitlines()[0]
+    assert head.startswith("Summarised at commit `abc1234`") and "computed with the code of commit `abc1234`" in head
+    assert "do not record it" in head
+    data["run_commits"] = ["unrecorded"]
+    assert "from runs that do not record their code's commit" in render_methods_block(data).splitlines()[0]
+
+
+def test_a_results_record_names_its_code_commit():
+    from benchmark.results.record import code_commit, package_versions
+
+    assert package_versions()["trase-bench commit"] == code_commit() != ""
