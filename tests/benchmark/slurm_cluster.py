@@ -108,7 +108,7 @@ class SlurmCluster:
             dead = [n for n, p in self.procs.items() if p.poll() is not None]
             if dead or time.time() > deadline:
                 logs = {n: (self.root / "log" / f"{n}.out").read_text()[-600:] for n in self.procs}
-                self.stop()
+                self._stop_daemons()
                 raise RuntimeError(f"test SLURM: {what} (stopped: {dead}); output: {logs}")
             time.sleep(0.2)
 
@@ -117,6 +117,40 @@ class SlurmCluster:
         return out.stdout
 
     def stop(self) -> None:
+        """Cancel every job of this cluster (a failed test may leave some), stop the daemons, and
+        end what still runs of its jobs: job steps outlive slurmd."""
+        ctld = self.procs.get("slurmctld")
+        if ctld is not None and ctld.poll() is None:
+            env = {**os.environ, **self.env}
+            subprocess.run(["scancel", "--partition=debug"], env=env, capture_output=True, check=False)
+            deadline = time.time() + 30
+            while time.time() < deadline:
+                q = subprocess.run(["squeue", "-h"], env=env, capture_output=True, text=True, check=False)
+                if q.returncode != 0 or not q.stdout.strip():
+                    break
+                time.sleep(0.5)
+        self._stop_daemons()
+        for pid in self._job_processes():
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except OSError:
+                pass
+
+    def _job_processes(self) -> list[int]:
+        """Processes started by this cluster's slurmd (their environment names its slurm.conf)."""
+        mark = f"SLURM_CONF={self.conf}".encode()
+        out = []
+        for d in Path("/proc").iterdir():
+            if not d.name.isdigit() or int(d.name) == os.getpid():
+                continue
+            try:
+                if mark in (d / "environ").read_bytes().split(b"\0"):
+                    out.append(int(d.name))
+            except OSError:
+                continue
+        return out
+
+    def _stop_daemons(self) -> None:
         for name in ("slurmd", "slurmctld", "munged"):
             p = self.procs.pop(name, None)
             if p is None or p.poll() is not None:
