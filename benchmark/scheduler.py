@@ -164,10 +164,9 @@ def partition_nodes(partition: str | None) -> tuple[str, list[NodeResources]]:
     return partition, nodes
 
 
-def check_request(partition: str | None, cpus: int, mem_gb: int, gpus: int) -> str:
-    """Refuse a request that no node of the partition can satisfy (SLURM would queue it
-    forever, reason PartitionConfig or Resources); returns the partition's name."""
-    name, nodes = partition_nodes(partition)
+def check_request(name: str, nodes: list[NodeResources], cpus: int, mem_gb: int, gpus: int) -> None:
+    """Refuse a request that no node of partition ``name`` (its ``nodes``, ``partition_nodes``)
+    can satisfy: SLURM would queue it forever, reason PartitionConfig or Resources."""
     fits = [n for n in nodes if n.cpus >= cpus and n.mem_mb >= mem_gb * 1024 and n.gpus >= gpus]
     if not fits:
         most_cpus, most_mem, most_gpus = (max(getattr(n, k) for n in nodes) for k in ("cpus", "mem_mb", "gpus"))
@@ -177,4 +176,3 @@ def check_request(partition: str | None, cpus: int, mem_gb: int, gpus: int) -> s
             (f"--gpus {gpus} (largest node: {most_gpus})", gpus > most_gpus)) if too_big]
         raise SchedulerError(f"partition {name!r} has no node with what each job asks: "
                              + ("; ".join(over) or "no single node has all of it together"))
-    return name

@@ -245,11 +245,15 @@ def _read_file(target, job: SweepJob) -> dict | None:
         return {"state": "pending", "note": f"{p}: unreadable state"}
 
 
-def read_state(target, job: SweepJob, scheduler: dict | None = None) -> dict:
+_UNREAD = object()
+
+
+def read_state(target, job: SweepJob, scheduler: dict | None = None, written=_UNREAD) -> dict:
     """The job's state as its worker wrote it, reconciled with the scheduler's view
     (``scheduler``: {scheduler id: benchmark.scheduler.SchedulerJob}, None: not asked):
-    pending, queued, running, requeued, done, failed, cancelled, timed out, died or lost."""
-    st = _read_file(target, job)
+    pending, queued, running, requeued, done, failed, cancelled, timed out, died or lost.
+    ``written``: the state file's content when the caller has read it already."""
+    st = _read_file(target, job) if written is _UNREAD else written
     if st is None:
         return {"state": "pending"}
     state = st.get("state")
@@ -257,7 +261,7 @@ def read_state(target, job: SweepJob, scheduler: dict | None = None) -> dict:
         return {**st, "state": "pending", "note": "its results are gone"}
     if state not in ("submitted", "running"):
         return st
-    sched = (scheduler or {}).get(str(st.get("scheduler_id") or st.get("task") or ""))
+    sched = (scheduler or {}).get(str(st.get("scheduler_id") or ""))
     alive = _worker_alive(st.get("host"), st.get("pid"))
     if sched is not None and sched.state != "unknown":
         said = f"SLURM: {sched.raw}" + (f" ({sched.reason})" if sched.reason else "") + (
@@ -292,15 +296,12 @@ def _worker_alive(host, pid) -> bool | None:
     return not known_dead(host, pid)
 
 
-def scheduler_view(target, jobs: list[SweepJob]) -> dict | None:
+def scheduler_view(written: list[dict | None]) -> dict | None:
     """SLURM's view of the jobs submitted to it that are not finished by their own account
-    (None when none was, so no SLURM command runs)."""
-    ids = []
-    for job in jobs:
-        st = _read_file(target, job) or {}
-        if st.get("executor") == "slurm" and st.get("state") in ("submitted", "running"):
-            ids.append(str(st.get("scheduler_id") or st.get("task") or ""))
-    ids = [i for i in ids if i]
+    (``written``: their state files' contents; None when none was, so no SLURM command runs)."""
+    ids = [str(st["scheduler_id"]) for st in written
+           if st and st.get("executor") == "slurm" and st.get("state") in ("submitted", "running")
+           and st.get("scheduler_id")]
     if not ids:
         return None
     from benchmark.scheduler import slurm_jobs
@@ -317,7 +318,7 @@ def run_job(target, job: SweepJob, log: str | None = None, task_id: str | None =
 
     target = getattr(target, "target", target)
     write_state(target, job, state="running", host=socket.gethostname(), pid=os.getpid(), started=time.time(),
-                log=log, task=task_id, scheduler_id=task_id, executor=executor)
+                log=log, scheduler_id=task_id, executor=executor)
     print(f"[{time.strftime('%H:%M:%S')}] job {job.id}: {job.label()}", flush=True)
     t0 = time.time()
     try:
@@ -325,11 +326,11 @@ def run_job(target, job: SweepJob, log: str | None = None, task_id: str | None =
     except Exception as exc:
         line = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         error = line if is_user_error(exc) else f"{type(exc).__name__}: {line}"
-        write_state(target, job, state="failed", error=error, log=log, seconds=time.time() - t0, task=task_id,
+        write_state(target, job, state="failed", error=error, log=log, seconds=time.time() - t0,
                     scheduler_id=task_id, executor=executor)
         print(f"[{time.strftime('%H:%M:%S')}] job {job.id} failed: {error}", flush=True)
         raise
-    write_state(target, job, state="done", results=paths, log=log, seconds=time.time() - t0, task=task_id,
+    write_state(target, job, state="done", results=paths, log=log, seconds=time.time() - t0,
                 scheduler_id=task_id, executor=executor)
     print(f"[{time.strftime('%H:%M:%S')}] job {job.id} done in {time.time() - t0:.0f}s: {', '.join(paths)}", flush=True)
     return paths
@@ -391,28 +392,33 @@ def status(spec: SweepSpec, ask_scheduler: bool = True, strict: bool = True) -> 
     ``strict``: SLURM not answering is an error (what submission needs: it must not queue a job
     twice); otherwise the states are the workers' own, with a note saying why."""
     jobs = spec.jobs()
-    ids = {j.id for j in jobs}
+    written = {j.id: _read_file(spec.target, j) for j in jobs}
     earlier = []
     for p in sorted((spec.state_dir / "jobs").glob("*.json")):
-        if p.stem not in ids:
+        if p.stem not in written:
             try:
-                earlier.append(SweepJob.from_dict(json.loads(p.read_text())["definition"]))
+                st = json.loads(p.read_text())
+                job = SweepJob.from_dict(st["definition"])
             except (OSError, ValueError, KeyError, TypeError):
                 continue  # a state file of an older layout or unreadable: not this sweep's business
-    everything = jobs + earlier
+            earlier.append(job)
+            written[job.id] = st
     view, why = None, None
     if ask_scheduler:
         from benchmark.scheduler import SchedulerError
 
         try:
-            view = scheduler_view(spec.target, everything)
+            view = scheduler_view(list(written.values()))
         except SchedulerError as exc:
             if strict:
                 raise
             why = f"SLURM not asked: {exc}"
-    note = (lambda st: {**st, "note": why} if why and st.get("executor") == "slurm" else st)
-    out = [(j, note(read_state(spec.target, j, view))) for j in jobs]
-    return out + [(j, {**note(read_state(spec.target, j, view)), "earlier_spec": True}) for j in earlier]
+
+    def state(job: SweepJob, **extra) -> dict:
+        st = read_state(spec.target, job, view, written[job.id])
+        return {**st, **({"note": why} if why and st.get("executor") == "slurm" else {}), **extra}
+
+    return [(j, state(j)) for j in jobs] + [(j, state(j, earlier_spec=True)) for j in earlier]
 
 
 def pending_jobs(spec: SweepSpec, states: list[tuple[SweepJob, dict]] | None = None) -> list[SweepJob]:
@@ -441,14 +447,14 @@ def resolve_resources(spec: SweepSpec, echo=print) -> SweepSpec:
 
     s = dict(spec.slurm)
     partition, nodes = partition_nodes(s.get("partition"))
-    for key, default, have, unit in (("cpus_per_task", DEFAULT_CPUS, max(n.cpus for n in nodes), 1),
-                                     ("mem_gb", DEFAULT_MEM_GB, max(n.mem_mb for n in nodes) // 1024, 1)):
+    for key, default, have in (("cpus_per_task", DEFAULT_CPUS, max(n.cpus for n in nodes)),
+                               ("mem_gb", DEFAULT_MEM_GB, max(n.mem_mb for n in nodes) // 1024)):
         if key not in s:
             s[key] = max(min(default, have), 1)
             if s[key] < default:
                 echo(f"note: slurm.{key} not given: {s[key]} (the largest node of partition {partition!r} has "
                      f"{have}; default {default})")
-    check_request(partition, s["cpus_per_task"], s["mem_gb"], s.get("gpus_per_node", 0))
+    check_request(partition, nodes, s["cpus_per_task"], s["mem_gb"], s.get("gpus_per_node", 0))
     return dataclasses.replace(spec, slurm=s)
 
 
@@ -466,11 +472,6 @@ def sbatch_script(spec: SweepSpec, n_tasks: int) -> str:
     command = f"{sys.executable} -u -m submitit.core._submit {spec.state_dir / 'logs'}"
     return _make_sbatch_string(command=command, folder=spec.state_dir / "logs", map_count=n_tasks,
                                **{k: v for k, v in native.items() if v is not None})
-
-
-def log_path(spec: SweepSpec, scheduler_id: str) -> Path:
-    """Where submitit writes a task's output (``<logs>/<id>_0_log.out``; arrays ``123_4``)."""
-    return spec.state_dir / "logs" / f"{scheduler_id}_0_log.out"
 
 
 def submission_error(exc: BaseException) -> str:
@@ -514,7 +515,7 @@ def submit(spec: SweepSpec, wait: bool = True, echo=print, states: list | None =
         ex.update_parameters(**slurm_parameters(spec))
         shares = [[j] for j in jobs]
     tasks = [SweepTask(target, [j.to_dict() for j in share], spec.executor) for share in shares]
-    before = {j.id: _read_file(spec.target, j) for j in jobs}
+    before = {j.id: _read_file(spec.target, j) for j in jobs}  # read now: a worker may have written since status
     _freeze_spec(spec)
     for job in jobs:  # before submitting: a worker that starts at once overwrites it with running
         write_state(spec.target, job, state="submitted", executor=spec.executor, target=target,

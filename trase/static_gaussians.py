@@ -20,8 +20,6 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from trase.deformation import deformation_rows
-
 FROZEN_WIDTH = 10  # d_xyz 3, d_rot 4, d_scale 3
 WAKE_FACTOR = 2.0  # a static gaussian wakes when its motion exceeds this x the threshold (no flicker at it)
 
@@ -64,6 +62,8 @@ class PartlyStaticDeformation(nn.Module):
         frozen = self.frozen.to(device=xyz.device, dtype=xyz.dtype)
         moving = torch.nonzero(~self.static.to(xyz.device)).reshape(-1)  # [M]
         d_xyz, d_rot, d_scale = split_offsets(frozen)
+        if moving.numel() == self.num_gaussians:  # nothing static now (woken rows keep a correction)
+            return tuple(o + c for o, c in zip(self.net(xyz, t), (d_xyz, d_rot, d_scale)))
         if moving.numel() == 0:
             return d_xyz, d_rot, d_scale
         m_xyz, m_rot, m_scale = self.net(xyz[moving], t)  # [M, 3], [M, 4], [M, 3]
@@ -128,5 +128,5 @@ def check_times(view_times: list[float], n: int = 16) -> list[float]:
     return [ts[i] for i in sorted(set(idx))]
 
 
-__all__ = ["FROZEN_WIDTH", "PartlyStaticDeformation", "check_times", "deformation_rows", "motion",
-           "offsets_over_time", "split_offsets", "update_static"]
+__all__ = ["FROZEN_WIDTH", "WAKE_FACTOR", "PartlyStaticDeformation", "check_times", "motion", "offsets_over_time",
+           "split_offsets", "update_static"]

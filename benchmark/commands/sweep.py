@@ -131,7 +131,7 @@ def sweep_status(spec_path, table) -> None:
         elif state == "done":
             line += f"  {st.get('seconds', 0):.0f}s"
         elif state == "running":
-            task = f", {st['task']}" if st.get("task") else ""
+            task = f", {st['scheduler_id']}" if st.get("scheduler_id") else ""
             where = f"on {st.get('host')} (pid {st.get('pid')}{task})" if st.get("started") else "starting"
             line += f"  {where}, log {st.get('log') or 'none'}"
         elif state in ("queued", "requeued"):

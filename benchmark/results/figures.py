@@ -19,6 +19,7 @@ import platform
 from pathlib import Path
 
 from benchmark.errors import UserError
+from benchmark.results.record import code_commit
 
 FORMATS = ("nerfds", "hypernerf", "neu3d", "immersive", "technicolor")
 GEOMETRIES = ("reconstruct", "ground-truth")
@@ -29,12 +30,6 @@ METHODS_END = "<!-- METHODS:END -->"
 NAMES = {"nerfds": "NeRF-DS", "hypernerf": "HyperNeRF", "neu3d": "Neu3D", "immersive": "Immersive",
          "technicolor": "Technicolor"}
 SCHEMA = "trase-bench/figures/1"
-
-
-def _git_commit(root: Path) -> str:
-    from benchmark.results.record import code_commit
-
-    return code_commit()
 
 
 def run_all(out_dir: Path, seeds: list[int], formats=FORMATS, geometries=GEOMETRIES, progress: bool = True,
@@ -91,7 +86,7 @@ def collect(out_dir: Path, formats=FORMATS, geometries=GEOMETRIES, methods=("tra
                "cpus": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
                "instruction_sets": run_instruction_sets(used)}
     run_commits = sorted({(r.get("versions") or {}).get("trase-bench commit", "unrecorded") for r in used})
-    return {"schema": SCHEMA, "commit": _git_commit(Path(__file__).resolve().parent.parent),
+    return {"schema": SCHEMA, "commit": code_commit(),
             "date": datetime.date.today().isoformat(), "machine": machine, "rows": rows,
             "run_commits": run_commits}
 

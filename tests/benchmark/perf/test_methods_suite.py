@@ -9,7 +9,7 @@ def test_unknown_method_is_one_line_before_any_run(capsys):
     assert "no-such-method" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
 
 
-def test_measured_run_takes_the_render_path_the_preset_would():
+def test_the_measured_run_pins_the_render_path_by_an_override():
     from benchmark.perf.methods import _overrides
 
     assert _overrides(5) == ["geometry.source=ground-truth", "method.features.iterations=5", "prompts.click_sets=1"]

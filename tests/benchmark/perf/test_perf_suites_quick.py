@@ -63,7 +63,9 @@ def test_all_suites_quick(tmp_path, monkeypatch, capsys):
     sk = s["skip"]  # static gaussians on and off
     assert not sk["failed"] and [r["variant"] for r in sk["runs"]] == ["full", "static"]
     full, static = sk["runs"]
-    assert full["static_gaussians"] == 0 and static["static_gaussians"] >= 0
+    assert full["static_gaussians"] == 0 and full["gaussians"] > 0 and static["gaussians"] > 0
+    for r in (full, static):  # the ceiling split into the frames with motion and the others
+        assert 0 <= r["ceiling_moving_frames"] <= 1 and 0 <= r["ceiling_other_frames"] <= 1
     assert full["seconds"]["geometry"] > 0 and static["seconds"]["geometry"] > 0 and "geometry s vs full" in text
 
     pa = s["pareto"]
