@@ -102,11 +102,26 @@ def test_a_click_on_nothing_chooses_nothing(tiny, tmp_path):
     assert not any(m.any() for m in method.segment(fitted, scene, far))
 
 
-def test_track_ids_beyond_the_classes_are_one_line_errors(tiny, tmp_path):
-    from benchmark.methods import MethodError
+def test_track_ids_beyond_the_classes_widen_the_classifier(tiny, tmp_path):
+    # the tiny scene's tracks number ids 0..2: with n_classes=2 the classifier has 3 outputs,
+    # recorded, and a reloaded model is built with them
+    gm, deform, _ids, _views, _ = tiny
+    method = GaussianGrouping()
+    scene, fitted = _fit(method, tiny, tmp_path, n_classes=2, iterations=1)
+    assert fitted.stats["n_classes"] == 3
+    assert method.probabilities_at(fitted, 0.5).shape == (gm.num_gaussians, 3)
+    fitted.save(tmp_path / "out")
+    back = FittedModel.load(tmp_path / "out", gm, deform, method.settings_class())
+    assert method.probabilities_at(back, 0.5).shape == (gm.num_gaussians, 3)
 
-    with pytest.raises(MethodError, match="n_classes"):
-        _fit(GaussianGrouping(), tiny, tmp_path, n_classes=2, iterations=1)
+
+def test_negative_track_ids_are_one_line_errors(tiny):
+    from trase_bench_grouping.train import IdentityTrainingError, train_identity
+
+    gm, deform, _ids, views, _ = tiny
+    cfg = dataclasses.replace(GaussianGrouping().settings("cpu", "hypernerf").features, iterations=1)
+    with pytest.raises(IdentityTrainingError, match="negative track id -1"):
+        train_identity(gm, deform, views, lambda v: -np.ones((v.camera.height, v.camera.width), int), cfg)
 
 
 def test_no_ids_files_is_a_one_line_error(tmp_path):

@@ -14,6 +14,7 @@ Top-level imports stay light: ``trase-bench methods`` imports this module to lis
 
 from __future__ import annotations
 
+import sys
 import time
 from pathlib import Path
 
@@ -68,6 +69,10 @@ class GaussianGrouping(Method):
                                  cache_dir=Path(work_dir) / "pixel_weights", progress=progress)
         except IdentityTrainingError as exc:
             raise MethodError(str(exc)) from None
+        if progress and res.classifier.out_features > config.features.n_classes:
+            print(f"note: the tracks number ids up to {res.classifier.out_features - 1}: the classifier has "
+                  f"{res.classifier.out_features} outputs (method.features.n_classes={config.features.n_classes})",
+                  file=sys.stderr)
         with torch.no_grad():
             feats = res.encoder(gaussians.means.detach().cpu(), 0.5).numpy().astype(np.float32)
         info = {
@@ -78,6 +83,7 @@ class GaussianGrouping(Method):
             "tracks": {**(load_tracks_info(masks_dir) if (masks_dir / INFO_FILE).is_file() else {}),
                        "views_without_ids": len(missing)},
             "classifier": pack(res.classifier),
+            "n_classes": res.classifier.out_features,
             **({"field": pack(res.encoder)} if self.temporal else {}),
         }
         return feats, info
@@ -89,7 +95,8 @@ class GaussianGrouping(Method):
         from trase_bench_grouping.identity import unpack
 
         f = fitted.config.features
-        return unpack(torch.nn.Linear(f.dim, f.n_classes), fitted.stats["classifier"])
+        n_classes = fitted.stats.get("n_classes", f.n_classes)  # more than the setting where the tracks need them
+        return unpack(torch.nn.Linear(f.dim, n_classes), fitted.stats["classifier"])
 
     def _field(self, fitted: FittedModel):
         from trase_bench_grouping.identity import unpack
@@ -120,7 +127,7 @@ class GaussianGrouping(Method):
         if "classifier" not in info:
             raise MethodError(f"{self.name}: the features stage left no classifier (a features cache of another method?)")
         t0 = time.perf_counter()
-        stats = {"classifier": info["classifier"], **({"field": info["field"]} if "field" in info else {}),
+        stats = {"classifier": info["classifier"], "n_classes": info.get("n_classes", config.features.n_classes), **({"field": info["field"]} if "field" in info else {}),
                  "path": info.get("path", {}), "loss_tail": info.get("loss_tail", []), "tracks": info.get("tracks")}
         fitted = FittedModel(feats, np.zeros(len(feats), np.int64), np.ones(len(feats), bool),
                              dict(info.get("timings", {})), stats, config, gaussians, deformation)

@@ -18,7 +18,7 @@ class IdentitySettings:
     """What ``learn`` trains (the features stage's cache key)."""
 
     dim: int = 16  # identity encoding channels (GG: num_objects 16)
-    n_classes: int = 256  # classifier outputs; track ids must lie below it (0 = no track)
+    n_classes: int = 256  # classifier outputs, at least (0 = no track); more where track ids reach it
     iterations: int = 30000
     lr: float = 0.0025  # Adam lr of the per-gaussian encodings (GG's feature_lr)
     eps: float = 1e-15  # Adam eps of the encodings / the field (the gaussians' optimiser)

@@ -38,6 +38,12 @@ class IdentityResult:
     path_stats: dict
 
 
+def classes_for(n_classes: int, max_id: int) -> int:
+    """The classifier's outputs: ``n_classes`` (the public code's 256 fits DEVA's 8-bit ids),
+    or more where a tracker numbered more tracks (one output per id, 0 = "no track" included)."""
+    return max(int(n_classes), int(max_id) + 1)
+
+
 def make_encoder(n: int, cfg, temporal: bool, generator: torch.Generator) -> torch.nn.Module:
     if temporal:
         return IdentityField(cfg.dim, cfg.field_width, cfg.field_depth, cfg.field_pos_freqs, cfg.field_time_freqs,
@@ -62,7 +68,22 @@ def train_identity(gaussians, deformation, views: Sequence, load_ids: Callable, 
         gen = torch.Generator().manual_seed(int(cfg.seed))
         rng = np.random.default_rng(int(cfg.seed))
         encoder = make_encoder(n, cfg, temporal, gen).to(dev)
-        classifier = torch.nn.Linear(cfg.dim, cfg.n_classes)
+        t0 = time.perf_counter()
+        ids, cams, usable = {}, {}, []
+        for i, v in enumerate(views):
+            m = load_ids(v)
+            if m is None:
+                continue
+            m = np.asarray(m)
+            if m.min(initial=0) < 0:
+                raise IdentityTrainingError(f"view {v.name}: negative track id {int(m.min())}")
+            ids[i] = torch.from_numpy(m.reshape(-1).astype(np.int64)).to(dev)
+            cams[i] = (camera_at(v.camera, m.shape[0], m.shape[1], v.name), m.shape)
+            usable.append(i)
+        if not usable:
+            raise IdentityTrainingError("no training view has tracked ids")
+        n_classes = classes_for(cfg.n_classes, max(int(ids[i].max()) for i in usable))
+        classifier = torch.nn.Linear(cfg.dim, n_classes)
         with torch.no_grad():  # torch's default initialisation, drawn from the run's generator
             bound = 1.0 / np.sqrt(cfg.dim)
             classifier.weight.uniform_(-bound, bound, generator=gen)
@@ -74,21 +95,6 @@ def train_identity(gaussians, deformation, views: Sequence, load_ids: Callable, 
             gaussians = gaussians.copy().to(dev)
             deformation = None if deformation is None else copy.deepcopy(deformation).to(dev)
 
-        t0 = time.perf_counter()
-        ids, cams, usable = {}, {}, []
-        for i, v in enumerate(views):
-            m = load_ids(v)
-            if m is None:
-                continue
-            m = np.asarray(m)
-            if m.max(initial=0) >= cfg.n_classes:
-                raise IdentityTrainingError(f"view {v.name}: track id {int(m.max())} >= features.n_classes="
-                                            f"{cfg.n_classes}; raise method.features.n_classes")
-            ids[i] = torch.from_numpy(m.reshape(-1).astype(np.int64)).to(dev)
-            cams[i] = (camera_at(v.camera, m.shape[0], m.shape[1], v.name), m.shape)
-            usable.append(i)
-        if not usable:
-            raise IdentityTrainingError("no training view has tracked ids")
         fast = use_fastpath(cfg.fastpath, cfg.iterations, len(usable))
         path = (ViewWeights(gaussians, deformation, cache_dir, cfg.min_weight) if fast
                 else RasterizerPath(gaussians, deformation))
@@ -146,4 +152,4 @@ def train_identity(gaussians, deformation, views: Sequence, load_ids: Callable, 
         return IdentityResult(encoder.cpu(), classifier.cpu(), history, timings, path.stats())
 
 
-__all__ = ["IdentityResult", "IdentityTrainingError", "make_encoder", "train_identity"]
+__all__ = ["IdentityResult", "IdentityTrainingError", "classes_for", "make_encoder", "train_identity"]
