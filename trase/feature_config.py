@@ -46,6 +46,24 @@ class FeatureConfig:
     # where training runs: "cpu", "cuda" (gsplat rasterizer, torch objective) or "auto" (cuda
     # when torch sees a GPU); the benchmark resolves it before a run. Results come back on the CPU.
     device: str = "auto"
+    # stop when converged (trase.convergence): every stop_interval steps (0 = off, the public
+    # code's full schedule) the objective's loss on fixed samples of the training views held out
+    # for it (every stop_holdout_every-th in time order, not trained on), with the features as
+    # they are saved (smoothed over all K neighbours); the stage stops once that loss has not
+    # fallen by stop_min_delta x |its first check| for stop_patience checks in a row, not before
+    # stop_floor steps, and at `iterations` at the latest
+    stop_interval: int = 0
+    stop_patience: int = 2
+    stop_min_delta: float = 0.01
+    stop_floor: int = 0
+    stop_holdout_every: int = 10
+
+    def stop_rule(self):
+        """The stopping rule of the stop_* settings (``trase.convergence.StopRule``)."""
+        from trase.convergence import StopRule
+
+        return StopRule(self.stop_interval, self.stop_patience, self.stop_min_delta, self.stop_floor,
+                        higher_is_better=False, relative=True)
 
     @classmethod
     def preset(cls, name: str, **overrides) -> FeatureConfig:

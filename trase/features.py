@@ -63,6 +63,7 @@ class TrainResult:
     history: list[dict]  # per-step stats, sparsely (every log_every steps)
     timings: dict  # seconds: prepare (fast-path weights), train, per_step
     path_stats: dict  # fast path bytes per view etc.
+    stopping: dict | None = None  # stop_interval > 0: the checks and where it stopped (trase.convergence)
 
 
 def camera_at(camera: Camera, height: int, width: int, name: str) -> Camera:
@@ -173,15 +174,36 @@ def _train(gaussians, deformation, views, load_masks, config, cache_dir, progres
 
     t0 = time.perf_counter()
     usable, cams = _usable_views(views, masks_of, whole_view)
-    path = _render_path(gaussians, deformation, views, usable, cams, config, cache_dir)
+    usable, held = _held_out(views, usable, config)
+    path = _render_path(gaussians, deformation, views, usable + held, cams, config, cache_dir)
     timings = {"prepare": time.perf_counter() - t0, "train": 0.0, "per_step": 0.0, "n_usable_views": len(usable)}
     if not usable or config.iterations <= 0 or n == 0:
         return _result(feats, knn, [], timings, path)
 
     step = _FeatureStep(config, objective, path, usable, masks_of, knn, xyz, whole_view, rng, gen, dev)
-    history, t_train, start = _optimise(feats, step, views, progress, log_every, ckpt)
-    timings.update(train=t_train, per_step=t_train / config.iterations, resumed_from_step=start)
-    return _result(feats, knn, history, timings, path)
+    plateau = _Criterion(step, held) if held else None
+    history, t_train, start, done = _optimise(feats, step, views, progress, log_every, ckpt, plateau)
+    timings.update(train=t_train, per_step=t_train / max(done - start, 1), resumed_from_step=start)
+    stopping = None
+    if config.stop_interval > 0:
+        stopping = (plateau.plateau.summary("held-out loss", config.iterations, [views[i].name for i in held])
+                    if plateau is not None else
+                    {"criterion": None, "stopped_at": None, "cap": config.iterations, "held_out": [],
+                     "why": f"fewer than {2 * config.stop_holdout_every} training views with masks: none held "
+                            "out, the full schedule"})
+    return _result(feats, knn, history, timings, path, stopping)
+
+
+def _held_out(views: Sequence, usable: list[int], config: FeatureConfig) -> tuple[list[int], list[int]]:
+    """(trained, held out) indices of the usable views: none held out unless the stage stops
+    when converged (``config.stop_interval``)."""
+    if config.stop_interval <= 0:
+        return usable, []
+    from trase.convergence import held_out_views
+
+    trained, held = held_out_views([views[i] for i in usable], config.stop_holdout_every)
+    index = {id(views[i]): i for i in usable}
+    return [index[id(v)] for v in trained], [index[id(v)] for v in held]
 
 
 def _check_config(config: FeatureConfig) -> None:
@@ -254,11 +276,15 @@ class _FeatureStep:
         """The objective's loss (plus its per-gaussian term, if any) on features [N, D] rendered
         at the sample's pixels of view ``vi``; sets ``sample.alpha`` / ``sample.image_features``
         where the objective reads them."""
+        return self.loss_of(render_ready(feats, self.knn, self.config, self.gen), vi, ms, sample, self.gen)
+
+    def loss_of(self, f: torch.Tensor, vi: int, ms, sample: PixelSample,
+                gen: torch.Generator) -> tuple[torch.Tensor, dict]:
+        """``loss`` on features ``f`` [N, D] ready to render; ``gen``: the objective's own draws."""
         if getattr(self.objective, "needs_alpha", False):
             # rendering is linear in the features, so rendering ones gives alpha = sum of weights
             with torch.no_grad():
-                sample.alpha = self.path.render(vi, feats.new_ones(feats.shape[0], 1), sample.pixels)[:, 0]
-        f = render_ready(feats, self.knn, self.config, self.gen)  # [N, D]
+                sample.alpha = self.path.render(vi, f.new_ones(f.shape[0], 1), sample.pixels)[:, 0]
         if self.whole_view:
             H, W = ms.height, ms.width
             sample.image_features = self.path.render(vi, f, torch.arange(H * W, device=self.dev))  # [H*W, D]
@@ -266,11 +292,41 @@ class _FeatureStep:
         else:
             rendered = self.path.render(vi, f, sample.pixels)  # [P, D]
         loss, stats = self.objective(rendered, sample)
-        extra = self.objective.gaussian_loss(f, self.xyz, self.gen)
+        extra = self.objective.gaussian_loss(f, self.xyz, gen)
         if extra is not None:
             loss = loss + extra
             stats["gaussian_loss"] = float(extra.detach())
         return loss, stats
+
+
+class _Criterion:
+    """The stopping criterion of the feature stage: the objective's mean loss over one fixed
+    sample of each held-out view (drawn once, from its own stream, so every check measures the
+    same pixels), on the features smoothed over all K neighbours (as the stage saves them) and
+    renormalised as training renders them."""
+
+    def __init__(self, step: _FeatureStep, held: list[int]) -> None:
+        from trase.convergence import Plateau
+
+        c = step.config
+        self.step, self.plateau = step, Plateau(c.stop_rule())
+        rng = np.random.default_rng([c.seed, 1])  # apart from the training draws
+        self.samples = [(vi, build_sample(step.masks_of(vi), c.mask_rule, c.n_masks, c.n_pixels, rng, view=vi)
+                         .to(step.dev)) for vi in held]
+
+    @torch.no_grad()
+    def value(self, feats: torch.Tensor) -> float:
+        s = self.step
+        f = smooth_features(feats, s.knn, None)
+        if s.config.renormalize and s.knn.shape[1] > 0:
+            f = torch.nn.functional.normalize(f, dim=1, eps=NORM_EPS)
+        gen = torch.Generator().manual_seed(int(s.config.seed))  # the objective's draws, alike at every check
+        losses = [float(s.loss_of(f, vi, s.masks_of(vi), sample, gen)[0]) for vi, sample in self.samples]
+        return float(np.mean(losses))
+
+    def check(self, done: int, feats: torch.Tensor) -> bool:
+        """After ``done`` steps: True when the stage should stop."""
+        return self.plateau.due(done) and self.plateau.observe(done, self.value(feats))
 
 
 class _Checkpoint:
@@ -282,8 +338,10 @@ class _Checkpoint:
         self.path, self.every_s = path, float(every_s)
         self.last = time.perf_counter()
 
-    def load(self, feats: torch.nn.Parameter, opt, step: _FeatureStep) -> tuple[int, list[dict], float]:
-        """Restore into ``feats``/``opt``/``step``'s generators -> (next step, history, seconds)."""
+    def load(self, feats: torch.nn.Parameter, opt, step: _FeatureStep,
+             criterion: _Criterion | None = None) -> tuple[int, list[dict], float]:
+        """Restore into ``feats``/``opt``/``step``'s generators (and the criterion's checks) ->
+        (next step, history, seconds)."""
         if not self.path.is_file():
             return 0, [], 0.0
         state = torch.load(self.path, map_location="cpu", weights_only=False)
@@ -294,16 +352,20 @@ class _Checkpoint:
         opt.load_state_dict(state["optimizer"])
         step.rng.bit_generator.state = state["rng"]
         step.gen.set_state(state["gen"])
+        if criterion is not None:
+            criterion.plateau.restore(state.get("plateau"))
         return int(state["step"]), list(state["history"]), float(state["seconds"])
 
-    def maybe_save(self, feats, opt, step: _FeatureStep, next_step: int, history: list[dict], seconds: float) -> None:
+    def maybe_save(self, feats, opt, step: _FeatureStep, next_step: int, history: list[dict], seconds: float,
+                   criterion: _Criterion | None = None) -> None:
         if time.perf_counter() - self.last < self.every_s:
             return
         from trase.checkpoint import atomic_torch_save
 
         atomic_torch_save({"features": feats.detach().cpu(), "optimizer": opt.state_dict(), "step": next_step,
                            "rng": step.rng.bit_generator.state, "gen": step.gen.get_state(),
-                           "history": history, "seconds": seconds}, self.path)
+                           "history": history, "seconds": seconds,
+                           **({"plateau": criterion.plateau.state()} if criterion is not None else {})}, self.path)
         self.last = time.perf_counter()
 
     def remove(self) -> None:
@@ -311,12 +373,15 @@ class _Checkpoint:
 
 
 def _optimise(feats: torch.nn.Parameter, step: _FeatureStep, views: Sequence, progress: bool,
-              log_every: int, ckpt: _Checkpoint | None = None) -> tuple[list[dict], float, int]:
-    """``config.iterations`` Adam steps on features [N, D] in place -> (history every
-    ``log_every`` steps and the last, seconds of the loop, the step it resumed from)."""
+              log_every: int, ckpt: _Checkpoint | None = None,
+              criterion: _Criterion | None = None) -> tuple[list[dict], float, int, int]:
+    """``config.iterations`` Adam steps on features [N, D] in place, fewer where ``criterion``
+    says the loss has converged -> (history every ``log_every`` steps and the last, seconds of
+    the loop, the step it resumed from, the steps done)."""
     config = step.config
     opt = torch.optim.Adam([feats], lr=config.lr, eps=config.eps)
-    start, history, before = ckpt.load(feats, opt, step) if ckpt is not None else (0, [], 0.0)
+    start, history, before = ckpt.load(feats, opt, step, criterion) if ckpt is not None else (0, [], 0.0)
+    done = start
     bar = _progress(progress, config.iterations)
     if bar is not None and start:
         bar.p.update(bar.task, completed=start)
@@ -331,26 +396,31 @@ def _optimise(feats: torch.nn.Parameter, step: _FeatureStep, views: Sequence, pr
                 opt.step()
             if not torch.isfinite(loss):
                 raise FeatureTrainingError(f"feature loss became non-finite at step {it} (view {views[vi].name})")
-            if it % log_every == 0 or it == config.iterations - 1:
+            done = it + 1
+            stop = criterion is not None and criterion.check(done, feats.detach())
+            if it % log_every == 0 or it == config.iterations - 1 or stop:
                 history.append({"step": it, "loss": float(loss.detach()), **stats})
             if bar is not None:
                 bar.advance(float(loss.detach()))
+            if stop:
+                break
             if ckpt is not None and it + 1 < config.iterations:
-                ckpt.maybe_save(feats, opt, step, it + 1, history, before + time.perf_counter() - t1)
+                ckpt.maybe_save(feats, opt, step, it + 1, history, before + time.perf_counter() - t1, criterion)
     finally:
         if bar is not None:
             bar.close()
     if ckpt is not None:
         ckpt.remove()
-    return history, before + time.perf_counter() - t1, start
+    return history, before + time.perf_counter() - t1, start, done
 
 
-def _result(feats: torch.Tensor, knn: torch.Tensor, history: list[dict], timings: dict, path) -> TrainResult:
+def _result(feats: torch.Tensor, knn: torch.Tensor, history: list[dict], timings: dict, path,
+            stopping: dict | None = None) -> TrainResult:
     """The saved features [N, D] (smoothed over all K neighbours, as the public code saves) and
     the raw parameters, both on the CPU."""
     with torch.no_grad():
         saved = smooth_features(feats.detach(), knn, None).cpu()
-    return TrainResult(saved, feats.detach().cpu().clone(), history, timings, path.stats())
+    return TrainResult(saved, feats.detach().cpu().clone(), history, timings, path.stats(), stopping)
 
 
 def _on_device(gaussians, deformation, dev: torch.device):

@@ -41,6 +41,7 @@ from trase.checkpoint import (
     load_model,
     save_model,
 )
+from trase.convergence import STOP_FILE, Plateau, held_out_views, view_name, write_summary
 from trase.deformation import DeformMLP, deformed, deformed_visible
 from trase.densify import DensifyStrategy, in_view, scene_extent
 from trase.devices import resolve_device
@@ -166,6 +167,7 @@ class _Trainer:
     # their frozen offsets [N, 10]
     static: torch.Tensor | None = None
     frozen: torch.Tensor | None = None
+    plateau: Plateau | None = None  # the stopping checks (stop_interval > 0)
 
     def deformation(self):
         """What renders this step: the network, or the network for the moving gaussians only."""
@@ -204,6 +206,7 @@ class _Trainer:
             "view_stack": torch.tensor(self.view_stack, dtype=torch.int64),
             "ema_loss": self.ema_loss, "ema_psnr": self.ema_psnr,
             **({} if self.static is None else {"static": self.static.cpu(), "frozen": self.frozen.cpu()}),
+            **({} if self.plateau is None else {"plateau": self.plateau.state()}),
         }
 
 
@@ -228,7 +231,8 @@ def _new_trainer(points, point_colors, cfg: ReconstructionConfig, dev, strategy:
     gaussians = gaussians.to(dev)
     opt_g, opt_d = _make_optimizers(gaussians, deform, cfg)
     strategy.initialize_state(gaussians.num_gaussians, dev)
-    return _Trainer(gaussians, deform, opt_g, opt_d, strategy, gen, [])
+    plateau = Plateau(cfg.stop_rule()) if cfg.stop_interval > 0 else None
+    return _Trainer(gaussians, deform, opt_g, opt_d, strategy, gen, [], plateau=plateau)
 
 
 def _resumed_trainer(out_dir: Path, start: int, cfg: ReconstructionConfig, dev,
@@ -271,6 +275,9 @@ def _resumed_trainer(out_dir: Path, start: int, cfg: ReconstructionConfig, dev,
                   float(state["ema_loss"]), float(state["ema_psnr"]))
     if "static" in state:
         tr.static, tr.frozen = state["static"].to(dev), state["frozen"].to(dev)
+    if cfg.stop_interval > 0:
+        tr.plateau = Plateau(cfg.stop_rule())
+        tr.plateau.restore(state.get("plateau"))
     return tr
 
 
@@ -299,6 +306,8 @@ def reconstruct(
     Checkpoints go to out_dir in the public layout every ``checkpoint_interval`` iterations
     and at the end; with ``resume`` the latest one (with its sidecar state) is continued.
     ``max_seconds`` stops early (and checkpoints) once that much wall time has been spent.
+    With ``stop_interval`` > 0 some training views are held out and the run stops once their
+    PSNR has stopped rising (``trase.convergence``); out_dir/stopped.json records the checks.
     ``torch_threads`` sets torch's intra-op threads for the run (restored afterwards); None
     takes ``config.torch_threads``.
     """
@@ -317,6 +326,9 @@ def _reconstruct(views, points, point_colors, config, out_dir, resume, progress,
     dev = resolve_device(cfg.device)
     bg_np = np.ones(3, np.float32) if cfg.white_background else np.zeros(3, np.float32)
     bg = torch.from_numpy(bg_np).to(dev)
+    held: list = []
+    if cfg.stop_interval > 0:  # views held out of training for the stopping criterion
+        views, held = held_out_views(views, cfg.stop_holdout_every)
     data = ImageCache(views, cfg.image_downscale, bg_np, dev)
     strategy = DensifyStrategy(cfg, scene_extent(data.cameras))
 
@@ -329,16 +341,26 @@ def _reconstruct(views, points, point_colors, config, out_dir, resume, progress,
         tr = _resumed_trainer(out_dir, start, cfg, dev, strategy, gen, static)
     else:
         tr = _new_trainer(points, point_colors, cfg, dev, strategy, gen, static)
-    _train(tr, data, bg, cfg, out_dir, start, progress, backend, max_seconds)
+    if not held:
+        tr.plateau = None  # too few views to hold any out: the full schedule
+    if tr.plateau is None or tr.plateau.stopped_at is None:  # a run that stopped when converged is done
+        _train(tr, data, bg, cfg, out_dir, start, progress, backend, max_seconds, held)
+    if cfg.stop_interval > 0:
+        summary = (tr.plateau.summary("held-out PSNR (dB)", cfg.iterations, [view_name(v) for v in held])
+                   if tr.plateau is not None else
+                   {"criterion": None, "stopped_at": None, "cap": cfg.iterations, "held_out": [],
+                    "why": f"fewer than {2 * cfg.stop_holdout_every} training views: none held out, the full schedule"})
+        write_summary(out_dir / STOP_FILE, summary)
     if tr.deform is not None:
         tr.deform.eval()
     return tr.gaussians, tr.deformation()
 
 
 def _train(tr: _Trainer, data: ImageCache, bg: torch.Tensor, cfg: ReconstructionConfig, out_dir: Path,
-           start: int, progress: bool, backend: str, max_seconds: float | None) -> None:
+           start: int, progress: bool, backend: str, max_seconds: float | None, held: Sequence = ()) -> None:
     """Iterations start + 1 .. cfg.iterations: a step, its bookkeeping, checkpoints; stops
-    early (after a checkpoint) once ``max_seconds`` have passed."""
+    early (after a checkpoint) once ``max_seconds`` have passed, or once the PSNR of the
+    ``held`` views has stopped rising (``tr.plateau``)."""
     log = TrainLog(out_dir / "train_log.csv", start)
     bar = ProgressBar(progress, cfg.iterations, start)
     t0, c0 = time.perf_counter(), time.process_time()
@@ -361,11 +383,23 @@ def _train(tr: _Trainer, data: ImageCache, bg: torch.Tensor, cfg: Reconstruction
                     tr.static, tr.frozen = carry["static"], carry["frozen"]
                 _optimizer_step(tr, step.use_deform)
                 _check_static(tr, it, cfg, data)
-            if _checkpoint(tr, out_dir, it, cfg, t0, max_seconds):
+                converged = _converged(tr, it, cfg, held, bg, backend)
+            if _checkpoint(tr, out_dir, it, cfg, t0, max_seconds, converged):
                 break
     finally:
         bar.close()
         log.close()
+
+
+def _converged(tr: _Trainer, it: int, cfg: ReconstructionConfig, held: Sequence, bg: torch.Tensor,
+               backend: str) -> bool:
+    """On the stopping schedule (past the warm-up): the held-out views' PSNR, recorded; True
+    when the run should stop after this iteration."""
+    if tr.plateau is None or not held or it < cfg.warm_up or not tr.plateau.due(it):
+        return False
+    value = evaluate_images(tr.gaussians, tr.deformation(), held, bg, backend, cfg.image_downscale,
+                            ssim_too=False)["psnr"]
+    return tr.plateau.observe(it, value)
 
 
 def _check_static(tr: _Trainer, it: int, cfg: ReconstructionConfig, data: ImageCache) -> None:
@@ -388,12 +422,15 @@ def _check_static(tr: _Trainer, it: int, cfg: ReconstructionConfig, data: ImageC
 
 
 def _checkpoint(tr: _Trainer, out_dir: Path, it: int, cfg: ReconstructionConfig, t0: float,
-                max_seconds: float | None) -> bool:
-    """Save on the checkpoint schedule and at the end; True (stop) once ``max_seconds`` have
-    passed since ``t0`` (time.perf_counter), counting the save, after saving this iteration."""
-    due = it % cfg.checkpoint_interval == 0 or it == cfg.iterations
+                max_seconds: float | None, converged: bool = False) -> bool:
+    """Save on the checkpoint schedule, at the end and where the run ``converged`` (then True:
+    stop); True (stop) once ``max_seconds`` have passed since ``t0`` (time.perf_counter),
+    counting the save, after saving this iteration."""
+    due = it % cfg.checkpoint_interval == 0 or it == cfg.iterations or converged
     if due:
         _save(tr, out_dir, it, cfg)
+    if converged:
+        return True
     if max_seconds is not None and time.perf_counter() - t0 > max_seconds:
         if not due:
             _save(tr, out_dir, it, cfg)

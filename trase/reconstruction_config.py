@@ -81,6 +81,16 @@ class ReconstructionConfig:
     static_threshold: float = 0.0
     static_from: int = 1_000
     static_interval: int = 500
+    # stop when converged (trase.convergence): every stop_interval iterations (0 = off, the
+    # public code's full schedule) the PSNR of the training views held out for it (every
+    # stop_holdout_every-th in time order, not trained on) is measured; the run stops once it
+    # has not risen by stop_min_delta dB for stop_patience checks in a row, not before
+    # stop_floor nor before the warm-up ends, and at `iterations` at the latest
+    stop_interval: int = 0
+    stop_patience: int = 2
+    stop_min_delta: float = 0.05
+    stop_floor: int = 0
+    stop_holdout_every: int = 10
     # torch intra-op threads while training (the deformation network; the rasterizer runs on
     # numba's own threads)
     torch_threads: int = 1
@@ -117,9 +127,19 @@ class ReconstructionConfig:
         if self.static_threshold < 0 or self.static_interval < 1 or self.static_from < 0:
             raise ValueError("static_threshold must be >= 0, static_interval >= 1 and static_from >= 0, got "
                              f"{self.static_threshold}, {self.static_interval}, {self.static_from}")
+        self.stop_rule()  # a bad stopping rule fails here
+        if self.stop_interval > 0 and self.stop_holdout_every < 2:
+            raise ValueError(f"stop_holdout_every must be >= 2 when stopping is on, got {self.stop_holdout_every}")
         if self.densify_statistic not in DENSIFY_STATISTICS:
             raise ValueError(f"densify_statistic must be one of {', '.join(DENSIFY_STATISTICS)}, "
                              f"got {self.densify_statistic!r}")
+
+    def stop_rule(self):
+        """The stopping rule of the stop_* settings (``trase.convergence.StopRule``)."""
+        from trase.convergence import StopRule
+
+        return StopRule(self.stop_interval, self.stop_patience, self.stop_min_delta,
+                        max(self.stop_floor, self.warm_up), higher_is_better=True)
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)

@@ -9,6 +9,18 @@ import click
 from benchmark.commands import old_spelling
 
 
+def stopped_stages(record: dict) -> str:
+    """`` [stopped: geometry at 3200 of 4000, ...]`` for the stages that stop when converged."""
+    said = []
+    for stage in ("geometry", "features"):
+        st = ((record.get("stages") or {}).get(stage) or {}).get("info") or {}
+        st = st.get("stopping")
+        if st:
+            at = st.get("stopped_at")
+            said.append(f"{stage} at {at} of {st['cap']}" if at is not None else f"{stage} ran all {st['cap']}")
+    return f" [stopped when converged: {', '.join(said)}]" if said else ""
+
+
 @click.command()
 @old_spelling("--out", "--runs")
 @click.option("--method", required=True, help="A method: trase, trase-hard, trase-all, cgc, opengaussian, one from an "
@@ -68,7 +80,7 @@ def run(method, dataset, sequences, data_root, runs_dir, cache_dir, overrides, n
             ceiling += f", click sets median {fmt(sets['median'])} worst {fmt(sets['worst'])} of {sets['n']}"
         click.echo(f"{r['method']} {r['dataset']}/{r['sequence']} ({r['variant']}, run "
                    f"{r['run']['name']}, {r['run']['kind']}, seed {r['run']['seed']}): mIoU {fmt(official['miou'])} mAcc {fmt(official['macc'])}{v1}  "
-                   f"[oracle mIoU {fmt(oracle.get('miou'))}{ceiling}]  -> {path}")
+                   f"[oracle mIoU {fmt(oracle.get('miou'))}{ceiling}]{stopped_stages(r)}  -> {path}")
     if opts.seeds and len(opts.seeds) > 1:
         from benchmark.results.runs import load_run
         from benchmark.results.stability import format_summary, seed_summary

@@ -77,6 +77,7 @@ class TraseMethod(Method):
             "path": res.path_stats,
             "loss_tail": res.history[-5:],
             "objective": fcfg.objective,
+            **({"stopping": res.stopping} if res.stopping is not None else {}),
             **({"peak_gpu_mib": peak} if peak is not None else {}),
         }
         return feats, info

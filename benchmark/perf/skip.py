@@ -2,7 +2,9 @@
 (``trase-bench perf skip``): seconds per stage, test PSNR, geometry ceiling and mIoU.
 
 Skips measured: ``static`` (static gaussians skip the deformation network,
-``geometry.train.static_threshold``). Each format's built-in scene runs the whole pipeline
+``geometry.train.static_threshold``) and ``converged`` (the geometry and feature stages stop once
+their criterion on held-out training views stops improving, ``geometry.train.stop_*`` and
+``method.features.stop_*``; trase.convergence). Each format's built-in scene runs the whole pipeline
 (trase, the preset of this machine, reconstructed geometry) once per variant with one stage
 cache per scene, so the variants share the masks and nothing else. One run per variant: no
 spread; the ratios are of runs made one after the other on this machine, so its load is in them.
@@ -20,15 +22,24 @@ from benchmark.perf.common import load_average, table, versions
 
 DATASETS = ["nerfds", "hypernerf", "neu3d", "immersive", "technicolor"]
 STATIC_THRESHOLD = 0.01  # chosen on the seed-1 selection scene of the HyperNeRF format (docs/skip.md)
+# stopping when converged: checks every 250 steps of both stages, two checks without a gain
+# (geometry: 0.05 dB of held-out PSNR; features: 1% of the first check's held-out loss), every
+# 10th training view held out (docs/skip.md, "Stages that stop when converged")
+CONVERGED = ["geometry.train.stop_interval=250", "geometry.train.stop_patience=2", "geometry.train.stop_min_delta=0.05",
+             "method.features.stop_interval=250", "method.features.stop_patience=2",
+             "method.features.stop_min_delta=0.01"]
 STAGES = ("geometry", "features", "fit", "evaluate")
 DEFAULT = {"datasets": DATASETS, "sequence": "synthetic", "overrides": []}
-QUICK = {"datasets": ["hypernerf"], "sequence": "synthetic-tiny",
+QUICK = {"datasets": ["neu3d"], "sequence": "synthetic-tiny",  # 3 frames x 18 cameras: views to hold out
          "overrides": ["geometry.train.iterations=60", "geometry.train.warm_up=10", "geometry.train.static_from=10",
-                       "geometry.train.static_interval=20", "method.features.iterations=20"]}
+                       "geometry.train.static_interval=20", "method.features.iterations=20",
+                       "geometry.train.stop_holdout_every=5", "method.features.stop_holdout_every=5"]}
 
 
-def variants(threshold: float) -> dict[str, list[str]]:
-    return {"full": [], "static": [f"geometry.train.static_threshold={threshold}"]}
+def variants(threshold: float, quick: bool = False) -> dict[str, list[str]]:
+    # quick: the tiny schedule checks every 10 steps
+    converged = [o.replace("_interval=250", "_interval=10") for o in CONVERGED] if quick else CONVERGED
+    return {"full": [], "static": [f"geometry.train.static_threshold={threshold}"], "converged": converged}
 
 
 def _figures(rec: dict) -> dict:
@@ -36,7 +47,9 @@ def _figures(rec: dict) -> dict:
     geo = stages["geometry"].get("info") or {}
     ceiling = rec.get("ceiling") or {}
     movers = ceiling.get("mover_frames") or {}  # the ceiling in the frames where objects move, and the others
-    return {"seconds": {s: float(stages[s]["seconds"]) for s in STAGES if s in stages},
+    stopped = {s: (stages[s].get("info") or {}).get("stopping") for s in ("geometry", "features") if s in stages}
+    return {"stopped_at": {s: (st or {}).get("stopped_at") for s, st in stopped.items() if st},
+            "stop_cap": {s: st["cap"] for s, st in stopped.items() if st},"seconds": {s: float(stages[s]["seconds"]) for s in STAGES if s in stages},
             "test_psnr": geo.get("test_psnr"), "gaussians": int(rec["n_gaussians"]),
             "static_gaussians": geo.get("static_gaussians", 0),
             "ceiling": ceiling.get("miou"), "ceiling_moving_frames": movers.get("miou"),
@@ -51,7 +64,7 @@ def run(quick: bool = False, echo: Callable[[str], None] = print, dataset: str |
     cfg = dict(QUICK if quick else DEFAULT)
     datasets = [dataset] if dataset else cfg["datasets"]
     extra = [*cfg["overrides"], *(overrides or [])]
-    vs = variants(STATIC_THRESHOLD)
+    vs = variants(STATIC_THRESHOLD, quick)
     described = ", ".join(f"{k} [{' '.join(v) or 'as the preset'}]" for k, v in vs.items())
     echo(f"skips on and off, {', '.join(datasets)} ({cfg['sequence']}), trase, settings {' '.join(extra) or '(defaults)'}; "
          f"variants: {described}")
@@ -67,7 +80,7 @@ def run(quick: bool = False, echo: Callable[[str], None] = print, dataset: str |
                 except Exception as exc:  # noqa: BLE001 - reported per run, not hidden
                     entry |= {"error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc(limit=3)}
                     runs.append(entry)
-                    rows.append([ds, name, "FAILED", "", "", "", "", "", ""])
+                    rows.append([ds, name, "FAILED", "", "", "", "", "", "", "", "", ""])
                     continue
                 entry |= _figures(rec) | {"wall_seconds": time.perf_counter() - t0}
                 runs.append(entry)
@@ -77,9 +90,11 @@ def run(quick: bool = False, echo: Callable[[str], None] = print, dataset: str |
                              f"{entry['test_psnr']:.2f}" if entry["test_psnr"] is not None else "-",
                              f"{entry['static_gaussians'] / max(entry['gaussians'], 1):.0%}",
                              f4(entry["ceiling"]), f4(entry["ceiling_moving_frames"]), f4(entry["ceiling_other_frames"]),
-                             f"{entry['miou']:.4f}", _ratio(runs, ds, name)])
+                             f"{entry['miou']:.4f}", _stopped(entry), _ratio(runs, ds, name, "geometry"),
+                             _ratio(runs, ds, name, "features")])
     echo(table(rows, ["format", "variant", "geometry s", "features s", "test PSNR", "static", "ceiling",
-                      "ceiling, frames with motion", "ceiling, other frames", "mIoU", "geometry s vs full"]))
+                      "ceiling, frames with motion", "ceiling, other frames", "mIoU", "stopped at",
+                      "geometry s vs full", "features s vs full"]))
     for r in runs:
         if "error" in r:
             echo(f"FAILED {r['dataset']} {r['variant']}: {r['error']}")
@@ -90,11 +105,17 @@ def run(quick: bool = False, echo: Callable[[str], None] = print, dataset: str |
             "load_average_end": load_average()}
 
 
-def _ratio(runs: list[dict], ds: str, name: str) -> str:
+def _stopped(entry: dict) -> str:
+    """``geometry 3250/4000, features 1500/3000`` (``all``: ran to the cap), or nothing."""
+    caps = entry.get("stop_cap") or {}
+    return ", ".join(f"{s} {entry['stopped_at'].get(s) or 'all'}/{c}" for s, c in caps.items())
+
+
+def _ratio(runs: list[dict], ds: str, name: str, stage: str) -> str:
     if name == "full":
         return ""
     by = {r["variant"]: r for r in runs if r["dataset"] == ds and "error" not in r}
     if "full" not in by or name not in by:
         return "-"
-    full = by["full"]["seconds"].get("geometry", 0.0)
-    return f"{by[name]['seconds'].get('geometry', 0.0) / full:.2f}" if full > 0 else "-"
+    full = by["full"]["seconds"].get(stage, 0.0)
+    return f"{by[name]['seconds'].get(stage, 0.0) / full:.2f}" if full > 0 else "-"

@@ -42,6 +42,12 @@ def run(ctx: SequenceRun) -> list[StageRecord]:
         bg = (1.0, 1.0, 1.0) if geometry.train.white_background else None
         info = {"source": src, "n_gaussians": int(gaussians.num_gaussians), "test_psnr": None,
                 "motion": "dynamic" if deformation is not None else "static (plain 3DGS, no deformation network)"}
+        if src == "reconstruct":
+            from trase.convergence import STOP_FILE, read_summary
+
+            stopping = read_summary(d / "model" / STOP_FILE)  # stop_interval > 0: the checks, where it stopped
+            if stopping is not None:
+                info["stopping"] = stopping
         static = getattr(deformation, "static", None)  # trase.static_gaussians: rows that skip the network
         if static is not None:
             info["static_gaussians"] = int(static.sum())

@@ -1,4 +1,5 @@
 import numpy as np
+import pytest
 import torch
 
 import baselines  # noqa: F401  (registers the baseline objectives with trase.objectives)
@@ -159,14 +160,14 @@ def test_norm_regulariser_averages_over_the_image_features_when_given():
         sample.image_features = None
 
 
-def test_a_killed_training_resumes_from_its_checkpoint_bit_for_bit(tmp_path, monkeypatch):
-    import pytest
-
+@pytest.mark.parametrize("stopping", [{}, {"stop_interval": 10, "stop_patience": 100, "stop_holdout_every": 2}])
+def test_a_killed_training_resumes_from_its_checkpoint_bit_for_bit(tmp_path, monkeypatch, stopping):
     import trase.features as tf
 
     gm, deform, ids, views = tiny_scene()
     masks = {v.name: exact_masks(gm, deform, ids, v) for v in views}
-    cfg = FeatureConfig(dim=8, iterations=40, n_pixels=300, n_masks=3, knn=4, knn_keep=2, lr=0.02, fastpath=True)
+    cfg = FeatureConfig(dim=8, iterations=40, n_pixels=300, n_masks=3, knn=4, knn_keep=2, lr=0.02, fastpath=True,
+                        **stopping)
     train = lambda d, **kw: train_features(gm, deform, views, lambda v: masks[v.name], cfg, cache_dir=d,
                                            progress=False, **kw)
     whole = train(tmp_path / "whole")
@@ -189,8 +190,31 @@ def test_a_killed_training_resumes_from_its_checkpoint_bit_for_bit(tmp_path, mon
     assert resumed.timings["resumed_from_step"] == 25 and whole.timings["resumed_from_step"] == 0
     assert torch.equal(resumed.features, whole.features) and torch.equal(resumed.raw_features, whole.raw_features)
     assert [h["loss"] for h in resumed.history] == [h["loss"] for h in whole.history]
+    assert resumed.stopping == whole.stopping  # the checks before the kill came back with the checkpoint
+    if stopping:
+        assert [c[0] for c in whole.stopping["checks"]] == [10, 20, 30, 40]
     assert not ckpt.exists()  # removed once the training ended
     # a checkpoint of other features (another width) is not resumed from
     other = tmp_path / "other.pt"
     torch.save({"features": torch.zeros(3, 2)}, other)
     assert train(tmp_path / "o", checkpoint=other).timings["resumed_from_step"] == 0
+
+
+def test_the_stage_stops_when_the_held_out_loss_stops_falling(tmp_path):
+    # a fall of 100 times the first loss never comes: the first check (10) sets the baseline, the next stops
+    res, _ = _train(tmp_path, iterations=60, stop_interval=10, stop_patience=1, stop_min_delta=100.0,
+                    stop_holdout_every=2)
+    st = res.stopping
+    assert st["stopped_at"] == 20 and st["cap"] == 60 and [c[0] for c in st["checks"]] == [10, 20]
+    assert len(st["held_out"]) == 2 and res.timings["n_usable_views"] == 2  # 2 of the 4 views held out
+    assert res.history[-1]["step"] == 19 and np.isfinite(st["best"])
+    # the same settings without stopping train on every view for the whole schedule
+    full, _ = _train(tmp_path / "full", iterations=60)
+    assert full.stopping is None and full.timings["n_usable_views"] == 4 and full.history[-1]["step"] == 59
+
+
+def test_too_few_views_to_hold_out_train_the_whole_schedule_and_say_so(tmp_path):
+    res, _ = _train(tmp_path, iterations=30, stop_interval=10, stop_patience=1, stop_min_delta=1.0,
+                    stop_holdout_every=10)
+    assert res.stopping["stopped_at"] is None and "none held out" in res.stopping["why"]
+    assert res.history[-1]["step"] == 29

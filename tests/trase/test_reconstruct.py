@@ -191,3 +191,47 @@ def test_a_motionless_capture_trains_plain_3dgs_and_resumes(tmp_path):
     reconstruct(moving, mpts, None, dataclasses.replace(CFG, iterations=20), tmp_path / "mix", progress=False)
     with pytest.raises(CheckpointError, match="has a deformation network"):
         reconstruct(views, pts, None, CFG, tmp_path / "mix", progress=False)
+
+
+def test_a_run_stops_when_the_held_out_psnr_stops_rising_and_stays_stopped(scene, tmp_path):
+    import json
+
+    views, pts = scene
+    # a gain of 100 dB never comes: the first check past the warm-up (15) sets the baseline, the
+    # next one (20) stops with patience 1
+    cfg = dataclasses.replace(CFG, stop_interval=5, stop_patience=1, stop_min_delta=100.0, stop_holdout_every=3)
+    reconstruct(views, pts, None, cfg, tmp_path / "m", progress=False)
+    summary = json.loads((tmp_path / "m/stopped.json").read_text())
+    assert summary["stopped_at"] == 20 and summary["cap"] == 40 and len(summary["held_out"]) == 2
+    assert [s for s, _ in summary["checks"]] == [15, 20] and summary["checks"][0][1] > 0
+    assert available_iterations(tmp_path / "m") == [20]
+    # called again (a resumed stage), it does not train past where it stopped
+    reconstruct(views, pts, None, cfg, tmp_path / "m", progress=False)
+    assert available_iterations(tmp_path / "m") == [20]
+    assert json.loads((tmp_path / "m/stopped.json").read_text()) == summary
+
+
+def test_without_a_plateau_the_run_reaches_its_cap_and_resumes_the_checks_exactly(scene, tmp_path):
+    import json
+
+    views, pts = scene
+    cfg = dataclasses.replace(CFG, stop_interval=5, stop_patience=10, stop_min_delta=0.0, stop_holdout_every=3)
+    full_g, _ = reconstruct(views, pts, None, cfg, tmp_path / "full", progress=False)
+    full = json.loads((tmp_path / "full/stopped.json").read_text())
+    assert full["stopped_at"] is None and [s for s, _ in full["checks"]] == [15, 20, 25, 30, 35, 40]
+    reconstruct(views, pts, None, dataclasses.replace(cfg, iterations=20, stop_floor=0), tmp_path / "split",
+                progress=False)
+    g, _ = reconstruct(views, pts, None, cfg, tmp_path / "split", progress=False)
+    assert json.loads((tmp_path / "split/stopped.json").read_text())["checks"] == full["checks"]
+    assert torch.equal(g.means, full_g.means)
+
+
+def test_too_few_views_to_hold_out_train_the_full_schedule_and_say_so(scene, tmp_path):
+    import json
+
+    views, pts = scene
+    cfg = dataclasses.replace(CFG, stop_interval=5, stop_patience=1, stop_min_delta=100.0, stop_holdout_every=10)
+    reconstruct(views, pts, None, cfg, tmp_path / "m", progress=False)
+    summary = json.loads((tmp_path / "m/stopped.json").read_text())
+    assert summary["stopped_at"] is None and "none held out" in summary["why"]
+    assert available_iterations(tmp_path / "m")[-1] == 40

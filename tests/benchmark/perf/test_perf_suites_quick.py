@@ -60,9 +60,11 @@ def test_all_suites_quick(tmp_path, monkeypatch, capsys):
     assert r["preset_steps"] > 100 and r["stage_seconds_at_preset_steps"] > 100 * r["per_step_seconds"]
     assert "ms/step" in text
 
-    sk = s["skip"]  # static gaussians on and off
-    assert not sk["failed"] and [r["variant"] for r in sk["runs"]] == ["full", "static"]
-    full, static = sk["runs"]
+    sk = s["skip"]  # static gaussians on and off, stages that stop when converged
+    assert not sk["failed"] and [r["variant"] for r in sk["runs"]] == ["full", "static", "converged"]
+    full, static, converged = sk["runs"]
+    assert full["stop_cap"] == {} and converged["stop_cap"] == {"geometry": 60, "features": 20}
+    assert all(at is None or 10 <= at <= 60 for at in converged["stopped_at"].values())
     assert full["static_gaussians"] == 0 and full["gaussians"] > 0 and static["gaussians"] > 0
     for r in (full, static):  # the ceiling split into the frames with motion and the others
         assert 0 <= r["ceiling_moving_frames"] <= 1 and 0 <= r["ceiling_other_frames"] <= 1

@@ -1,0 +1,74 @@
+import math
+from types import SimpleNamespace
+
+import pytest
+
+from trase.convergence import Plateau, StopRule, held_out_views, read_summary, write_summary
+
+
+def _views(n):
+    # names out of time order: the rule holds out by time
+    return [SimpleNamespace(name=f"v{(7 * i) % n:02d}", camera=SimpleNamespace(time=((7 * i) % n) / n))
+            for i in range(n)]
+
+
+def test_held_out_views_are_spread_over_time_and_never_the_ends():
+    views = _views(25)
+    trained, held = held_out_views(views, 10)
+    assert sorted(v.name for v in held) == ["v05", "v15"]
+    assert len(trained) == 23 and not {v.name for v in trained} & {v.name for v in held}
+
+
+def test_too_few_views_hold_nothing_out():
+    views = _views(19)
+    assert held_out_views(views, 10) == (views, [])
+    assert held_out_views(views, 1) == (views, [])
+
+
+def test_a_plateau_stops_after_patience_checks_without_gain():
+    p = Plateau(StopRule(interval=10, patience=2, min_delta=0.1))
+    assert [p.observe(s, v) for s, v in [(10, 20.0), (20, 21.0), (30, 21.05), (40, 21.2), (50, 21.25), (60, 21.28)]] \
+        == [False, False, False, False, False, True]
+    assert p.stopped_at == 60 and p.best == 21.2
+
+
+def test_the_floor_holds_a_stop_back_and_lower_is_better_for_a_loss():
+    p = Plateau(StopRule(interval=1, patience=1, min_delta=0.0, floor=3, higher_is_better=False))
+    assert [p.observe(s, v) for s, v in [(1, 1.0), (2, 1.5), (3, 0.9), (4, 0.95)]] == [False, False, False, True]
+    assert p.best == 0.9
+
+
+def test_a_non_finite_value_is_never_a_gain():
+    p = Plateau(StopRule(interval=1, patience=2))
+    assert not p.observe(1, math.nan) and p.best is None
+    assert not p.observe(2, 5.0) and p.best == 5.0
+    assert not p.observe(3, math.inf) and p.observe(4, math.nan)
+
+
+def test_state_round_trip_continues_the_same_decisions():
+    a = Plateau(StopRule(interval=1, patience=2))
+    for s, v in [(1, 1.0), (2, 0.5)]:
+        a.observe(s, v)
+    b = Plateau(StopRule(interval=1, patience=2))
+    b.restore(a.state())
+    assert a.observe(3, 0.7) == b.observe(3, 0.7) is True and b.checks == a.checks
+
+
+def test_bad_rules_are_refused():
+    with pytest.raises(ValueError, match="patience >= 1"):
+        StopRule(interval=10, patience=0)
+
+
+def test_summary_file_round_trip_and_corrupt_file(tmp_path):
+    write_summary(tmp_path / "s.json", {"stopped_at": 5})
+    assert read_summary(tmp_path / "s.json") == {"stopped_at": 5} and not (tmp_path / "s.json.tmp").exists()
+    assert read_summary(tmp_path / "none.json") is None
+    (tmp_path / "bad.json").write_text("{")
+    with pytest.raises(ValueError, match="bad.json: not valid JSON"):
+        read_summary(tmp_path / "bad.json")
+
+
+def test_a_relative_gain_is_measured_against_the_first_checks_scale():
+    # a loss that crosses zero: 2% of |the first value| (0.02) is the gain that counts
+    p = Plateau(StopRule(interval=1, patience=1, min_delta=0.02, higher_is_better=False, relative=True))
+    assert [p.observe(s, v) for s, v in [(1, 1.0), (2, 0.01), (3, -0.005), (4, -0.02)]] == [False, False, True, False]
