@@ -39,7 +39,8 @@ SUITES.add("dnerf", "benchmark.perf.dnerf:run",
 SUITES.add("methods", "benchmark.perf.methods:run",
            "Every method's feature stage on one scene, a fresh process each: ms per step, stage time, peak memory.")
 SUITES.add("skip", "benchmark.perf.skip:run",
-           "Skipping what a scene does not need (static gaussians), on and off per format: stage seconds, PSNR, ceiling, mIoU.")
+           "Skipping what a scene does not need (static gaussians, stages stopped when converged), on and off per "
+           "format: stage seconds, PSNR, ceiling, mIoU; a PNG per format with the Pareto front.")
 SUITES.add("pareto", "benchmark.perf.pareto:run",
            "mIoU vs features+fit+evaluate time over a settings grid for one scene; PNG with the Pareto front.")
 

@@ -61,7 +61,8 @@ def pareto_front(points: list[tuple[float, float]]) -> list[int]:
     return sorted(front, key=lambda i: points[i][0])
 
 
-def plot(runs: list[dict], front: list[int], path: Path, title: str) -> None:
+def plot(runs: list[dict], front: list[int], path: Path, title: str,
+         xlabel: str = "features + fit + evaluate time (s)") -> None:
     """Scatter of mIoU vs time (log x), each point labelled by what differs from the base;
     the Pareto front drawn as a line through its points."""
     import matplotlib
@@ -79,7 +80,7 @@ def plot(runs: list[dict], front: list[int], path: Path, title: str) -> None:
     for r in runs:
         ax.annotate(r["label"], (r["seconds"], r["miou"]), fontsize=7, xytext=(4, 3), textcoords="offset points")
     ax.set_xscale("log")
-    ax.set_xlabel("features + fit + evaluate time (s)")
+    ax.set_xlabel(xlabel)
     ax.set_ylabel("mIoU (official metric)")
     ax.set_title(title, fontsize=9)
     ax.grid(True, alpha=0.3)

@@ -58,7 +58,7 @@ def _figures(rec: dict) -> dict:
 
 
 def run(quick: bool = False, echo: Callable[[str], None] = print, dataset: str | None = None,
-        overrides: list[str] | None = None) -> dict:
+        overrides: list[str] | None = None, out_dir: Path | None = None) -> dict:
     from benchmark.perf.pipeline import run_pipeline
 
     cfg = dict(QUICK if quick else DEFAULT)
@@ -98,11 +98,33 @@ def run(quick: bool = False, echo: Callable[[str], None] = print, dataset: str |
     for r in runs:
         if "error" in r:
             echo(f"FAILED {r['dataset']} {r['variant']}: {r['error']}")
-    return {"description": __doc__.strip().splitlines()[0], "quick": quick,
+    pngs = _plots(runs, Path(out_dir) if out_dir is not None else Path("perf-out"), echo)
+    return {"pngs": pngs, "description": __doc__.strip().splitlines()[0], "quick": quick,
             "settings": {**cfg, "datasets": datasets, "overrides": extra, "variants": vs},
             "versions": versions("torch", "numba", "numpy"), "runs": runs,
             "failed": [f"{r['dataset']} {r['variant']}" for r in runs if "error" in r],
             "load_average_end": load_average()}
+
+
+def _plots(runs: list[dict], out_dir: Path, echo: Callable[[str], None]) -> list[str]:
+    """Per format, mIoU against the geometry + features seconds of each variant, the Pareto
+    front marked (``skip-<format>.png``)."""
+    from benchmark.perf.pareto import pareto_front, plot
+
+    pngs = []
+    for ds in dict.fromkeys(r["dataset"] for r in runs):
+        ok = [{"label": r["variant"], "miou": r["miou"],
+               "seconds": r["seconds"].get("geometry", 0.0) + r["seconds"].get("features", 0.0)}
+              for r in runs if r["dataset"] == ds and "error" not in r]
+        if not ok:
+            continue
+        front = pareto_front([(r["seconds"], r["miou"]) for r in ok])
+        png = out_dir / f"skip-{ds}.png"
+        plot(ok, front, png, f"skips on {ds} (synthetic): mIoU against geometry + features time",
+             xlabel="geometry + features time (s)")
+        echo(f"wrote {png} (Pareto front: {', '.join(ok[i]['label'] for i in front)})")
+        pngs.append(str(png))
+    return pngs
 
 
 def _stopped(entry: dict) -> str:

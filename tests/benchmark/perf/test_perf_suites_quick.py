@@ -65,6 +65,7 @@ def test_all_suites_quick(tmp_path, monkeypatch, capsys):
     full, static, converged = sk["runs"]
     assert full["stop_cap"] == {} and converged["stop_cap"] == {"geometry": 60, "features": 20}
     assert all(at is None or 10 <= at <= 60 for at in converged["stopped_at"].values())
+    assert (tmp_path / "skip-neu3d.png").stat().st_size > 1000 and "Pareto front" in text
     assert full["static_gaussians"] == 0 and full["gaussians"] > 0 and static["gaussians"] > 0
     for r in (full, static):  # the ceiling split into the frames with motion and the others
         assert 0 <= r["ceiling_moving_frames"] <= 1 and 0 <= r["ceiling_other_frames"] <= 1
