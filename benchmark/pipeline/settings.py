@@ -78,6 +78,17 @@ def recorded_masks(masks: dict) -> dict:
     return out
 
 
+def recorded_stopping(section):
+    """``section`` (nested dicts) as a run records and hashes it: in each dict with a
+    ``stop_interval`` of 0 (stopping when converged is off) the ``stop_*`` settings are left
+    out, so runs without stopping keep the config hash, name and stage keys they had before
+    those settings existed."""
+    if not isinstance(section, dict):
+        return section
+    off = section.get("stop_interval", None) == 0
+    return {k: recorded_stopping(v) for k, v in section.items() if not (off and k.startswith("stop_"))}
+
+
 @dataclasses.dataclass
 class CaptureMaskSettings(MaskSettings):
     dir: str | None = None  # generator "files": masks made elsewhere (benchmark.pipeline.masks)
@@ -94,7 +105,7 @@ class GeometrySettings:
 def key_config(settings) -> dict:
     """What a stage's cache key hashes of a settings section: its resolved values without the
     preset's name, so two presets with the same values share the stage."""
-    d = dataclasses.asdict(settings)
+    d = recorded_stopping(dataclasses.asdict(settings))
     d.pop("preset", None)
     return d
 
@@ -133,7 +144,7 @@ class RunSettings:
         if self.capture is not None:
             out["capture"] = dict(self.capture)
         out["seed"] = self.seed
-        return out
+        return recorded_stopping(out)
 
 
 def run_settings(method, spec, variant: str, overrides: dict, image_size: tuple[int, int] | None = None) -> RunSettings:
@@ -194,7 +205,7 @@ def _resolve(method, ctx: Context, overrides: dict, masks: dict, extra: dict) ->
     # the same run without its seed (an explicit seed of one section stays), and without --set
     group = _with_devices(merge(apply_seed(base, 0), plain), settings)
     default = _with_devices(merge(base, {}), settings)
-    settings.group_hash = config_hash({**group, "masks": recorded_masks(group["masks"])})
+    settings.group_hash = config_hash(recorded_stopping({**group, "masks": recorded_masks(group["masks"])}))
     settings.is_default = preset == auto_preset and group == default
     return settings
 
@@ -305,5 +316,6 @@ def _get(d: dict, path: tuple[str, ...]):
 
 
 __all__ = ["GEOMETRY_PRESETS", "SEED_PATHS", "TRACKING", "CaptureMaskSettings", "GeometrySettings", "MaskSettings",
-           "PromptProtocol", "RunSettings", "apply_seed", "capture_settings", "key_config", "recorded_masks", "run_seed",
+           "PromptProtocol", "RunSettings", "apply_seed", "capture_settings", "key_config", "recorded_masks",
+           "recorded_stopping", "run_seed",
            "run_settings", "take_preset", "without_seed"]

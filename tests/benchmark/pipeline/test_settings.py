@@ -74,3 +74,16 @@ def test_a_run_resolves_its_settings_once_per_sequence(monkeypatch, tmp_path):
     p = runner.prepare_sequence(opts, "synthetic")
     assert calls == [1]
     assert p.name == f"c{p.settings.group_hash[:8]}-s2" and p.group == _settings().group_hash
+
+
+def test_stopping_settings_are_recorded_and_keyed_only_where_stopping_is_on():
+    off, on = _settings(), _settings("method.features.stop_interval=250", "geometry.train.stop_interval=500")
+    rec = off.to_dict()
+    assert not any(k.startswith("stop_") for k in rec["geometry"]["train"]) and "stop_patience" not in rec["method"]["features"]
+    assert not any(k.startswith("stop_") for k in key_config(off.geometry)["train"])
+    on_rec = on.to_dict()
+    assert on_rec["method"]["features"]["stop_patience"] == 2 and on_rec["geometry"]["train"]["stop_interval"] == 500
+    assert key_config(on.geometry) != key_config(off.geometry) and on.group_hash != off.group_hash
+    # features-only stopping shares the geometry stage with the run without it
+    feats_only = _settings("method.features.stop_interval=250")
+    assert key_config(feats_only.geometry) == key_config(off.geometry)
