@@ -54,9 +54,11 @@ def main(argv=None) -> int:
     ap.add_argument("--datasets", default="nerfds,hypernerf,neu3d,immersive,technicolor")
     ap.add_argument("--memory", type=int, default=None, help="earlier views a lost track is sought in (default: the stage's)")
     ap.add_argument("--no-parts", action="store_true", help="segments inside a track start their own")
+    ap.add_argument("--no-same-camera", action="store_true", help="a rig's camera's own latest view is not sought")
     args = ap.parse_args(argv)
     tracker = {**({"memory": args.memory} if args.memory is not None else {}),
-               **({"part_of_share": None} if args.no_parts else {})}
+               **({"part_of_share": None} if args.no_parts else {}),
+               **({"same_camera": False} if args.no_same_camera else {})}
     for d in args.datasets.split(","):
         print(json.dumps(measure(d, args.seed, args.size, args.root, **tracker)), flush=True)
     return 0

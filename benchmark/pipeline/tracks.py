@@ -49,10 +49,15 @@ MEMORY = 5
 # share DEVA's rule uses to call a mask part of a larger one (MIN_KEPT); a neighbour merged into
 # the mask pushes the share towards one half, well below it
 PART_OF = MIN_KEPT
+# on a rig of fixed cameras the previous views are mostly other cameras at the same instant (a
+# reprojection across the baseline); a segment left unmatched by the previous view is next
+# sought in the same camera's latest view (the warp then carries only the motion between two
+# instants), before the memory's earlier views
+SAME_CAMERA = True
 CLASSICAL = {"iou_threshold": IOU_THRESHOLD, "min_kept": MIN_KEPT, "memory": MEMORY, "part_of": PART_OF,
-             "order": "time, then view name",
+             "same_camera": SAME_CAMERA, "order": "time, then view name",
              "min_area": "the mask generators' minimum area (SAM's 100 px at 536x960, scaled)",
-             "version": 4}
+             "version": 5}
 
 # where a DEVA output folder keeps its per-frame images: Annotations/ (demo_automatic.py and
 # demo_with_text.py), object_mask/ (Gaussian Grouping's copy of it), else the folder itself
@@ -211,18 +216,26 @@ def time_order(views) -> list:
     return sorted(views, key=lambda v: (float(v.camera.time), v.name))
 
 
+def camera_key(camera) -> bytes:
+    """What makes two views one fixed camera: the same intrinsics, pose and size."""
+    return np.concatenate([np.round(np.asarray(camera.K, np.float64), 6).ravel(),
+                           np.round(np.asarray(camera.w2c, np.float64), 6).ravel(),
+                           [camera.width, camera.height]]).tobytes()
+
+
 def track_classical(views, gaussians, deformation, out: Path, truth=None, memory: int = MEMORY,
-                    part_of_share: float | None = PART_OF) -> dict:
+                    part_of_share: float | None = PART_OF, same_camera: bool = SAME_CAMERA) -> dict:
     """Track ids for the anything masks in ``out`` (one file per view, as the masks stage wrote
     them): per view in time order, segments (``segments_from_masks``), then the previous view's
     ids warped into this one (``trase.warp.backward_warp``), segments matched to the warped
     tracks one to one by IoU above IOU_THRESHOLD (Hungarian); segments still unmatched are
-    matched in the same way against the tracks of up to MEMORY earlier views (most recent first)
-    that no segment of this view continues; a segment unmatched after that which lies in one
-    track of the previous view (PART_OF of its known pixels) is a part of it and takes its id;
-    any other starts a new track. ``truth`` (a synthetic scene's): the agreement with its
-    instance maps is recorded. ``memory`` and ``part_of_share`` (None: no parts) change the last
-    two steps for measurements (scripts/measure_tracking.py); the stage uses the constants."""
+    matched in the same way against the tracks of the same camera's latest view (SAME_CAMERA: a
+    rig of fixed cameras), then of up to MEMORY earlier views (most recent first), that no
+    segment of this view continues; a segment unmatched after that which lies in one track of
+    the previous view (PART_OF of its known pixels) is a part of it and takes its id; any other
+    starts a new track. ``truth`` (a synthetic scene's): the agreement with its instance maps is
+    recorded. ``memory``, ``part_of_share`` (None: no parts) and ``same_camera`` change those
+    steps for measurements (scripts/measure_tracking.py); the stage uses the constants."""
     import masks as masklib
     from masks.generate import read_instance_map
     from masks.generators.base import min_area_for
@@ -241,6 +254,7 @@ def track_classical(views, gaussians, deformation, out: Path, truth=None, memory
 
     n_tracks = 0
     recent: list[tuple] = []  # (view geometry, ids) of the previous view and up to `memory` before it
+    latest_of_camera: dict[bytes, tuple] = {}  # the same, of each camera's latest view
     continued = resumed = joined = started = 0
     maps = {}
     for v in time_order(views):
@@ -254,7 +268,11 @@ def track_classical(views, gaussians, deformation, out: Path, truth=None, memory
         geo = view_geometry(gaussians, deformation, v.camera)
         track_of = np.zeros(n_seg + 1, np.int64)
         last = None  # the previous view's overlaps, for the parts
-        for back, (prev, prev_ids) in enumerate(reversed(recent)):
+        candidates = list(reversed(recent))
+        own = latest_of_camera.get(camera_key(v.camera)) if same_camera else None
+        if own is not None and not any(own is c for c in candidates):
+            candidates.insert(1, own)  # after the previous view, before the memory
+        for back, (prev, prev_ids) in enumerate(candidates):
             free = np.flatnonzero(track_of[1:] == 0)
             if not free.shape[0] or not n_tracks:
                 break
@@ -288,7 +306,8 @@ def track_classical(views, gaussians, deformation, out: Path, truth=None, memory
         save_ids(ids_path(out, v.name), ids)
         maps[v.name] = ids
         recent = [*recent, (geo, ids)][-(max(memory, 0) + 1):]  # the previous view and `memory` before it
-    constants = {**CLASSICAL, "memory": memory, "part_of": part_of_share}
+        latest_of_camera[camera_key(v.camera)] = recent[-1]
+    constants = {**CLASSICAL, "memory": memory, "part_of": part_of_share, "same_camera": same_camera}
     info = {"source": "classical", "n_tracks": n_tracks, "views": len(views), "constants": constants,
             "continued": continued, "resumed": resumed, "parts": joined, "started": started}
     if truth is not None:
@@ -300,5 +319,5 @@ def track_classical(views, gaussians, deformation, out: Path, truth=None, memory
             if k in info}
 
 
-__all__ = ["CLASSICAL", "IOU_THRESHOLD", "MEMORY", "MIN_KEPT", "PART_OF", "find_track_files", "link_masks", "run", "time_order",
-           "track_classical", "write_files", "write_synthetic"]
+__all__ = ["CLASSICAL", "IOU_THRESHOLD", "MEMORY", "MIN_KEPT", "PART_OF", "SAME_CAMERA", "camera_key", "find_track_files",
+           "link_masks", "run", "time_order", "track_classical", "write_files", "write_synthetic"]

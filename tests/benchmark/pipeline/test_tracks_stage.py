@@ -132,6 +132,44 @@ def test_the_classical_tracker_on_ground_truth_geometry(tiny_scene, tmp_path):
         assert not (ids[~covered] > 0).any()
 
 
+@pytest.mark.parametrize("same_camera", [True, False])
+def test_a_fixed_camera_finds_its_own_latest_view_when_the_previous_one_sees_nothing(tiny_scene, tmp_path,
+                                                                                     same_camera):
+    """A rig's views in time order: a (camera 1), b (camera 2, turned around: it shows other
+    surfaces), c (camera 1 again, an instant later). With no memory, c's segments continue a's
+    tracks (where b's do not) only through the same camera's latest view."""
+    import dataclasses
+
+    import masks as masklib
+    from benchmark.pipeline.context import load_geometry
+    from benchmark.pipeline.tracks import camera_key, track_classical
+    from masks.generators.synthetic import SyntheticGenerator
+
+    first = tiny_scene.train[0]
+    masklib.generate_scene_masks([first], SyntheticGenerator(seed=0), tmp_path, progress=False,
+                                 instance_maps=dict(tiny_scene.truth.instance_maps))
+    away = first.camera.w2c.copy()
+    away[:3, :3] = -away[:3, :3] @ np.diag([1.0, 1.0, -1.0])  # turned around (a proper rotation)
+    t0 = float(first.camera.time)
+    views = [types.SimpleNamespace(name=n, camera=dataclasses.replace(first.camera, time=t0 + dt, w2c=w))
+             for n, dt, w in (("a", 0.0, first.camera.w2c), ("b", 1e-6, away), ("c", 2e-6, first.camera.w2c))]
+    for v in views:
+        shutil.copyfile(masklib.mask_path(tmp_path, first.name), masklib.mask_path(tmp_path, v.name))
+    assert camera_key(views[0].camera) == camera_key(views[2].camera) != camera_key(views[1].camera)
+    geo = tmp_path / "geometry"
+    geo.mkdir()
+    shutil.copyfile(tiny_scene.truth.geometry_path, geo / "geometry.npz")
+    gaussians, deformation = load_geometry(geo)
+    info = track_classical(views, gaussians, deformation, tmp_path, memory=0, same_camera=same_camera)
+    a, b, c = (load_ids(ids_path(tmp_path, n)) for n in "abc")
+    assert a.max() > 0 and (b > a.max()).any()  # b sees other surfaces: tracks of its own
+    known = max(a.max(), b.max())
+    if same_camera:  # what b does not continue, a does: no new track
+        assert c.max() <= known and info["resumed"] > 0 and np.isin(np.unique(c[c > 0]), np.unique(a)).any()
+    else:  # only b to continue from: what b does not show starts again
+        assert info["resumed"] == 0 and (c > known).any()
+
+
 def test_a_warp_between_identical_views_is_the_identity(tiny_scene, tmp_path):
     from benchmark.pipeline.context import load_geometry
     from trase.warp import backward_warp, view_geometry
