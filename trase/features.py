@@ -189,15 +189,17 @@ def _train(gaussians, deformation, views, load_masks, config, cache_dir, progres
         stopping = (plateau.plateau.summary("held-out loss", config.iterations, [views[i].name for i in held])
                     if plateau is not None else
                     {"criterion": None, "stopped_at": None, "cap": config.iterations, "held_out": [],
-                     "why": f"fewer than {2 * config.stop_holdout_every} training views with masks: none held "
-                            "out, the full schedule"})
+                     "why": (f"no check before the schedule's end ({config.iterations} steps): none held out"
+                             if config.stop_interval > config.iterations else
+                             f"fewer than {2 * config.stop_holdout_every} training views with masks: none held "
+                             "out, the full schedule")})
     return _result(feats, knn, history, timings, path, stopping)
 
 
 def _held_out(views: Sequence, usable: list[int], config: FeatureConfig) -> tuple[list[int], list[int]]:
     """(trained, held out) indices of the usable views: none held out unless the stage stops
-    when converged (``config.stop_interval``)."""
-    if config.stop_interval <= 0:
+    when converged (``config.stop_interval``) and a check comes before the schedule's end."""
+    if config.stop_interval <= 0 or config.stop_interval > config.iterations:
         return usable, []
     from trase.convergence import held_out_views
 

@@ -327,7 +327,7 @@ def _reconstruct(views, points, point_colors, config, out_dir, resume, progress,
     bg_np = np.ones(3, np.float32) if cfg.white_background else np.zeros(3, np.float32)
     bg = torch.from_numpy(bg_np).to(dev)
     held: list = []
-    if cfg.stop_interval > 0:  # views held out of training for the stopping criterion
+    if _first_check(cfg) is not None:  # views held out of training for the stopping criterion
         views, held = held_out_views(views, cfg.stop_holdout_every)
     data = ImageCache(views, cfg.image_downscale, bg_np, dev)
     strategy = DensifyStrategy(cfg, scene_extent(data.cameras))
@@ -349,7 +349,9 @@ def _reconstruct(views, points, point_colors, config, out_dir, resume, progress,
         summary = (tr.plateau.summary("held-out PSNR (dB)", cfg.iterations, [view_name(v) for v in held])
                    if tr.plateau is not None else
                    {"criterion": None, "stopped_at": None, "cap": cfg.iterations, "held_out": [],
-                    "why": f"fewer than {2 * cfg.stop_holdout_every} training views: none held out, the full schedule"})
+                    "why": (f"fewer than {2 * cfg.stop_holdout_every} training views: none held out, the full schedule"
+                            if _first_check(cfg) is not None else
+                            f"no check between the warm-up's end and the schedule's ({cfg.iterations}): none held out")})
         write_summary(out_dir / STOP_FILE, summary)
     if tr.deform is not None:
         tr.deform.eval()
@@ -389,6 +391,15 @@ def _train(tr: _Trainer, data: ImageCache, bg: torch.Tensor, cfg: Reconstruction
     finally:
         bar.close()
         log.close()
+
+
+def _first_check(cfg: ReconstructionConfig) -> int | None:
+    """The first iteration the stopping rule checks (a multiple of stop_interval, from the
+    warm-up's end), None when stopping is off or no check comes before the schedule ends."""
+    if cfg.stop_interval <= 0:
+        return None
+    first = max(-(-cfg.warm_up // cfg.stop_interval), 1) * cfg.stop_interval
+    return first if first <= cfg.iterations else None
 
 
 def _converged(tr: _Trainer, it: int, cfg: ReconstructionConfig, held: Sequence, bg: torch.Tensor,

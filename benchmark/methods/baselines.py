@@ -47,6 +47,12 @@ BASELINE_METHODS = ("trase-hard", "trase-all", "cgc", "opengaussian")
 # 0.3882; TRASE's 50 and 0.7: 0.186). The features' learning rate was not searched again.
 TRASE_HARD_PRESETS = TRASE_PRESETS.extended("trase-hard")
 TRASE_HARD_PRESETS.declare("cpu", {"clustering.params.min_cluster_size": 25}, filter_threshold=0.6)
+# the other objectives train the whole feature schedule: TRASE's stopping rule (trase_presets)
+# was chosen on TRASE's loss, not theirs
+FULL_FEATURE_SCHEDULE = {"features.stop_interval": 0}
+TRASE_HARD_PRESETS.declare("cpu", FULL_FEATURE_SCHEDULE)
+TRASE_ALL_PRESETS = TRASE_PRESETS.extended("trase-all")
+TRASE_ALL_PRESETS.declare("cpu", FULL_FEATURE_SCHEDULE)
 
 
 @register_method("trase-hard")
@@ -62,6 +68,7 @@ class TraseAllMethod(TraseMethod):
     """TRASE pipeline, all-mining objective (every pixel with a pair is an anchor)."""
 
     objective = "trase-all"
+    presets = TRASE_ALL_PRESETS
 
 
 @dataclasses.dataclass
@@ -82,12 +89,12 @@ CGC_PRESETS = TRASE_PRESETS.extended("cgc", CGCSettings)
 # CGC's own threshold replaces TRASE's filter; "auto": the public 100-pixel small-segment
 # threshold rescaled to the mask resolution (baselines/cgc.py)
 CGC_PRESETS.declare("paper", {"features.objective_params": {"min_mask_pixels": "auto"}}, filter_threshold=None)
-CGC_PRESETS.declare("cpu", filter_threshold=None)
+CGC_PRESETS.declare("cpu", FULL_FEATURE_SCHEDULE, filter_threshold=None)
 
 OPENGAUSSIAN_PRESETS = TRASE_PRESETS.extended("opengaussian")
 # every gaussian keeps its class (codebook semantics): no filter
 OPENGAUSSIAN_PRESETS.declare("paper", filter_threshold=None)
-OPENGAUSSIAN_PRESETS.declare("cpu", filter_threshold=None)
+OPENGAUSSIAN_PRESETS.declare("cpu", FULL_FEATURE_SCHEDULE, filter_threshold=None)
 
 
 @register_method("cgc")

@@ -36,10 +36,13 @@ QUICK = {"datasets": ["neu3d"], "sequence": "synthetic-tiny",  # 3 frames x 18 c
                        "geometry.train.stop_holdout_every=5", "method.features.stop_holdout_every=5"]}
 
 
+FULL = ["method.features.stop_interval=0"]  # the cpu preset stops the feature stage; "full" runs every step
+
+
 def variants(threshold: float, quick: bool = False) -> dict[str, list[str]]:
     # quick: the tiny schedule checks every 10 steps
     converged = [o.replace("_interval=250", "_interval=10") for o in CONVERGED] if quick else CONVERGED
-    return {"full": [], "static": [f"geometry.train.static_threshold={threshold}"], "converged": converged}
+    return {"full": FULL, "static": [*FULL, f"geometry.train.static_threshold={threshold}"], "converged": converged}
 
 
 def _figures(rec: dict) -> dict:

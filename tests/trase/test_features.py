@@ -218,3 +218,9 @@ def test_too_few_views_to_hold_out_train_the_whole_schedule_and_say_so(tmp_path)
                     stop_holdout_every=10)
     assert res.stopping["stopped_at"] is None and "none held out" in res.stopping["why"]
     assert res.history[-1]["step"] == 29
+
+
+def test_no_view_is_held_out_when_no_check_comes_before_the_end(tmp_path):
+    res, _ = _train(tmp_path, iterations=20, stop_interval=250, stop_holdout_every=2)
+    assert res.timings["n_usable_views"] == 4 and res.stopping["held_out"] == []
+    assert "no check before the schedule's end" in res.stopping["why"]

@@ -235,3 +235,14 @@ def test_too_few_views_to_hold_out_train_the_full_schedule_and_say_so(scene, tmp
     summary = json.loads((tmp_path / "m/stopped.json").read_text())
     assert summary["stopped_at"] is None and "none held out" in summary["why"]
     assert available_iterations(tmp_path / "m")[-1] == 40
+
+
+def test_no_view_is_held_out_when_no_check_comes_before_the_end(scene, tmp_path):
+    import json
+
+    views, pts = scene
+    cfg = dataclasses.replace(CFG, stop_interval=50, stop_holdout_every=3)  # 40 iterations: no check
+    g, _ = reconstruct(views, pts, None, cfg, tmp_path / "m", progress=False)
+    full, _ = reconstruct(views, pts, None, CFG, tmp_path / "full", progress=False)
+    assert torch.equal(g.means, full.means)
+    assert "no check" in json.loads((tmp_path / "m/stopped.json").read_text())["why"]

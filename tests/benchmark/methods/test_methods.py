@@ -90,9 +90,15 @@ def test_trase_hard_has_its_own_cpu_clustering_and_the_paper_values_otherwise():
         assert (cpu.clustering.params["min_cluster_size"], cpu.filter_threshold) == (25, 0.6)  # chosen on seed 1
         same = lambda a: dataclasses.replace(a, features=dataclasses.replace(a.features, objective="x"))
         assert cpu.clustering.params["cluster_selection_epsilon"] == 0.01
-        assert same(cpu).features == same(trase.settings("cpu", key)).features  # only the objective differs
+        # only the objective differs, and the stopping rule chosen on TRASE's loss (its whole schedule)
+        assert cpu.features.stop_interval == 0 and trase.settings("cpu", key).features.stop_interval == 250
+        tr = trase.settings("cpu", key).features
+        assert same(cpu).features == dataclasses.replace(same(trase.settings("cpu", key)).features, stop_interval=0)
+        assert tr.stop_patience == cpu.features.stop_patience  # the rest as the class has it
         assert same(hard.settings("paper", key)) == same(trase.settings("paper", key))  # the paper's are the paper's
     assert get_method("trase-all").settings("cpu", "hypernerf").clustering.params["min_cluster_size"] == 50  # not chosen yet
+    for name in ("trase-all", "cgc", "opengaussian"):
+        assert get_method(name).settings("cpu", "hypernerf").features.stop_interval == 0, name
 
 
 def test_cpu_preset_clustering_and_steps():

@@ -63,7 +63,7 @@ def test_all_suites_quick(tmp_path, monkeypatch, capsys):
     sk = s["skip"]  # static gaussians on and off, stages that stop when converged
     assert not sk["failed"] and [r["variant"] for r in sk["runs"]] == ["full", "static", "converged"]
     full, static, converged = sk["runs"]
-    assert full["stop_cap"] == {} and converged["stop_cap"] == {"geometry": 60, "features": 20}
+    assert full["stop_cap"] == {} and converged["stop_cap"] == {"geometry": 60, "features": 20}  # full: no stopping
     assert all(at is None or 10 <= at <= 60 for at in converged["stopped_at"].values())
     assert (tmp_path / "skip-neu3d.png").stat().st_size > 1000 and "Pareto front" in text
     assert full["static_gaussians"] == 0 and full["gaussians"] > 0 and static["gaussians"] > 0

@@ -77,7 +77,9 @@ def test_a_run_resolves_its_settings_once_per_sequence(monkeypatch, tmp_path):
 
 
 def test_stopping_settings_are_recorded_and_keyed_only_where_stopping_is_on():
-    off, on = _settings(), _settings("method.features.stop_interval=250", "geometry.train.stop_interval=500")
+    # the cpu preset stops the feature stage (not the reconstruction)
+    assert _settings().method.features.stop_interval == 250 and _settings().geometry.train.stop_interval == 0
+    off, on = _settings("method.features.stop_interval=0"), _settings("geometry.train.stop_interval=500")
     rec = off.to_dict()
     assert not any(k.startswith("stop_") for k in rec["geometry"]["train"]) and "stop_patience" not in rec["method"]["features"]
     assert not any(k.startswith("stop_") for k in key_config(off.geometry)["train"])
@@ -85,5 +87,5 @@ def test_stopping_settings_are_recorded_and_keyed_only_where_stopping_is_on():
     assert on_rec["method"]["features"]["stop_patience"] == 2 and on_rec["geometry"]["train"]["stop_interval"] == 500
     assert key_config(on.geometry) != key_config(off.geometry) and on.group_hash != off.group_hash
     # features-only stopping shares the geometry stage with the run without it
-    feats_only = _settings("method.features.stop_interval=250")
+    feats_only = _settings()
     assert key_config(feats_only.geometry) == key_config(off.geometry)
