@@ -10,15 +10,17 @@ from benchmark.commands import old_spelling
 
 
 def stopped_stages(record: dict) -> str:
-    """`` [stopped: geometry at 3200 of 4000, ...]`` for the stages that stop when converged."""
+    """`` [stop when converged: features stopped at 1000 of 3000, ...]`` for the stages that
+    stop when converged."""
     said = []
     for stage in ("geometry", "features"):
         st = ((record.get("stages") or {}).get(stage) or {}).get("info") or {}
         st = st.get("stopping")
         if st:
             at = st.get("stopped_at")
-            said.append(f"{stage} at {at} of {st['cap']}" if at is not None else f"{stage} ran all {st['cap']}")
-    return f" [stopped when converged: {', '.join(said)}]" if said else ""
+            said.append(f"{stage} stopped at {at} of {st['cap']}" if at is not None else
+                        f"{stage} ran all {st['cap']}")
+    return f" [stop when converged: {', '.join(said)}]" if said else ""
 
 
 @click.command()
