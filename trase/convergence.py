@@ -43,6 +43,15 @@ class StopRule:
     def enabled(self) -> bool:
         return self.interval > 0
 
+    def can_stop_before(self, cap: int, first_check: int) -> bool:
+        """Whether a stop can come before ``cap`` when the first check is at ``first_check``:
+        the first check sets the baseline, a stop needs ``patience`` more, from ``floor`` on.
+        Where it cannot, holding views out for the criterion would cost for nothing."""
+        if not self.enabled:
+            return False
+        earliest = max(first_check + self.patience * self.interval, -(-self.floor // self.interval) * self.interval)
+        return earliest < cap
+
 
 @dataclasses.dataclass
 class Plateau:
@@ -58,19 +67,24 @@ class Plateau:
         """A check is due after ``step`` (1-based count of steps done)."""
         return self.rule.enabled and step % self.rule.interval == 0
 
-    def observe(self, step: int, value: float) -> bool:
-        """Record the criterion after ``step`` steps -> True when the stage should stop here.
-        A non-finite value never counts as a gain."""
+    def observe(self, step: int, value: float, cap: int | None = None) -> bool:
+        """Record the criterion after ``step`` steps -> True when the stage should stop here
+        (never at ``cap``, the schedule's end: that is no stop). A gain is a rise (a fall for a
+        loss) of at least ``min_delta`` and above zero. A non-finite value (a broken render, or a
+        perfect one's infinite PSNR) is recorded but neither a gain nor a check without one."""
         value = float(value)
         self.checks.append((int(step), value))
+        if not math.isfinite(value):
+            return False
         sign = 1.0 if self.rule.higher_is_better else -1.0
-        scale = abs(self.checks[0][1]) if self.rule.relative and math.isfinite(self.checks[0][1]) else 1.0
-        need = self.rule.min_delta * scale
-        if math.isfinite(value) and (self.best is None or sign * (value - self.best) >= need):
+        finite = [v for _, v in self.checks if math.isfinite(v)]
+        scale = abs(finite[0]) if self.rule.relative else 1.0  # relative: of the first finite check
+        gain = None if self.best is None else sign * (value - self.best)
+        if gain is None or (gain > 0 and gain >= self.rule.min_delta * scale):
             self.best, self.since_best = value, 0
         else:
             self.since_best += 1
-        if self.since_best >= self.rule.patience and step >= self.rule.floor:
+        if self.since_best >= self.rule.patience and step >= self.rule.floor and (cap is None or step < cap):
             self.stopped_at = int(step)
             return True
         return False

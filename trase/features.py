@@ -183,14 +183,15 @@ def _train(gaussians, deformation, views, load_masks, config, cache_dir, progres
     step = _FeatureStep(config, objective, path, usable, masks_of, knn, xyz, whole_view, rng, gen, dev)
     plateau = _Criterion(step, held) if held else None
     history, t_train, start, done = _optimise(feats, step, views, progress, log_every, ckpt, plateau)
-    timings.update(train=t_train, per_step=t_train / max(done - start, 1), resumed_from_step=start)
+    timings.update(train=t_train, per_step=t_train / max(done, 1), resumed_from_step=start)  # t_train: all `done` steps
     stopping = None
     if config.stop_interval > 0:
         stopping = (plateau.plateau.summary("held-out loss", config.iterations, [views[i].name for i in held])
                     if plateau is not None else
                     {"criterion": None, "stopped_at": None, "cap": config.iterations, "held_out": [],
-                     "why": (f"no check before the schedule's end ({config.iterations} steps): none held out"
-                             if config.stop_interval > config.iterations else
+                     "why": (f"no stop possible before the schedule's end ({config.iterations} steps): none "
+                             "held out"
+                             if not config.stop_rule().can_stop_before(config.iterations, config.stop_interval) else
                              f"fewer than {2 * config.stop_holdout_every} training views with masks: none held "
                              "out, the full schedule")})
     return _result(feats, knn, history, timings, path, stopping)
@@ -199,7 +200,7 @@ def _train(gaussians, deformation, views, load_masks, config, cache_dir, progres
 def _held_out(views: Sequence, usable: list[int], config: FeatureConfig) -> tuple[list[int], list[int]]:
     """(trained, held out) indices of the usable views: none held out unless the stage stops
     when converged (``config.stop_interval``) and a check comes before the schedule's end."""
-    if config.stop_interval <= 0 or config.stop_interval > config.iterations:
+    if not config.stop_rule().can_stop_before(config.iterations, config.stop_interval):
         return usable, []
     from trase.convergence import held_out_views
 
@@ -212,6 +213,12 @@ def _check_config(config: FeatureConfig) -> None:
     """Settings that the loop cannot use, refused before any work (a user-facing error)."""
     if config.dim < 1:
         raise FeatureTrainingError(f"feature dim must be >= 1, got {config.dim}")
+    try:
+        config.stop_rule()
+    except ValueError as exc:
+        raise FeatureTrainingError(str(exc)) from None
+    if config.stop_interval > 0 and config.stop_holdout_every < 2:
+        raise FeatureTrainingError(f"stop_holdout_every must be >= 2 when stopping is on, got {config.stop_holdout_every}")
     if config.norm_reg_pixels not in NORM_REG_PIXELS:
         raise FeatureTrainingError(f"norm_reg_pixels must be one of {', '.join(NORM_REG_PIXELS)}, "
                                    f"got {config.norm_reg_pixels!r}")
@@ -234,8 +241,8 @@ def _usable_views(views: Sequence, masks_of: _MaskCache, whole_view: bool) -> tu
 
 def _render_path(gaussians, deformation, views: Sequence, usable: list[int], cams: dict,
                  config: FeatureConfig, cache_dir):
-    """The fast path or the rasterizer (``config.fastpath``, decided on the usable views) with
-    every usable view registered; the fast path's weights are computed here, before the timed loop."""
+    """The fast path or the rasterizer (``config.fastpath``, decided on the views given: the
+    trained and the held-out ones) with every one registered; the fast path's weights are computed here, before the timed loop."""
     fast = use_fastpath(config.fastpath, config.iterations, len(usable))
     if fast:
         path = ViewWeights(gaussians, deformation, cache_dir, config.min_weight, config.max_cache_bytes)
@@ -328,7 +335,7 @@ class _Criterion:
 
     def check(self, done: int, feats: torch.Tensor) -> bool:
         """After ``done`` steps: True when the stage should stop."""
-        return self.plateau.due(done) and self.plateau.observe(done, self.value(feats))
+        return self.plateau.due(done) and self.plateau.observe(done, self.value(feats), cap=self.step.config.iterations)
 
 
 class _Checkpoint:

@@ -351,8 +351,11 @@ def _reconstruct(views, points, point_colors, config, out_dir, resume, progress,
                    {"criterion": None, "stopped_at": None, "cap": cfg.iterations, "held_out": [],
                     "why": (f"fewer than {2 * cfg.stop_holdout_every} training views: none held out, the full schedule"
                             if _first_check(cfg) is not None else
-                            f"no check between the warm-up's end and the schedule's ({cfg.iterations}): none held out")})
+                            f"no stop possible between the warm-up's end and the schedule's ({cfg.iterations}): "
+                            "none held out")})
         write_summary(out_dir / STOP_FILE, summary)
+    else:
+        (out_dir / STOP_FILE).unlink(missing_ok=True)  # an earlier run's, with stopping on
     if tr.deform is not None:
         tr.deform.eval()
     return tr.gaussians, tr.deformation()
@@ -395,11 +398,11 @@ def _train(tr: _Trainer, data: ImageCache, bg: torch.Tensor, cfg: Reconstruction
 
 def _first_check(cfg: ReconstructionConfig) -> int | None:
     """The first iteration the stopping rule checks (a multiple of stop_interval, from the
-    warm-up's end), None when stopping is off or no check comes before the schedule ends."""
+    warm-up's end), None when stopping is off or no stop could come before the schedule ends."""
     if cfg.stop_interval <= 0:
         return None
     first = max(-(-cfg.warm_up // cfg.stop_interval), 1) * cfg.stop_interval
-    return first if first <= cfg.iterations else None
+    return first if cfg.stop_rule().can_stop_before(cfg.iterations, first) else None
 
 
 def _converged(tr: _Trainer, it: int, cfg: ReconstructionConfig, held: Sequence, bg: torch.Tensor,
@@ -410,7 +413,7 @@ def _converged(tr: _Trainer, it: int, cfg: ReconstructionConfig, held: Sequence,
         return False
     value = evaluate_images(tr.gaussians, tr.deformation(), held, bg, backend, cfg.image_downscale,
                             ssim_too=False)["psnr"]
-    return tr.plateau.observe(it, value)
+    return tr.plateau.observe(it, value, cap=cfg.iterations)
 
 
 def _check_static(tr: _Trainer, it: int, cfg: ReconstructionConfig, data: ImageCache) -> None:

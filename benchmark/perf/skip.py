@@ -52,7 +52,8 @@ def _figures(rec: dict) -> dict:
     movers = ceiling.get("mover_frames") or {}  # the ceiling in the frames where objects move, and the others
     stopped = {s: (stages[s].get("info") or {}).get("stopping") for s in ("geometry", "features") if s in stages}
     return {"stopped_at": {s: (st or {}).get("stopped_at") for s, st in stopped.items() if st},
-            "stop_cap": {s: st["cap"] for s, st in stopped.items() if st},"seconds": {s: float(stages[s]["seconds"]) for s in STAGES if s in stages},
+            "stop_cap": {s: st["cap"] for s, st in stopped.items() if st},
+            "seconds": {s: float(stages[s]["seconds"]) for s in STAGES if s in stages},
             "test_psnr": geo.get("test_psnr"), "gaussians": int(rec["n_gaussians"]),
             "static_gaussians": geo.get("static_gaussians", 0),
             "ceiling": ceiling.get("miou"), "ceiling_moving_frames": movers.get("miou"),

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import os
 import shutil
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -254,7 +255,8 @@ def track_classical(views, gaussians, deformation, out: Path, truth=None, memory
 
     n_tracks = 0
     recent: list[tuple] = []  # (view geometry, ids) of the previous view and up to `memory` before it
-    latest_of_camera: dict[bytes, tuple] = {}  # the same, of each camera's latest view
+    latest_of_camera: dict[bytes, tuple] = {}  # the same, of the latest view of each camera seen again later
+    views_left = Counter(camera_key(v.camera) for v in views)  # a moving camera's views: 1 each
     continued = resumed = joined = started = 0
     maps = {}
     for v in time_order(views):
@@ -306,7 +308,12 @@ def track_classical(views, gaussians, deformation, out: Path, truth=None, memory
         save_ids(ids_path(out, v.name), ids)
         maps[v.name] = ids
         recent = [*recent, (geo, ids)][-(max(memory, 0) + 1):]  # the previous view and `memory` before it
-        latest_of_camera[camera_key(v.camera)] = recent[-1]
+        key = camera_key(v.camera)
+        views_left[key] -= 1
+        if views_left[key] > 0:
+            latest_of_camera[key] = recent[-1]
+        else:
+            latest_of_camera.pop(key, None)  # its last view: kept no longer
     constants = {**CLASSICAL, "memory": memory, "part_of": part_of_share, "same_camera": same_camera}
     info = {"source": "classical", "n_tracks": n_tracks, "views": len(views), "constants": constants,
             "continued": continued, "resumed": resumed, "parts": joined, "started": started}

@@ -38,11 +38,28 @@ def test_the_floor_holds_a_stop_back_and_lower_is_better_for_a_loss():
     assert p.best == 0.9
 
 
-def test_a_non_finite_value_is_never_a_gain():
+def test_a_non_finite_value_is_recorded_but_neither_a_gain_nor_a_loss_of_patience():
     p = Plateau(StopRule(interval=1, patience=2))
     assert not p.observe(1, math.nan) and p.best is None
     assert not p.observe(2, 5.0) and p.best == 5.0
-    assert not p.observe(3, math.inf) and p.observe(4, math.nan)
+    assert not p.observe(3, math.inf) and not p.observe(4, math.nan) and p.since_best == 0
+    assert len(p.checks) == 4
+    nan_only = Plateau(StopRule(interval=1, patience=1))
+    assert not any(nan_only.observe(s, math.nan) for s in range(1, 10))  # a broken criterion never stops
+
+
+def test_an_equal_value_is_no_gain_and_no_stop_at_the_cap():
+    p = Plateau(StopRule(interval=1, patience=1, min_delta=0.0))
+    assert not p.observe(1, 2.0) and not p.observe(2, 2.0, cap=2) and p.stopped_at is None and p.since_best == 1
+    q = Plateau(StopRule(interval=1, patience=1, min_delta=0.0))
+    assert not q.observe(1, 2.0) and q.observe(2, 2.0, cap=3) and q.stopped_at == 2
+
+
+def test_whether_a_stop_can_come_before_the_cap():
+    rule = StopRule(interval=10, patience=2)
+    assert rule.can_stop_before(40, 10) and not rule.can_stop_before(30, 10)  # earliest stop 30
+    assert not StopRule(interval=10, patience=1, floor=45).can_stop_before(50, 10)  # the floor: 50
+    assert not StopRule().can_stop_before(10**6, 1)  # off
 
 
 def test_state_round_trip_continues_the_same_decisions():

@@ -5,7 +5,7 @@ import torch
 import baselines  # noqa: F401  (registers the baseline objectives with trase.objectives)
 from tests.trase.helpers import exact_masks, tiny_scene
 from trase.clustering import cluster
-from trase.features import FeatureConfig, build_sample, train_features
+from trase.features import FeatureConfig, FeatureTrainingError, build_sample, train_features
 
 
 def _train(tmp_path, iterations=120, **kw):
@@ -160,7 +160,8 @@ def test_norm_regulariser_averages_over_the_image_features_when_given():
         sample.image_features = None
 
 
-@pytest.mark.parametrize("stopping", [{}, {"stop_interval": 10, "stop_patience": 100, "stop_holdout_every": 2}])
+@pytest.mark.parametrize("stopping", [{}, {"stop_interval": 10, "stop_patience": 2, "stop_min_delta": 0.0,
+                                          "stop_holdout_every": 2}])
 def test_a_killed_training_resumes_from_its_checkpoint_bit_for_bit(tmp_path, monkeypatch, stopping):
     import trase.features as tf
 
@@ -191,8 +192,8 @@ def test_a_killed_training_resumes_from_its_checkpoint_bit_for_bit(tmp_path, mon
     assert torch.equal(resumed.features, whole.features) and torch.equal(resumed.raw_features, whole.raw_features)
     assert [h["loss"] for h in resumed.history] == [h["loss"] for h in whole.history]
     assert resumed.stopping == whole.stopping  # the checks before the kill came back with the checkpoint
-    if stopping:
-        assert [c[0] for c in whole.stopping["checks"]] == [10, 20, 30, 40]
+    if stopping:  # checks every 10 steps up to where it stopped (or the cap)
+        assert [c[0] for c in whole.stopping["checks"]][:2] == [10, 20] and len(whole.stopping["held_out"]) == 2
     assert not ckpt.exists()  # removed once the training ended
     # a checkpoint of other features (another width) is not resumed from
     other = tmp_path / "other.pt"
@@ -220,7 +221,15 @@ def test_too_few_views_to_hold_out_train_the_whole_schedule_and_say_so(tmp_path)
     assert res.history[-1]["step"] == 29
 
 
-def test_no_view_is_held_out_when_no_check_comes_before_the_end(tmp_path):
-    res, _ = _train(tmp_path, iterations=20, stop_interval=250, stop_holdout_every=2)
+def test_no_view_is_held_out_where_no_stop_could_come_before_the_end(tmp_path):
+    # checks at 10 and 20 of 20 steps: the earliest stop (patience 2) would be at 30
+    res, _ = _train(tmp_path, iterations=20, stop_interval=10, stop_holdout_every=2)
     assert res.timings["n_usable_views"] == 4 and res.stopping["held_out"] == []
-    assert "no check before the schedule's end" in res.stopping["why"]
+    assert "no stop possible before the schedule's end" in res.stopping["why"]
+
+
+def test_bad_stopping_settings_are_refused_before_any_work(tmp_path):
+    with pytest.raises(FeatureTrainingError, match="stop_holdout_every must be >= 2"):
+        _train(tmp_path, iterations=20, stop_interval=10, stop_holdout_every=1)
+    with pytest.raises(FeatureTrainingError, match="patience >= 1"):
+        _train(tmp_path, iterations=20, stop_interval=10, stop_patience=0)

@@ -211,19 +211,39 @@ def test_a_run_stops_when_the_held_out_psnr_stops_rising_and_stays_stopped(scene
     assert json.loads((tmp_path / "m/stopped.json").read_text()) == summary
 
 
-def test_without_a_plateau_the_run_reaches_its_cap_and_resumes_the_checks_exactly(scene, tmp_path):
+def test_a_resumed_run_continues_its_checks_exactly(scene, tmp_path):
+    import json
+    import shutil
+
+    views, pts = scene
+    # patience 3 from the first check at 15: a stop could come from 30 on (before the cap, 40)
+    cfg = dataclasses.replace(CFG, stop_interval=5, stop_patience=3, stop_min_delta=0.0, stop_holdout_every=3)
+    full_g, _ = reconstruct(views, pts, None, cfg, tmp_path / "full", progress=False)
+    full = json.loads((tmp_path / "full/stopped.json").read_text())
+    assert [s for s, _ in full["checks"]][:2] == [15, 20] and len(full["held_out"]) == 2
+    end = full["stopped_at"] or 40
+    # the same run cut after its checkpoint at 20 (as if killed there), then resumed
+    shutil.copytree(tmp_path / "full", tmp_path / "split")
+    for p in (tmp_path / "split").rglob(f"*iteration_{end}*"):
+        shutil.rmtree(p) if p.is_dir() else p.unlink()
+    (tmp_path / "split/stopped.json").unlink()
+    assert available_iterations(tmp_path / "split") == [20]
+    g, _ = reconstruct(views, pts, None, cfg, tmp_path / "split", progress=False)
+    assert json.loads((tmp_path / "split/stopped.json").read_text()) == full
+    assert torch.equal(g.means, full_g.means)
+
+
+def test_no_stop_at_the_cap_and_none_held_out_where_no_stop_could_come(scene, tmp_path):
     import json
 
     views, pts = scene
-    cfg = dataclasses.replace(CFG, stop_interval=5, stop_patience=10, stop_min_delta=0.0, stop_holdout_every=3)
-    full_g, _ = reconstruct(views, pts, None, cfg, tmp_path / "full", progress=False)
-    full = json.loads((tmp_path / "full/stopped.json").read_text())
-    assert full["stopped_at"] is None and [s for s, _ in full["checks"]] == [15, 20, 25, 30, 35, 40]
-    reconstruct(views, pts, None, dataclasses.replace(cfg, iterations=20, stop_floor=0), tmp_path / "split",
-                progress=False)
-    g, _ = reconstruct(views, pts, None, cfg, tmp_path / "split", progress=False)
-    assert json.loads((tmp_path / "split/stopped.json").read_text())["checks"] == full["checks"]
-    assert torch.equal(g.means, full_g.means)
+    # patience 10 from the first check at 15: the earliest stop, 65, lies past the cap (40)
+    cfg = dataclasses.replace(CFG, stop_interval=5, stop_patience=10, stop_min_delta=100.0, stop_holdout_every=3)
+    g, _ = reconstruct(views, pts, None, cfg, tmp_path / "m", progress=False)
+    full_g, _ = reconstruct(views, pts, None, CFG, tmp_path / "full", progress=False)
+    assert torch.equal(g.means, full_g.means)  # every view trained
+    summary = json.loads((tmp_path / "m/stopped.json").read_text())
+    assert summary["stopped_at"] is None and "no stop possible" in summary["why"]
 
 
 def test_too_few_views_to_hold_out_train_the_full_schedule_and_say_so(scene, tmp_path):
@@ -235,14 +255,3 @@ def test_too_few_views_to_hold_out_train_the_full_schedule_and_say_so(scene, tmp
     summary = json.loads((tmp_path / "m/stopped.json").read_text())
     assert summary["stopped_at"] is None and "none held out" in summary["why"]
     assert available_iterations(tmp_path / "m")[-1] == 40
-
-
-def test_no_view_is_held_out_when_no_check_comes_before_the_end(scene, tmp_path):
-    import json
-
-    views, pts = scene
-    cfg = dataclasses.replace(CFG, stop_interval=50, stop_holdout_every=3)  # 40 iterations: no check
-    g, _ = reconstruct(views, pts, None, cfg, tmp_path / "m", progress=False)
-    full, _ = reconstruct(views, pts, None, CFG, tmp_path / "full", progress=False)
-    assert torch.equal(g.means, full.means)
-    assert "no check" in json.loads((tmp_path / "m/stopped.json").read_text())["why"]

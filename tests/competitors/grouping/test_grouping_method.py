@@ -107,7 +107,7 @@ def test_track_ids_beyond_the_classes_widen_the_classifier(tiny, tmp_path):
     # recorded, and a reloaded model is built with them
     gm, deform, _ids, _views, _ = tiny
     method = GaussianGrouping()
-    scene, fitted = _fit(method, tiny, tmp_path, n_classes=2, iterations=1)
+    _scene, fitted = _fit(method, tiny, tmp_path, n_classes=2, iterations=1)
     assert fitted.stats["n_classes"] == 3
     assert method.probabilities_at(fitted, 0.5).shape == (gm.num_gaussians, 3)
     fitted.save(tmp_path / "out")
