@@ -342,7 +342,7 @@ def _reconstruct(views, points, point_colors, config, out_dir, resume, progress,
     else:
         tr = _new_trainer(points, point_colors, cfg, dev, strategy, gen, static)
     if not held:
-        tr.plateau = None  # too few views to hold any out: the full schedule
+        tr.plateau = None  # none held out (too few views, or no stop possible): the full schedule
     if tr.plateau is None or tr.plateau.stopped_at is None:  # a run that stopped when converged is done
         _train(tr, data, bg, cfg, out_dir, start, progress, backend, max_seconds, held)
     if cfg.stop_interval > 0:
