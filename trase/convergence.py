@@ -114,15 +114,19 @@ def view_name(view) -> str:
     return str(name) if name else str(view.image_path)
 
 
-def held_out_views(views: Sequence, every: int) -> tuple[list, list]:
-    """(trained, held out): every ``every``-th view in time order (then by name) held out,
+def held_out_indices(views: Sequence, every: int) -> list[int]:
+    """The indices of the views held out: every ``every``-th in time order (then by name),
     starting from the middle of the first block so neither end of the sequence is lost;
-    ``every`` < 2 or fewer than 2 * every views: nothing held out."""
+    ``every`` < 2 or fewer than 2 * every views: none."""
     if every < 2 or len(views) < 2 * every:
-        return list(views), []
+        return []
     order = sorted(range(len(views)), key=lambda i: (float(views[i].camera.time), view_name(views[i])))
-    out = set(order[every // 2::every])
-    return [v for i, v in enumerate(views) if i not in out], [v for i, v in enumerate(views) if i in out]
+    return sorted(order[every // 2::every])
+
+
+def none_held_out(cap: int, why: str) -> dict:
+    """The summary of a stage that held nothing out (so ran its whole schedule), and why."""
+    return {"criterion": None, "stopped_at": None, "cap": int(cap), "held_out": [], "why": why}
 
 
 def write_summary(path: os.PathLike | str, summary: dict) -> None:
@@ -144,4 +148,5 @@ def read_summary(path: os.PathLike | str) -> dict | None:
         raise ValueError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
 
 
-__all__ = ["STOP_FILE", "Plateau", "StopRule", "held_out_views", "read_summary", "view_name", "write_summary"]
+__all__ = ["STOP_FILE", "Plateau", "StopRule", "held_out_indices", "none_held_out", "read_summary", "view_name",
+           "write_summary"]

@@ -119,10 +119,11 @@ class _MaskCache:
 
 
 def render_ready(features: torch.Tensor, knn: torch.Tensor, config: FeatureConfig,
-                 generator: torch.Generator) -> torch.Tensor:
+                 generator: torch.Generator | None, every_neighbour: bool = False) -> torch.Tensor:
     """features [N, D] -> [N, D] as one training step renders them: smoothed over a random
-    ``knn_keep`` of the K neighbour slots, then normalised again if ``config.renormalize``."""
-    f = smooth_features(features, knn, config.knn_keep, generator)
+    ``knn_keep`` of the K neighbour slots (``every_neighbour``: over all K, as the features are
+    saved), then normalised again if ``config.renormalize``."""
+    f = smooth_features(features, knn, None if every_neighbour else config.knn_keep, generator)
     if config.renormalize and knn.shape[1] > 0:  # K = 0: smooth_features already normalised
         f = torch.nn.functional.normalize(f, dim=1, eps=NORM_EPS)
     return f
@@ -186,27 +187,26 @@ def _train(gaussians, deformation, views, load_masks, config, cache_dir, progres
     timings.update(train=t_train, per_step=t_train / max(done, 1), resumed_from_step=start)  # t_train: all `done` steps
     stopping = None
     if config.stop_interval > 0:
+        from trase.convergence import none_held_out
+
         stopping = (plateau.plateau.summary("held-out loss", config.iterations, [views[i].name for i in held])
-                    if plateau is not None else
-                    {"criterion": None, "stopped_at": None, "cap": config.iterations, "held_out": [],
-                     "why": (f"no stop possible before the schedule's end ({config.iterations} steps): none "
-                             "held out"
-                             if not config.stop_rule().can_stop_before(config.iterations, config.stop_interval) else
-                             f"fewer than {2 * config.stop_holdout_every} training views with masks: none held "
-                             "out, the full schedule")})
+                    if plateau is not None else none_held_out(config.iterations, (
+                        f"no stop possible before the schedule's end ({config.iterations} steps): none held out"
+                        if not config.stop_rule().can_stop_before(config.iterations, config.stop_interval) else
+                        f"fewer than {2 * config.stop_holdout_every} training views with masks: none held out, "
+                        "the full schedule")))
     return _result(feats, knn, history, timings, path, stopping)
 
 
 def _held_out(views: Sequence, usable: list[int], config: FeatureConfig) -> tuple[list[int], list[int]]:
     """(trained, held out) indices of the usable views: none held out unless the stage stops
-    when converged (``config.stop_interval``) and a check comes before the schedule's end."""
+    when converged (``config.stop_interval``) and a stop could come before the schedule's end."""
     if not config.stop_rule().can_stop_before(config.iterations, config.stop_interval):
         return usable, []
-    from trase.convergence import held_out_views
+    from trase.convergence import held_out_indices
 
-    trained, held = held_out_views([views[i] for i in usable], config.stop_holdout_every)
-    index = {id(views[i]): i for i in usable}
-    return [index[id(v)] for v in trained], [index[id(v)] for v in held]
+    out = {usable[k] for k in held_out_indices([views[i] for i in usable], config.stop_holdout_every)}
+    return [i for i in usable if i not in out], [i for i in usable if i in out]
 
 
 def _check_config(config: FeatureConfig) -> None:
@@ -320,17 +320,18 @@ class _Criterion:
         c = step.config
         self.step, self.plateau = step, Plateau(c.stop_rule())
         rng = np.random.default_rng([c.seed, 1])  # apart from the training draws
-        self.samples = [(vi, build_sample(step.masks_of(vi), c.mask_rule, c.n_masks, c.n_pixels, rng, view=vi)
-                         .to(step.dev)) for vi in held]
+        # their masks kept here: read at every check through the training's cache they would push
+        # the training views' masks out of it
+        self.held = [(vi, step.masks_of(vi)) for vi in held]
+        self.samples = [build_sample(ms, c.mask_rule, c.n_masks, c.n_pixels, rng, view=vi).to(step.dev)
+                        for vi, ms in self.held]
 
     @torch.no_grad()
     def value(self, feats: torch.Tensor) -> float:
         s = self.step
-        f = smooth_features(feats, s.knn, None)
-        if s.config.renormalize and s.knn.shape[1] > 0:
-            f = torch.nn.functional.normalize(f, dim=1, eps=NORM_EPS)
+        f = render_ready(feats, s.knn, s.config, None, every_neighbour=True)
         gen = torch.Generator().manual_seed(int(s.config.seed))  # the objective's draws, alike at every check
-        losses = [float(s.loss_of(f, vi, s.masks_of(vi), sample, gen)[0]) for vi, sample in self.samples]
+        losses = [float(s.loss_of(f, vi, ms, sample, gen)[0]) for (vi, ms), sample in zip(self.held, self.samples)]
         return float(np.mean(losses))
 
     def check(self, done: int, feats: torch.Tensor) -> bool:

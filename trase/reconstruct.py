@@ -41,7 +41,14 @@ from trase.checkpoint import (
     load_model,
     save_model,
 )
-from trase.convergence import STOP_FILE, Plateau, held_out_views, view_name, write_summary
+from trase.convergence import (
+    STOP_FILE,
+    Plateau,
+    held_out_indices,
+    none_held_out,
+    view_name,
+    write_summary,
+)
 from trase.deformation import DeformMLP, deformed, deformed_visible
 from trase.densify import DensifyStrategy, in_view, scene_extent
 from trase.devices import resolve_device
@@ -326,9 +333,10 @@ def _reconstruct(views, points, point_colors, config, out_dir, resume, progress,
     dev = resolve_device(cfg.device)
     bg_np = np.ones(3, np.float32) if cfg.white_background else np.zeros(3, np.float32)
     bg = torch.from_numpy(bg_np).to(dev)
-    held: list = []
-    if _first_check(cfg) is not None:  # views held out of training for the stopping criterion
-        views, held = held_out_views(views, cfg.stop_holdout_every)
+    out = set(held_out_indices(views, cfg.stop_holdout_every)) if _first_check(cfg) is not None else set()
+    held = [v for i, v in enumerate(views) if i in out]  # held out of training for the stopping criterion
+    views = [v for i, v in enumerate(views) if i not in out]
+    held_data = ImageCache(held, cfg.image_downscale, bg_np, dev) if held else None
     data = ImageCache(views, cfg.image_downscale, bg_np, dev)
     strategy = DensifyStrategy(cfg, scene_extent(data.cameras))
 
@@ -344,15 +352,13 @@ def _reconstruct(views, points, point_colors, config, out_dir, resume, progress,
     if not held:
         tr.plateau = None  # none held out (too few views, or no stop possible): the full schedule
     if tr.plateau is None or tr.plateau.stopped_at is None:  # a run that stopped when converged is done
-        _train(tr, data, bg, cfg, out_dir, start, progress, backend, max_seconds, held)
+        _train(tr, data, bg, cfg, out_dir, start, progress, backend, max_seconds, held_data)
     if cfg.stop_interval > 0:
         summary = (tr.plateau.summary("held-out PSNR (dB)", cfg.iterations, [view_name(v) for v in held])
-                   if tr.plateau is not None else
-                   {"criterion": None, "stopped_at": None, "cap": cfg.iterations, "held_out": [],
-                    "why": (f"fewer than {2 * cfg.stop_holdout_every} training views: none held out, the full schedule"
-                            if _first_check(cfg) is not None else
-                            f"no stop possible between the warm-up's end and the schedule's ({cfg.iterations}): "
-                            "none held out")})
+                   if tr.plateau is not None else none_held_out(cfg.iterations, (
+                       f"fewer than {2 * cfg.stop_holdout_every} training views: none held out, the full schedule"
+                       if _first_check(cfg) is not None else
+                       f"no stop possible between the warm-up's end and the schedule's ({cfg.iterations}): none held out")))
         write_summary(out_dir / STOP_FILE, summary)
     else:
         (out_dir / STOP_FILE).unlink(missing_ok=True)  # an earlier run's, with stopping on
@@ -362,10 +368,11 @@ def _reconstruct(views, points, point_colors, config, out_dir, resume, progress,
 
 
 def _train(tr: _Trainer, data: ImageCache, bg: torch.Tensor, cfg: ReconstructionConfig, out_dir: Path,
-           start: int, progress: bool, backend: str, max_seconds: float | None, held: Sequence = ()) -> None:
+           start: int, progress: bool, backend: str, max_seconds: float | None,
+           held: ImageCache | None = None) -> None:
     """Iterations start + 1 .. cfg.iterations: a step, its bookkeeping, checkpoints; stops
     early (after a checkpoint) once ``max_seconds`` have passed, or once the PSNR of the
-    ``held`` views has stopped rising (``tr.plateau``)."""
+    ``held`` views (their images, loaded once) has stopped rising (``tr.plateau``)."""
     log = TrainLog(out_dir / "train_log.csv", start)
     bar = ProgressBar(progress, cfg.iterations, start)
     t0, c0 = time.perf_counter(), time.process_time()
@@ -405,14 +412,16 @@ def _first_check(cfg: ReconstructionConfig) -> int | None:
     return first if cfg.stop_rule().can_stop_before(cfg.iterations, first) else None
 
 
-def _converged(tr: _Trainer, it: int, cfg: ReconstructionConfig, held: Sequence, bg: torch.Tensor,
+def _converged(tr: _Trainer, it: int, cfg: ReconstructionConfig, held: ImageCache | None, bg: torch.Tensor,
                backend: str) -> bool:
-    """On the stopping schedule (past the warm-up): the held-out views' PSNR, recorded; True
-    when the run should stop after this iteration."""
-    if tr.plateau is None or not held or it < cfg.warm_up or not tr.plateau.due(it):
+    """On the stopping schedule (past the warm-up): the held-out views' mean PSNR (the clamped
+    renders, as ``evaluate_images`` measures it), recorded; True when the run should stop after
+    this iteration."""
+    if tr.plateau is None or held is None or it < cfg.warm_up or not tr.plateau.due(it):
         return False
-    value = evaluate_images(tr.gaussians, tr.deformation(), held, bg, backend, cfg.image_downscale,
-                            ssim_too=False)["psnr"]
+    deformation = tr.deformation()
+    value = float(np.mean([psnr(render_view(tr.gaussians, deformation, cam, bg, backend)[0].color.clamp(0, 1), gt)
+                           for cam, gt in zip(held.cameras, held.images)]))
     return tr.plateau.observe(it, value, cap=cfg.iterations)
 
 
