@@ -22,27 +22,36 @@ from benchmark.perf.common import load_average, table, versions
 
 DATASETS = ["nerfds", "hypernerf", "neu3d", "immersive", "technicolor"]
 STATIC_THRESHOLD = 0.01  # chosen on the seed-1 selection scene of the HyperNeRF format (docs/skip.md)
-# stopping when converged: checks every 250 steps of both stages, two checks without a gain
-# (geometry: 0.05 dB of held-out PSNR; features: 1% of the first check's held-out loss), every
-# 10th training view held out (docs/skip.md, "Stages that stop when converged")
-CONVERGED = ["geometry.train.stop_interval=250", "geometry.train.stop_patience=2", "geometry.train.stop_min_delta=0.05",
-             "method.features.stop_interval=250", "method.features.stop_patience=2",
-             "method.features.stop_min_delta=0.01"]
+STOP_INTERVAL = 250  # steps between the stopping checks (the quick suite's tiny schedule: QUICK_STOP_INTERVAL)
+
+
+def converged(interval: int) -> list[str]:
+    """Both stages stop when converged: a check every ``interval`` steps, two checks without a
+    gain (geometry: 0.05 dB of held-out PSNR; features: 1% of the first check's held-out loss,
+    the cpu preset's rule), every 10th training view held out (docs/skip.md, "Stages that stop
+    when converged")."""
+    return [f"geometry.train.stop_interval={interval}", "geometry.train.stop_patience=2",
+            "geometry.train.stop_min_delta=0.05", f"method.features.stop_interval={interval}",
+            "method.features.stop_patience=2", "method.features.stop_min_delta=0.01"]
+
+
 STAGES = ("geometry", "features", "fit", "evaluate")
 DEFAULT = {"datasets": DATASETS, "sequence": "synthetic", "overrides": []}
 QUICK = {"datasets": ["neu3d"], "sequence": "synthetic-tiny",  # 3 frames x 18 cameras: views to hold out
          "overrides": ["geometry.train.iterations=60", "geometry.train.warm_up=10", "geometry.train.static_from=10",
                        "geometry.train.static_interval=20", "method.features.iterations=20",
                        "geometry.train.stop_holdout_every=5", "method.features.stop_holdout_every=5"]}
+QUICK_STOP_INTERVAL = 10
+HEADER = ["format", "variant", "geometry s", "features s", "test PSNR", "static", "ceiling", "ceiling, frames with motion",
+          "ceiling, other frames", "mIoU", "stopped at", "geometry s vs full", "features s vs full"]
 
 
 FULL = ["method.features.stop_interval=0"]  # the cpu preset stops the feature stage; "full" runs every step
 
 
 def variants(threshold: float, quick: bool = False) -> dict[str, list[str]]:
-    # quick: the tiny schedule checks every 10 steps
-    converged = [o.replace("_interval=250", "_interval=10") for o in CONVERGED] if quick else CONVERGED
-    return {"full": FULL, "static": [*FULL, f"geometry.train.static_threshold={threshold}"], "converged": converged}
+    return {"full": FULL, "static": [*FULL, f"geometry.train.static_threshold={threshold}"],
+            "converged": converged(QUICK_STOP_INTERVAL if quick else STOP_INTERVAL)}
 
 
 def _figures(rec: dict) -> dict:
@@ -50,9 +59,8 @@ def _figures(rec: dict) -> dict:
     geo = stages["geometry"].get("info") or {}
     ceiling = rec.get("ceiling") or {}
     movers = ceiling.get("mover_frames") or {}  # the ceiling in the frames where objects move, and the others
-    stopped = {s: (stages[s].get("info") or {}).get("stopping") for s in ("geometry", "features") if s in stages}
-    return {"stopped_at": {s: (st or {}).get("stopped_at") for s, st in stopped.items() if st},
-            "stop_cap": {s: st["cap"] for s, st in stopped.items() if st},
+    stopping = {s: (stages[s].get("info") or {}).get("stopping") for s in ("geometry", "features") if s in stages}
+    return {"stopping": {s: {"stopped_at": st["stopped_at"], "cap": st["cap"]} for s, st in stopping.items() if st},
             "seconds": {s: float(stages[s]["seconds"]) for s in STAGES if s in stages},
             "test_psnr": geo.get("test_psnr"), "gaussians": int(rec["n_gaussians"]),
             "static_gaussians": geo.get("static_gaussians", 0),
@@ -84,7 +92,7 @@ def run(quick: bool = False, echo: Callable[[str], None] = print, dataset: str |
                 except Exception as exc:  # noqa: BLE001 - reported per run, not hidden
                     entry |= {"error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc(limit=3)}
                     runs.append(entry)
-                    rows.append([ds, name, "FAILED", "", "", "", "", "", "", "", "", ""])
+                    rows.append([ds, name, "FAILED"] + [""] * (len(HEADER) - 3))
                     continue
                 entry |= _figures(rec) | {"wall_seconds": time.perf_counter() - t0}
                 runs.append(entry)
@@ -96,9 +104,7 @@ def run(quick: bool = False, echo: Callable[[str], None] = print, dataset: str |
                              f4(entry["ceiling"]), f4(entry["ceiling_moving_frames"]), f4(entry["ceiling_other_frames"]),
                              f"{entry['miou']:.4f}", _stopped(entry), _ratio(runs, ds, name, "geometry"),
                              _ratio(runs, ds, name, "features")])
-    echo(table(rows, ["format", "variant", "geometry s", "features s", "test PSNR", "static", "ceiling",
-                      "ceiling, frames with motion", "ceiling, other frames", "mIoU", "stopped at",
-                      "geometry s vs full", "features s vs full"]))
+    echo(table(rows, HEADER))
     for r in runs:
         if "error" in r:
             echo(f"FAILED {r['dataset']} {r['variant']}: {r['error']}")
@@ -132,9 +138,8 @@ def _plots(runs: list[dict], out_dir: Path, echo: Callable[[str], None]) -> list
 
 
 def _stopped(entry: dict) -> str:
-    """``geometry 3250/4000, features 1500/3000`` (``all``: ran to the cap), or nothing."""
-    caps = entry.get("stop_cap") or {}
-    return ", ".join(f"{s} {entry['stopped_at'].get(s) or 'all'}/{c}" for s, c in caps.items())
+    """``geometry all/4000, features 1500/3000`` (``all``: ran to the cap), or nothing."""
+    return ", ".join(f"{s} {st['stopped_at'] or 'all'}/{st['cap']}" for s, st in (entry.get("stopping") or {}).items())
 
 
 def _ratio(runs: list[dict], ds: str, name: str, stage: str) -> str:

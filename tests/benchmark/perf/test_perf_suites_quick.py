@@ -63,8 +63,9 @@ def test_all_suites_quick(tmp_path, monkeypatch, capsys):
     sk = s["skip"]  # static gaussians on and off, stages that stop when converged
     assert not sk["failed"] and [r["variant"] for r in sk["runs"]] == ["full", "static", "converged"]
     full, static, converged = sk["runs"]
-    assert full["stop_cap"] == {} and converged["stop_cap"] == {"geometry": 60, "features": 20}  # full: no stopping
-    assert all(at is None or 10 <= at <= 60 for at in converged["stopped_at"].values())
+    assert full["stopping"] == {}  # full: no stopping
+    assert {s: st["cap"] for s, st in converged["stopping"].items()} == {"geometry": 60, "features": 20}
+    assert all(st["stopped_at"] is None or 10 <= st["stopped_at"] < st["cap"] for st in converged["stopping"].values())
     assert (tmp_path / "skip-neu3d.png").stat().st_size > 1000 and "Pareto front" in text
     assert full["static_gaussians"] == 0 and full["gaussians"] > 0 and static["gaussians"] > 0
     for r in (full, static):  # the ceiling split into the frames with motion and the others
