@@ -270,8 +270,9 @@ def track_classical(views, gaussians, deformation, out: Path, truth=None, memory
         geo = view_geometry(gaussians, deformation, v.camera)
         track_of = np.zeros(n_seg + 1, np.int64)
         last = None  # the previous view's overlaps, for the parts
+        key = camera_key(v.camera)
         candidates = list(reversed(recent))
-        own = latest_of_camera.get(camera_key(v.camera)) if same_camera else None
+        own = latest_of_camera.get(key) if same_camera else None
         if own is not None and not any(own is c for c in candidates):
             candidates.insert(1, own)  # after the previous view, before the memory
         for back, (prev, prev_ids) in enumerate(candidates):
@@ -308,7 +309,6 @@ def track_classical(views, gaussians, deformation, out: Path, truth=None, memory
         save_ids(ids_path(out, v.name), ids)
         maps[v.name] = ids
         recent = [*recent, (geo, ids)][-(max(memory, 0) + 1):]  # the previous view and `memory` before it
-        key = camera_key(v.camera)
         views_left[key] -= 1
         if views_left[key] > 0:
             latest_of_camera[key] = recent[-1]
