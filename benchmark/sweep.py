@@ -228,11 +228,33 @@ def state_path(where, job: SweepJob) -> Path:
     return where.state_dir / "jobs" / f"{job.id}.json"
 
 
+@contextlib.contextmanager
+def state_lock(where, job: SweepJob):
+    """One writer of a job's state file at a time: the submitter and the job's worker both
+    write it, and an atomic write sweeps away another writer's temporary (trase.io), so two at
+    once could fail; the submitter's read-then-write must not put back a state older than the
+    worker's. The lock is the stage cache's (benchmark.stage_lock: NFS-safe, a dead holder's
+    lock broken)."""
+    from benchmark.stage_lock import StageLock
+
+    lock = StageLock(state_path(where, job).with_suffix(".lock"))
+    while not lock.acquire():
+        holder = lock.holder()
+        if lock.is_stale(holder):
+            lock.break_stale(holder)
+        time.sleep(0.02)
+    try:
+        yield
+    finally:
+        lock.release()
+
+
 def write_state(where, job: SweepJob, **fields) -> None:
     from benchmark.io import atomic_write_json
 
-    atomic_write_json(state_path(where, job), {"job": job.id, "label": job.label(), "definition": job.to_dict(),
-                                               "time": time.time(), **fields})
+    with state_lock(where, job):
+        atomic_write_json(state_path(where, job), {"job": job.id, "label": job.label(), "definition": job.to_dict(),
+                                                   "time": time.time(), **fields})
 
 
 def _read_file(target, job: SweepJob) -> dict | None:
@@ -529,12 +551,13 @@ def submit(spec: SweepSpec, wait: bool = True, echo=print, states: list | None =
         raise SweepError(submission_error(exc)) from None
     for handle, share in zip(handles, shares):  # the scheduler's id, where no worker has written yet
         for job in share:
-            st = _read_file(spec.target, job) or {}
-            if st.get("state") == "submitted":
-                fields = {"scheduler_id": str(handle.job_id), "log": str(handle.paths.stdout)}
-                if spec.executor == "local":  # submitit's local job id is its worker's pid
-                    fields["pid"] = int(handle.job_id)
-                atomic_write_json(state_path(spec.target, job), {**st, **fields})
+            with state_lock(spec.target, job):  # the worker may be writing "running" this instant
+                st = _read_file(spec.target, job) or {}
+                if st.get("state") == "submitted":
+                    fields = {"scheduler_id": str(handle.job_id), "log": str(handle.paths.stdout)}
+                    if spec.executor == "local":  # submitit's local job id is its worker's pid
+                        fields["pid"] = int(handle.job_id)
+                    atomic_write_json(state_path(spec.target, job), {**st, **fields})
     echo(f"submitted {len(jobs)} job(s) as {len(handles)} {spec.executor} task(s); logs in {logs}")
     out = {"submitted": len(jobs), "tasks": len(handles), "scheduler_ids": [str(h.job_id) for h in handles]}
     if wait:
@@ -563,10 +586,11 @@ def _restore(spec: SweepSpec, jobs: list[SweepJob], before: dict) -> None:
 
     for job in jobs:
         p = state_path(spec.target, job)
-        if before[job.id] is None:
-            p.unlink(missing_ok=True)
-        else:
-            atomic_write_json(p, before[job.id])
+        with state_lock(spec.target, job):
+            if before[job.id] is None:
+                p.unlink(missing_ok=True)
+            else:
+                atomic_write_json(p, before[job.id])
 
 
 def results_table(spec: SweepSpec) -> str:

@@ -228,3 +228,31 @@ def test_a_job_that_ends_before_submit_returns_keeps_its_state(tmp_path, monkeyp
     out = sw.submit(spec, wait=False, echo=lambda *_: None)
     assert out["submitted"] == len(by_id) == 2
     assert [read_state(spec, j)["state"] for j in by_id.values()] == ["done", "done"]
+
+
+def test_a_submitter_and_a_worker_writing_one_state_at_once_both_succeed(tmp_path):
+    # an atomic write sweeps away the temporaries of other writers of its path: without the
+    # state lock one of two concurrent writers failed (a job "lost" before it started)
+    import threading
+
+    from benchmark.sweep import state_path, write_state
+
+    spec = load_spec(_spec(tmp_path, TINY))
+    job = spec.jobs()[0]
+    errors = []
+
+    def writer(state):
+        try:
+            for _ in range(100):
+                write_state(spec.target, job, state=state)
+        except Exception as exc:  # noqa: BLE001 - collected for the assertion
+            errors.append(exc)
+
+    threads = [threading.Thread(target=writer, args=(s,)) for s in ("submitted", "running")]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert errors == []
+    assert json.loads(state_path(spec.target, job).read_text())["state"] in ("submitted", "running")
+    assert not list(state_path(spec.target, job).parent.glob("*.lock"))  # released
