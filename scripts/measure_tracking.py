@@ -17,7 +17,24 @@ import time
 from pathlib import Path
 
 
-def measure(dataset: str, seed: int, size: str, root: Path, **tracker) -> dict:
+def merge_sweep(scene, masks_dir: Path, votes, n_tracks: int, cosines: list[float]) -> dict:
+    """{cosine: agreement} of the unmerged tracks in ``masks_dir`` merged at each cosine."""
+    from masks.generate import read_instance_map
+    from masks.track_merging import merged_ids, track_similarity
+    from masks.tracked import agreement, ids_path, load_ids
+
+    maps = [load_ids(ids_path(masks_dir, v.name)) for v in scene.train]
+    truth = [read_instance_map(scene.truth.instance_maps[v.name]) for v in scene.train]
+    matrix, together = votes.matrices(n_tracks)
+    similarity = track_similarity(matrix)
+    out = {}
+    for c in cosines:
+        new_id = merged_ids(similarity, together, c)
+        out[str(c)] = agreement([new_id[m] for m in maps], truth)
+    return out
+
+
+def measure(dataset: str, seed: int, size: str, root: Path, sweep: list[float] = (), **tracker) -> dict:
     import masks as masklib
     from benchmark.datasets import load_scene
     from benchmark.datasets.synthetic import generate
@@ -25,6 +42,7 @@ def measure(dataset: str, seed: int, size: str, root: Path, **tracker) -> dict:
     from benchmark.pipeline.masks import make_mask_generator
     from benchmark.pipeline.settings import MaskSettings
     from benchmark.pipeline.tracks import track_classical
+    from masks.track_merging import TrackVotes
 
     scene_dir = root / f"{dataset}-s{seed}-{size}"
     if not (scene_dir / "synthetic" / "manifest.json").is_file():
@@ -40,8 +58,11 @@ def measure(dataset: str, seed: int, size: str, root: Path, **tracker) -> dict:
         (gdir / "geometry.npz").symlink_to(truth.geometry_path)
         gaussians, deformation = load_geometry(gdir)
         t0 = time.perf_counter()
-        info = track_classical(scene.train, gaussians, deformation, out, truth=truth, **tracker)
+        votes = TrackVotes(gaussians.num_gaussians)
+        info = track_classical(scene.train, gaussians, deformation, out, truth=truth, votes=votes, **tracker)
         seconds = time.perf_counter() - t0
+        if sweep and info.get("tracks_before") is None:  # the same tracks merged at each cosine
+            info["merge_sweep"] = merge_sweep(scene, out, votes, info["n_tracks"], sweep)
     return {"dataset": dataset, "seed": seed, "size": size, "views": len(scene.train), "seconds": round(seconds, 2),
             **info}
 
@@ -55,12 +76,19 @@ def main(argv=None) -> int:
     ap.add_argument("--memory", type=int, default=None, help="earlier views a lost track is sought in (default: the stage's)")
     ap.add_argument("--no-parts", action="store_true", help="segments inside a track start their own")
     ap.add_argument("--no-same-camera", action="store_true", help="a rig's camera's own latest view is not sought")
+    ap.add_argument("--merge-cosine", type=float, default=None, help="merge tracks this similar (default: the stage's)")
+    ap.add_argument("--no-merge", action="store_true", help="tracks that are one object in 3D are not merged")
+    ap.add_argument("--merge-sweep", default="", help="with --no-merge: the agreement of the same tracks merged at "
+                                                      "each of these cosines (comma-separated)")
     args = ap.parse_args(argv)
     tracker = {**({"memory": args.memory} if args.memory is not None else {}),
                **({"part_of_share": None} if args.no_parts else {}),
-               **({"same_camera": False} if args.no_same_camera else {})}
+               **({"same_camera": False} if args.no_same_camera else {}),
+               **({"merge_cosine": args.merge_cosine} if args.merge_cosine is not None else {}),
+               **({"merge_cosine": None} if args.no_merge else {})}
     for d in args.datasets.split(","):
-        print(json.dumps(measure(d, args.seed, args.size, args.root, **tracker)), flush=True)
+        sweep = [float(c) for c in args.merge_sweep.split(",") if c]
+        print(json.dumps(measure(d, args.seed, args.size, args.root, sweep=sweep, **tracker)), flush=True)
     return 0
 
 

@@ -6,7 +6,8 @@ time by the gaussians' own displacement (the deformation's means at A's time min
 B's, rendered as a 3-channel feature image and divided by the accumulated alpha, so a pixel
 moves as the gaussians it shows move), projected into A, and kept where A sees that point
 (its depth within a tolerance of A's rendered depth there). The label of A at that pixel is
-B's warped label; elsewhere it is unknown (-1).
+B's warped label; elsewhere it is unknown (-1). ``visible_gaussians`` says which gaussians a
+view shows on its surface, and at which pixel (the tracker's votes for merging tracks).
 """
 
 from __future__ import annotations
@@ -90,4 +91,24 @@ def backward_warp(gaussians, deformation, prev: ViewGeometry, cur: ViewGeometry,
     return out
 
 
-__all__ = ["DEPTH_TOLERANCE", "MIN_ALPHA", "ViewGeometry", "backward_warp", "view_geometry"]
+def visible_gaussians(view: ViewGeometry, depth_tolerance: float = DEPTH_TOLERANCE,
+                      min_alpha: float = MIN_ALPHA) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(gaussians [M], rows [M], cols [M]): the gaussians whose centre (at the view's time)
+    lies on the surface the view shows: inside the image on a solid pixel (alpha >= ``min_alpha``)
+    with its depth within ``depth_tolerance`` (relative) of the rendered depth there; the pixel
+    each falls on."""
+    cam = view.camera
+    empty = np.zeros(0, np.int64)
+    if view.means.shape[0] == 0:
+        return empty, empty, empty
+    uv, z = cam.project(view.means.cpu().numpy().astype(np.float64))
+    c, r = np.floor(uv[:, 0]), np.floor(uv[:, 1])
+    inside = np.isfinite(c) & np.isfinite(r) & (z > 0) & (c >= 0) & (c < cam.width) & (r >= 0) & (r < cam.height)
+    idx = np.flatnonzero(inside)
+    r, c, z = r[idx].astype(np.int64), c[idx].astype(np.int64), z[idx]
+    d = view.depth[r, c]
+    on = (view.alpha[r, c] >= min_alpha) & (d > 0) & (np.abs(z - d) <= depth_tolerance * d)
+    return idx[on], r[on], c[on]
+
+
+__all__ = ["DEPTH_TOLERANCE", "MIN_ALPHA", "ViewGeometry", "backward_warp", "view_geometry", "visible_gaussians"]

@@ -55,10 +55,15 @@ PART_OF = MIN_KEPT
 # sought in the same camera's latest view (the warp then carries only the motion between two
 # instants), before the memory's earlier views
 SAME_CAMERA = True
+# after the last view, tracks whose views' votes fall on the same gaussians (cosine of their vote
+# columns, masks.track_merging) at least this similar are merged, unless some view shows them
+# side by side: chosen on the selection scenes (seed 1) by the agreement with their instance
+# maps (docs/tracked-masks.md); None: no merging
+MERGE_COSINE = 0.5
 CLASSICAL = {"iou_threshold": IOU_THRESHOLD, "min_kept": MIN_KEPT, "memory": MEMORY, "part_of": PART_OF,
-             "same_camera": SAME_CAMERA, "order": "time, then view name",
+             "same_camera": SAME_CAMERA, "merge_cosine": MERGE_COSINE, "order": "time, then view name",
              "min_area": "the mask generators' minimum area (SAM's 100 px at 536x960, scaled)",
-             "version": 5}
+             "version": 6}
 
 # where a DEVA output folder keeps its per-frame images: Annotations/ (demo_automatic.py and
 # demo_with_text.py), object_mask/ (Gaussian Grouping's copy of it), else the folder itself
@@ -225,7 +230,8 @@ def camera_key(camera) -> bytes:
 
 
 def track_classical(views, gaussians, deformation, out: Path, truth=None, memory: int = MEMORY,
-                    part_of_share: float | None = PART_OF, same_camera: bool = SAME_CAMERA) -> dict:
+                    part_of_share: float | None = PART_OF, same_camera: bool = SAME_CAMERA,
+                    merge_cosine: float | None = MERGE_COSINE, votes=None) -> dict:
     """Track ids for the anything masks in ``out`` (one file per view, as the masks stage wrote
     them): per view in time order, segments (``segments_from_masks``), then the previous view's
     ids warped into this one (``trase.warp.backward_warp``), segments matched to the warped
@@ -234,9 +240,13 @@ def track_classical(views, gaussians, deformation, out: Path, truth=None, memory
     rig of fixed cameras), then of up to MEMORY earlier views (most recent first), that no
     segment of this view continues; a segment unmatched after that which lies in one track of
     the previous view (PART_OF of its known pixels) is a part of it and takes its id; any other
-    starts a new track. ``truth`` (a synthetic scene's): the agreement with its instance maps is
-    recorded. ``memory``, ``part_of_share`` (None: no parts) and ``same_camera`` change those
-    steps for measurements (scripts/measure_tracking.py); the stage uses the constants."""
+    starts a new track. After the last view, tracks that are one object in 3D are merged
+    (``masks.track_merging``: each view's votes for the gaussians it shows, MERGE_COSINE).
+    ``truth`` (a synthetic scene's): the agreement with its instance maps is recorded.
+    ``memory``, ``part_of_share`` (None: no parts), ``same_camera`` and ``merge_cosine`` (None:
+    no merging) change those steps for measurements (scripts/measure_tracking.py), which may
+    pass a ``masks.track_merging.TrackVotes`` as ``votes`` to keep the views' votes; the stage
+    uses the constants."""
     import masks as masklib
     from masks.generate import read_instance_map
     from masks.generators.base import min_area_for
@@ -251,7 +261,8 @@ def track_classical(views, gaussians, deformation, out: Path, truth=None, memory
         save_tracks_info,
         segments_from_masks,
     )
-    from trase.warp import backward_warp, view_geometry
+    from masks.track_merging import TrackVotes, merged_ids, track_similarity
+    from trase.warp import backward_warp, view_geometry, visible_gaussians
 
     n_tracks = 0
     recent: list[tuple] = []  # (view geometry, ids) of the previous view and up to `memory` before it
@@ -259,6 +270,8 @@ def track_classical(views, gaussians, deformation, out: Path, truth=None, memory
     views_left = Counter(camera_key(v.camera) for v in views)  # a moving camera's views: 1 each
     continued = resumed = joined = started = 0
     maps = {}
+    voting = merge_cosine is not None or votes is not None
+    votes = TrackVotes(gaussians.num_gaussians) if votes is None else votes
     for v in time_order(views):
         path = masklib.mask_path(out, v.name)
         ms = masklib.load(path)
@@ -306,25 +319,36 @@ def track_classical(views, gaussians, deformation, out: Path, truth=None, memory
                 track_of[s] = n_tracks
                 started += 1
         ids = track_of[seg].astype(np.int32)
-        save_ids(ids_path(out, v.name), ids)
         maps[v.name] = ids
+        if voting:
+            votes.add(ids, *visible_gaussians(geo))
         recent = [*recent, (geo, ids)][-(max(memory, 0) + 1):]  # the previous view and `memory` before it
         views_left[key] -= 1
         if views_left[key] > 0:
             latest_of_camera[key] = recent[-1]
         else:
             latest_of_camera.pop(key, None)  # its last view: kept no longer
-    constants = {**CLASSICAL, "memory": memory, "part_of": part_of_share, "same_camera": same_camera}
+    merged = {}
+    if merge_cosine is not None and n_tracks > 1:
+        vote_matrix, together = votes.matrices(n_tracks)
+        new_id = merged_ids(track_similarity(vote_matrix), together, merge_cosine)
+        merged = {"tracks_before": n_tracks, "merged": n_tracks - int(new_id.max())}
+        maps = {name: new_id[ids].astype(np.int32) for name, ids in maps.items()}
+        n_tracks = int(new_id.max())
+    for v in views:
+        save_ids(ids_path(out, v.name), maps[v.name])
+    constants = {**CLASSICAL, "memory": memory, "part_of": part_of_share, "same_camera": same_camera,
+                 "merge_cosine": merge_cosine}
     info = {"source": "classical", "n_tracks": n_tracks, "views": len(views), "constants": constants,
-            "continued": continued, "resumed": resumed, "parts": joined, "started": started}
+            "continued": continued, "resumed": resumed, "parts": joined, "started": started, **merged}
     if truth is not None:
         truth_maps = [read_instance_map(truth.instance_maps[v.name]) for v in views]
         info["agreement_with_truth"] = agreement([maps[v.name] for v in views], truth_maps)
     save_tracks_info(out, info)
     return {k: info[k] for k in ("source", "n_tracks", "continued", "resumed", "parts", "started",
-                                             "agreement_with_truth")
+                                 "tracks_before", "merged", "agreement_with_truth")
             if k in info}
 
 
-__all__ = ["CLASSICAL", "IOU_THRESHOLD", "MEMORY", "MIN_KEPT", "PART_OF", "SAME_CAMERA", "camera_key", "find_track_files",
+__all__ = ["CLASSICAL", "IOU_THRESHOLD", "MEMORY", "MERGE_COSINE", "MIN_KEPT", "PART_OF", "SAME_CAMERA", "camera_key", "find_track_files",
            "link_masks", "run", "time_order", "track_classical", "write_files", "write_synthetic"]

@@ -149,6 +149,11 @@ def test_agreement_counts_masks_that_follow_their_tracks_object():
     assert a["n_masks"] == 3 and a["masks"] == 1.0 and a["pixels"] == 6 / 8
     jumped = [np.array([[1, 1, 2, 2]]), np.array([[2, 2, 1, 1]])]  # ids exchanged in view 2
     assert agreement(jumped, truth)["masks"] == 0.5
+    # object 1 in two tracks (3 pixels and 1), object 2 in one
+    split = [np.array([[1, 1, 2, 2]]), np.array([[1, 3, 2, 2]])]
+    a = agreement(split, truth)
+    assert a["tracks_per_object"] == 1.5 and a["main_track_pixels"] == (3 / 4 + 1.0) / 2
+    assert agreement(good, truth)["main_track_pixels"] == 1.0
 
 
 def test_a_segment_inside_one_track_is_a_part_of_it():

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 from PIL import Image
 
 from benchmark.config import ConfigError
@@ -160,7 +161,8 @@ def test_a_fixed_camera_finds_its_own_latest_view_when_the_previous_one_sees_not
     geo.mkdir()
     shutil.copyfile(tiny_scene.truth.geometry_path, geo / "geometry.npz")
     gaussians, deformation = load_geometry(geo)
-    info = track_classical(views, gaussians, deformation, tmp_path, memory=0, same_camera=same_camera)
+    info = track_classical(views, gaussians, deformation, tmp_path, memory=0, same_camera=same_camera,
+                           merge_cosine=None)
     a, b, c = (load_ids(ids_path(tmp_path, n)) for n in "abc")
     assert a.max() > 0 and (b > a.max()).any()  # b sees other surfaces: tracks of its own
     known = max(a.max(), b.max())
@@ -168,6 +170,65 @@ def test_a_fixed_camera_finds_its_own_latest_view_when_the_previous_one_sees_not
         assert c.max() <= known and info["resumed"] > 0 and np.isin(np.unique(c[c > 0]), np.unique(a)).any()
     else:  # only b to continue from: what b does not show starts again
         assert info["resumed"] == 0 and (c > known).any()
+
+
+def test_tracks_restarted_on_the_same_gaussians_are_merged_back(tiny_scene, tmp_path):
+    """One camera's views a, b, c in time order, b without a single mask (a missed view): with
+    no memory and no same-camera step, c starts a new track for everything. Those fall on the
+    gaussians a voted for, and no view shows one beside its twin, so the merge gives c a's ids;
+    without it they stay new."""
+    import dataclasses
+
+    import masks as masklib
+    from benchmark.pipeline.context import load_geometry
+    from benchmark.pipeline.tracks import track_classical
+    from masks.generators.synthetic import SyntheticGenerator
+
+    first = tiny_scene.train[0]
+    masklib.generate_scene_masks([first], SyntheticGenerator(seed=0), tmp_path, progress=False,
+                                 instance_maps=dict(tiny_scene.truth.instance_maps))
+    t0 = float(first.camera.time)
+    views = [types.SimpleNamespace(name=n, camera=dataclasses.replace(first.camera, time=t0 + dt))
+             for n, dt in (("a", 0.0), ("b", 1e-6), ("c", 2e-6))]
+    for n in "ac":
+        shutil.copyfile(masklib.mask_path(tmp_path, first.name), masklib.mask_path(tmp_path, n))
+    h, w = first.camera.height, first.camera.width
+    masklib.save(masklib.mask_path(tmp_path, "b"), masklib.MaskSet.from_masks(np.zeros((0, h, w), bool)))
+    geo = tmp_path / "geometry"
+    geo.mkdir()
+    shutil.copyfile(tiny_scene.truth.geometry_path, geo / "geometry.npz")
+    gaussians, deformation = load_geometry(geo)
+    kept = track_classical(views, gaussians, deformation, tmp_path, memory=0, same_camera=False, merge_cosine=None)
+    a, c = load_ids(ids_path(tmp_path, "a")), load_ids(ids_path(tmp_path, "c"))
+    assert a.max() > 0 and not np.isin(np.unique(c[c > 0]), np.unique(a)).any()  # all restarted
+    info = track_classical(views, gaussians, deformation, tmp_path, memory=0, same_camera=False)
+    a, c = load_ids(ids_path(tmp_path, "a")), load_ids(ids_path(tmp_path, "c"))
+    assert info["tracks_before"] == kept["n_tracks"] == 2 * a.max() and info["n_tracks"] == a.max()
+    assert np.array_equal(a, c) and load_tracks_info(tmp_path)["n_tracks"] == info["n_tracks"]
+
+
+def test_the_gaussians_a_view_shows_lie_on_its_rendered_surface(tiny_scene, tmp_path):
+    from benchmark.pipeline.context import load_geometry
+    from trase.warp import DEPTH_TOLERANCE, view_geometry, visible_gaussians
+
+    shutil.copyfile(tiny_scene.truth.geometry_path, tmp_path / "geometry.npz")
+    gaussians, deformation = load_geometry(tmp_path)
+    cam = tiny_scene.train[0].camera
+    g = view_geometry(gaussians, deformation, cam)
+    idx, rows, cols = visible_gaussians(g)
+    assert 0 < idx.shape[0] < gaussians.num_gaussians and np.unique(idx).shape[0] == idx.shape[0]
+    uv, z = cam.project(g.means[idx].numpy().astype(np.float64))
+    assert np.array_equal(np.floor(uv[:, 0]).astype(int), cols) and np.array_equal(np.floor(uv[:, 1]).astype(int), rows)
+    d = g.depth[rows, cols]
+    assert (g.alpha[rows, cols] >= 0.5).all() and (np.abs(z - d) <= DEPTH_TOLERANCE * d).all()
+    # a gaussian moved twice as far along its ray lies behind the surface: no longer shown
+    import dataclasses
+
+    centre = torch.as_tensor(cam.center, dtype=g.means.dtype)
+    means = g.means.clone()
+    means[idx[:10]] = centre + 2.0 * (means[idx[:10]] - centre)
+    behind = visible_gaussians(dataclasses.replace(g, means=means))[0]
+    assert not np.isin(idx[:10], behind).any() and np.isin(idx[10:], behind).all()
 
 
 def test_a_warp_between_identical_views_is_the_identity(tiny_scene, tmp_path):
