@@ -17,24 +17,26 @@ import time
 from pathlib import Path
 
 
-def merge_sweep(scene, masks_dir: Path, votes, n_tracks: int, cosines: list[float]) -> dict:
-    """{cosine: agreement} of the unmerged tracks in ``masks_dir`` merged at each cosine."""
+def merge_sweep(scene, masks_dir: Path, votes, n_tracks: int, cosines: list[float], togethers: list[float]) -> dict:
+    """{"<cosine>/<max together>": agreement} of the unmerged tracks in ``masks_dir`` merged with
+    each pair of settings."""
     from masks.generate import read_instance_map
     from masks.track_merging import merged_ids, track_similarity
     from masks.tracked import agreement, ids_path, load_ids
 
     maps = [load_ids(ids_path(masks_dir, v.name)) for v in scene.train]
     truth = [read_instance_map(scene.truth.instance_maps[v.name]) for v in scene.train]
-    matrix, together = votes.matrices(n_tracks)
+    matrix, shown = votes.matrices(n_tracks)
     similarity = track_similarity(matrix)
     out = {}
     for c in cosines:
-        new_id = merged_ids(similarity, together, c)
-        out[str(c)] = agreement([new_id[m] for m in maps], truth)
+        for m in togethers:
+            new_id = merged_ids(similarity, shown, c, m)
+            out[f"{c}/{m}"] = agreement([new_id[ids] for ids in maps], truth)
     return out
 
 
-def measure(dataset: str, seed: int, size: str, root: Path, sweep: list[float] = (), **tracker) -> dict:
+def measure(dataset: str, seed: int, size: str, root: Path, sweep: tuple = (), **tracker) -> dict:
     import masks as masklib
     from benchmark.datasets import load_scene
     from benchmark.datasets.synthetic import generate
@@ -58,11 +60,11 @@ def measure(dataset: str, seed: int, size: str, root: Path, sweep: list[float] =
         (gdir / "geometry.npz").symlink_to(truth.geometry_path)
         gaussians, deformation = load_geometry(gdir)
         t0 = time.perf_counter()
-        votes = TrackVotes(gaussians.num_gaussians)
+        votes = TrackVotes(gaussians.num_gaussians) if sweep else None
         info = track_classical(scene.train, gaussians, deformation, out, truth=truth, votes=votes, **tracker)
         seconds = time.perf_counter() - t0
-        if sweep and info.get("tracks_before") is None:  # the same tracks merged at each cosine
-            info["merge_sweep"] = merge_sweep(scene, out, votes, info["n_tracks"], sweep)
+        if sweep:  # the same tracks merged with each pair of settings
+            info["merge_sweep"] = merge_sweep(scene, out, votes, info["n_tracks"], *sweep)
     return {"dataset": dataset, "seed": seed, "size": size, "views": len(scene.train), "seconds": round(seconds, 2),
             **info}
 
@@ -80,6 +82,8 @@ def main(argv=None) -> int:
     ap.add_argument("--no-merge", action="store_true", help="tracks that are one object in 3D are not merged")
     ap.add_argument("--merge-sweep", default="", help="with --no-merge: the agreement of the same tracks merged at "
                                                       "each of these cosines (comma-separated)")
+    ap.add_argument("--together-sweep", default="0", help="with --merge-sweep: ... and each of these shares of "
+                                                          "views two tracks may share (comma-separated)")
     args = ap.parse_args(argv)
     tracker = {**({"memory": args.memory} if args.memory is not None else {}),
                **({"part_of_share": None} if args.no_parts else {}),
@@ -87,7 +91,10 @@ def main(argv=None) -> int:
                **({"merge_cosine": args.merge_cosine} if args.merge_cosine is not None else {}),
                **({"merge_cosine": None} if args.no_merge else {})}
     for d in args.datasets.split(","):
-        sweep = [float(c) for c in args.merge_sweep.split(",") if c]
+        cosines = [float(c) for c in args.merge_sweep.split(",") if c]
+        if cosines and not args.no_merge:
+            ap.error("--merge-sweep merges the tracks of one unmerged pass: give --no-merge too")
+        sweep = (cosines, [float(m) for m in args.together_sweep.split(",") if m]) if cosines else ()
         print(json.dumps(measure(d, args.seed, args.size, args.root, sweep=sweep, **tracker)), flush=True)
     return 0
 

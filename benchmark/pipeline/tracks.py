@@ -60,10 +60,15 @@ SAME_CAMERA = True
 # side by side: chosen on the selection scenes (seed 1) by the agreement with their instance
 # maps (docs/tracked-masks.md); None: no merging
 MERGE_COSINE = 0.5
+# ... unless the same views show them as two segments in more than this share of the views of the
+# one seen in fewer (an object cut in two by its masks in a few views; two objects seen together
+# share most of theirs); chosen with MERGE_COSINE
+MERGE_MAX_TOGETHER = 0.1
 CLASSICAL = {"iou_threshold": IOU_THRESHOLD, "min_kept": MIN_KEPT, "memory": MEMORY, "part_of": PART_OF,
-             "same_camera": SAME_CAMERA, "merge_cosine": MERGE_COSINE, "order": "time, then view name",
+             "same_camera": SAME_CAMERA, "merge_cosine": MERGE_COSINE, "merge_max_together": MERGE_MAX_TOGETHER,
+             "order": "time, then view name",
              "min_area": "the mask generators' minimum area (SAM's 100 px at 536x960, scaled)",
-             "version": 6}
+             "version": 7}
 
 # where a DEVA output folder keeps its per-frame images: Annotations/ (demo_automatic.py and
 # demo_with_text.py), object_mask/ (Gaussian Grouping's copy of it), else the folder itself
@@ -231,7 +236,8 @@ def camera_key(camera) -> bytes:
 
 def track_classical(views, gaussians, deformation, out: Path, truth=None, memory: int = MEMORY,
                     part_of_share: float | None = PART_OF, same_camera: bool = SAME_CAMERA,
-                    merge_cosine: float | None = MERGE_COSINE, votes=None) -> dict:
+                    merge_cosine: float | None = MERGE_COSINE, merge_max_together: float = MERGE_MAX_TOGETHER,
+                    votes=None) -> dict:
     """Track ids for the anything masks in ``out`` (one file per view, as the masks stage wrote
     them): per view in time order, segments (``segments_from_masks``), then the previous view's
     ids warped into this one (``trase.warp.backward_warp``), segments matched to the warped
@@ -241,15 +247,17 @@ def track_classical(views, gaussians, deformation, out: Path, truth=None, memory
     segment of this view continues; a segment unmatched after that which lies in one track of
     the previous view (PART_OF of its known pixels) is a part of it and takes its id; any other
     starts a new track. After the last view, tracks that are one object in 3D are merged
-    (``masks.track_merging``: each view's votes for the gaussians it shows, MERGE_COSINE).
+    (``masks.track_merging``: each view's votes for the gaussians it shows, MERGE_COSINE,
+    MERGE_MAX_TOGETHER).
     ``truth`` (a synthetic scene's): the agreement with its instance maps is recorded.
-    ``memory``, ``part_of_share`` (None: no parts), ``same_camera`` and ``merge_cosine`` (None:
-    no merging) change those steps for measurements (scripts/measure_tracking.py), which may
-    pass a ``masks.track_merging.TrackVotes`` as ``votes`` to keep the views' votes; the stage
-    uses the constants."""
+    ``memory``, ``part_of_share`` (None: no parts), ``same_camera``, ``merge_cosine`` (None:
+    no merging) and ``merge_max_together`` change those steps for measurements
+    (scripts/measure_tracking.py), which may pass a ``masks.track_merging.TrackVotes`` as
+    ``votes`` to keep the views' votes; the stage uses the constants."""
     import masks as masklib
     from masks.generate import read_instance_map
     from masks.generators.base import min_area_for
+    from masks.track_merging import TrackVotes, merged_ids, track_similarity
     from masks.tracked import (
         agreement,
         ids_path,
@@ -261,7 +269,6 @@ def track_classical(views, gaussians, deformation, out: Path, truth=None, memory
         save_tracks_info,
         segments_from_masks,
     )
-    from masks.track_merging import TrackVotes, merged_ids, track_similarity
     from trase.warp import backward_warp, view_geometry, visible_gaussians
 
     n_tracks = 0
@@ -321,7 +328,7 @@ def track_classical(views, gaussians, deformation, out: Path, truth=None, memory
         ids = track_of[seg].astype(np.int32)
         maps[v.name] = ids
         if voting:
-            votes.add(ids, *visible_gaussians(geo))
+            votes.add(ids, *visible_gaussians(geo), present=track_of[1:])
         recent = [*recent, (geo, ids)][-(max(memory, 0) + 1):]  # the previous view and `memory` before it
         views_left[key] -= 1
         if views_left[key] > 0:
@@ -330,15 +337,16 @@ def track_classical(views, gaussians, deformation, out: Path, truth=None, memory
             latest_of_camera.pop(key, None)  # its last view: kept no longer
     merged = {}
     if merge_cosine is not None and n_tracks > 1:
-        vote_matrix, together = votes.matrices(n_tracks)
-        new_id = merged_ids(track_similarity(vote_matrix), together, merge_cosine)
+        vote_matrix, shown = votes.matrices(n_tracks)
+        new_id = merged_ids(track_similarity(vote_matrix), shown, merge_cosine, merge_max_together)
         merged = {"tracks_before": n_tracks, "merged": n_tracks - int(new_id.max())}
-        maps = {name: new_id[ids].astype(np.int32) for name, ids in maps.items()}
+        for ids in maps.values():
+            ids[:] = new_id[ids]  # in place: a large rig's maps are not held twice
         n_tracks = int(new_id.max())
     for v in views:
         save_ids(ids_path(out, v.name), maps[v.name])
     constants = {**CLASSICAL, "memory": memory, "part_of": part_of_share, "same_camera": same_camera,
-                 "merge_cosine": merge_cosine}
+                 "merge_cosine": merge_cosine, "merge_max_together": merge_max_together}
     info = {"source": "classical", "n_tracks": n_tracks, "views": len(views), "constants": constants,
             "continued": continued, "resumed": resumed, "parts": joined, "started": started, **merged}
     if truth is not None:
@@ -350,5 +358,5 @@ def track_classical(views, gaussians, deformation, out: Path, truth=None, memory
             if k in info}
 
 
-__all__ = ["CLASSICAL", "IOU_THRESHOLD", "MEMORY", "MERGE_COSINE", "MIN_KEPT", "PART_OF", "SAME_CAMERA", "camera_key", "find_track_files",
+__all__ = ["CLASSICAL", "IOU_THRESHOLD", "MEMORY", "MERGE_COSINE", "MERGE_MAX_TOGETHER", "MIN_KEPT", "PART_OF", "SAME_CAMERA", "camera_key", "find_track_files",
            "link_masks", "run", "time_order", "track_classical", "write_files", "write_synthetic"]
