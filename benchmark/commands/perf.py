@@ -22,7 +22,7 @@ from benchmark.perf import SUITES, get_suite, machine_info
               help="The built-in scene's format for suites that take one (reconstruct, captures; "
                    "default: each suite's own, hypernerf).")
 @click.option("--scene", "scenes", multiple=True, type=click.Path(file_okay=False, exists=True),
-              help="Scene folders for suites that take them (dnerf: D-NeRF scenes as published; repeatable).")
+              help="Scene folders for suites that take them (dnerf, skip: D-NeRF scenes as published; repeatable).")
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
               help="Settings for the fits of suites that take them (dnerf), e.g. --set preset=paper.")
 @click.option("--lpips-weights", type=click.Path(file_okay=False, exists=True), default=None,

@@ -62,7 +62,7 @@ def pareto_front(points: list[tuple[float, float]]) -> list[int]:
 
 
 def plot(runs: list[dict], front: list[int], path: Path, title: str,
-         xlabel: str = "features + fit + evaluate time (s)") -> None:
+         xlabel: str = "features + fit + evaluate time (s)", ylabel: str = "mIoU (official metric)") -> None:
     """Scatter of mIoU vs time (log x), each point labelled by what differs from the base;
     the Pareto front drawn as a line through its points."""
     import matplotlib
@@ -81,7 +81,7 @@ def plot(runs: list[dict], front: list[int], path: Path, title: str,
         ax.annotate(r["label"], (r["seconds"], r["miou"]), fontsize=7, xytext=(4, 3), textcoords="offset points")
     ax.set_xscale("log")
     ax.set_xlabel(xlabel)
-    ax.set_ylabel("mIoU (official metric)")
+    ax.set_ylabel(ylabel)
     ax.set_title(title, fontsize=9)
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)

@@ -6,12 +6,18 @@ Skips measured: ``static`` (static gaussians skip the deformation network,
 their criterion on held-out training views stops improving, ``geometry.train.stop_*`` and
 ``method.features.stop_*``; trase.convergence). Each format's built-in scene runs the whole pipeline
 (trase, the preset of this machine, reconstructed geometry) once per variant with one stage
-cache per scene, so the variants share the masks and nothing else. One run per variant: no
-spread; the ratios are of runs made one after the other on this machine, so its load is in them.
+cache per scene, so the variants share the masks and nothing else. With ``--scene DIR`` D-NeRF
+scenes as published are measured too, each variant a ``trase-bench fit`` as ``perf dnerf`` makes
+it (half size, the test split held out, black background): test PSNR / SSIM, validation PSNR and
+the foreground IoU of one click on the object against the held-out views' alpha stand where a
+synthetic scene has its ceiling and mIoU (real data: a table of their own). One run per variant:
+no spread; the ratios are of runs made one after the other on this machine, so its load is in
+them.
 """
 
 from __future__ import annotations
 
+import json
 import tempfile
 import time
 import traceback
@@ -46,6 +52,11 @@ HEADER = ["format", "variant", "geometry s", "features s", "test PSNR", "static"
           "ceiling, other frames", "mIoU", "stopped at", "geometry s vs full", "features s vs full"]
 
 
+SCENE_HEADER = ["scene", "variant", "geometry s", "features s", "test PSNR", "test SSIM", "validation PSNR", "static",
+                "foreground IoU", "worst view", "stopped at", "geometry s vs full", "features s vs full"]
+# D-NeRF scenes with --quick: perf dnerf's short fit, its warm-up and checks early enough to act
+QUICK_SCENE = ["geometry.train.warm_up=10", "geometry.train.static_from=10", "geometry.train.static_interval=20",
+               "geometry.train.stop_holdout_every=3", "method.features.stop_holdout_every=3"]
 FULL = ["method.features.stop_interval=0"]  # the cpu preset stops the feature stage; "full" runs every step
 
 
@@ -70,11 +81,14 @@ def _figures(rec: dict) -> dict:
 
 
 def run(quick: bool = False, echo: Callable[[str], None] = print, dataset: str | None = None,
-        overrides: list[str] | None = None, out_dir: Path | None = None) -> dict:
+        overrides: list[str] | None = None, out_dir: Path | None = None, scenes: list | None = None,
+        datasets: list[str] | None = None) -> dict:
+    """``scenes``: D-NeRF scene folders measured after the built-in formats; ``datasets``: the
+    formats (default: ``dataset``, else the suite's; ``[]``: none, only the scenes)."""
     from benchmark.perf.pipeline import run_pipeline
 
     cfg = dict(QUICK if quick else DEFAULT)
-    datasets = [dataset] if dataset else cfg["datasets"]
+    datasets = list(datasets) if datasets is not None else [dataset] if dataset else cfg["datasets"]
     extra = [*cfg["overrides"], *(overrides or [])]
     vs = variants(STATIC_THRESHOLD, quick)
     described = ", ".join(f"{k} [{' '.join(v) or 'as the preset'}]" for k, v in vs.items())
@@ -104,34 +118,93 @@ def run(quick: bool = False, echo: Callable[[str], None] = print, dataset: str |
                              f4(entry["ceiling"]), f4(entry["ceiling_moving_frames"]), f4(entry["ceiling_other_frames"]),
                              f"{entry['miou']:.4f}", _stopped(entry), _ratio(runs, ds, name, "geometry"),
                              _ratio(runs, ds, name, "features")])
-    echo(table(rows, HEADER))
-    for r in runs:
+    if rows:
+        echo(table(rows, HEADER))
+    out_dir = Path(out_dir) if out_dir is not None else Path("perf-out")
+    scene_runs = run_scenes([Path(d) for d in scenes or []], vs, [*(QUICK_SCENE if quick else []), *(overrides or [])],
+                            quick, out_dir, echo)
+    for r in runs + scene_runs:
         if "error" in r:
             echo(f"FAILED {r['dataset']} {r['variant']}: {r['error']}")
-    pngs = _plots(runs, Path(out_dir) if out_dir is not None else Path("perf-out"), echo)
+    pngs = _plots(runs, out_dir, echo) + _plots(scene_runs, out_dir, echo, score="foreground_iou")
+    runs = runs + scene_runs
     return {"pngs": pngs, "description": __doc__.strip().splitlines()[0], "quick": quick,
-            "settings": {**cfg, "datasets": datasets, "overrides": extra, "variants": vs},
+            "settings": {**cfg, "datasets": datasets, "scenes": [str(d) for d in scenes or []], "overrides": extra,
+                         "variants": vs},
             "versions": versions("torch", "numba", "numpy"), "runs": runs,
             "failed": [f"{r['dataset']} {r['variant']}" for r in runs if "error" in r],
             "load_average_end": load_average()}
 
 
-def _plots(runs: list[dict], out_dir: Path, echo: Callable[[str], None]) -> list[str]:
-    """Per format, mIoU against the geometry + features seconds of each variant, the Pareto
-    front marked (``skip-<format>.png``)."""
+def run_scenes(scenes: list[Path], vs: dict[str, list[str]], extra: list[str], quick: bool, out_dir: Path,
+               echo: Callable[[str], None]) -> list[dict]:
+    """Each variant a ``trase-bench fit`` of each D-NeRF scene as ``perf dnerf`` makes it, one
+    stage cache per scene (the variants share its scaled images and masks); the table printed."""
+    from benchmark.captures.fit import FitOptions, fit_capture
+    from benchmark.perf.dnerf import QUICK_SET, foreground_iou
+
+    runs, rows = [], []
+    for scene in scenes:
+        name = f"dnerf/{scene.name}"
+        for variant, ov in vs.items():
+            sets = ["capture.image_scale=2", *(QUICK_SET if quick else []), *extra, *ov]
+            entry = {"dataset": name, "variant": variant, "overrides": sets}
+            t0 = time.perf_counter()
+            try:
+                fit_json = fit_capture(FitOptions(scene, out_dir / "skip-dnerf" / scene.name / variant, holdout="layout",
+                                                  overrides=sets, cache_dir=out_dir / "skip-dnerf" / f".cache-{scene.name}",
+                                                  progress=False))
+                fg = foreground_iou(fit_json.parent, echo)
+            except Exception as exc:  # noqa: BLE001 - reported per run, not hidden
+                entry |= {"error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc(limit=3)}
+                runs.append(entry)
+                rows.append([name, variant, "FAILED"] + [""] * (len(SCENE_HEADER) - 3))
+                continue
+            entry |= _fit_figures(json.loads(fit_json.read_text()), fg) | {"wall_seconds": time.perf_counter() - t0}
+            runs.append(entry)
+            s, m = entry["seconds"], entry["measures"]
+            f = lambda x, p: "-" if x is None else f"{x:.{p}f}"
+            rows.append([name, variant, f"{s.get('geometry', 0):.0f}", f"{s.get('features', 0):.0f}",
+                         f(m.get("test_psnr"), 2), f(m.get("test_ssim"), 4), f(m.get("validation_psnr"), 2),
+                         f"{entry['static_gaussians'] / max(entry['gaussians'], 1):.0%}", f(entry["foreground_iou"], 4),
+                         f(entry["foreground_worst"], 4), _stopped(entry), _ratio(runs, name, variant, "geometry"),
+                         _ratio(runs, name, variant, "features")])
+    if rows:
+        echo(table(rows, SCENE_HEADER))
+    return runs
+
+
+def _fit_figures(rec: dict, fg: dict) -> dict:
+    """A fit's figures (fit.json) beside its foreground IoU (perf dnerf's click)."""
+    stages = rec["stages"]
+    geo = stages["geometry"].get("info") or {}
+    stopping = {s: (stages[s].get("info") or {}).get("stopping") for s in ("geometry", "features") if s in stages}
+    return {"stopping": {s: {"stopped_at": st["stopped_at"], "cap": st["cap"]} for s, st in stopping.items() if st},
+            "seconds": {s: float(stages[s]["seconds"]) for s in STAGES if s in stages},
+            "measures": rec.get("image_measures", {}), "test_psnr": (rec.get("image_measures") or {}).get("test_psnr"),
+            "gaussians": int(rec["n_gaussians"]), "static_gaussians": geo.get("static_gaussians", 0),
+            "foreground_iou": fg["mean"], "foreground_worst": fg["worst"]}
+
+
+def _plots(runs: list[dict], out_dir: Path, echo: Callable[[str], None], score: str = "miou") -> list[str]:
+    """Per format or scene, ``score`` (mIoU; a D-NeRF scene's foreground IoU) against the
+    geometry + features seconds of each variant, the Pareto front marked
+    (``skip-<format>.png``, ``skip-dnerf-<scene>.png``)."""
     from benchmark.perf.pareto import pareto_front, plot
 
+    what = {"miou": "mIoU (official metric)", "foreground_iou": "foreground IoU (one click, held-out views)"}[score]
     pngs = []
     for ds in dict.fromkeys(r["dataset"] for r in runs):
-        ok = [{"label": r["variant"], "miou": r["miou"],
+        ok = [{"label": r["variant"], "miou": r[score],
                "seconds": r["seconds"].get("geometry", 0.0) + r["seconds"].get("features", 0.0)}
               for r in runs if r["dataset"] == ds and "error" not in r]
         if not ok:
             continue
         front = pareto_front([(r["seconds"], r["miou"]) for r in ok])
-        png = out_dir / f"skip-{ds}.png"
-        plot(ok, front, png, f"skips on {ds} (synthetic): mIoU against geometry + features time",
-             xlabel="geometry + features time (s)")
+        png = out_dir / f"skip-{ds.replace('/', '-')}.png"
+        kind = "as published" if ds.startswith("dnerf/") else "synthetic"
+        plot(ok, front, png, f"skips on {ds} ({kind}): {what} against geometry + features time",
+             xlabel="geometry + features time (s)", ylabel=what)
         echo(f"wrote {png} (Pareto front: {', '.join(ok[i]['label'] for i in front)})")
         pngs.append(str(png))
     return pngs

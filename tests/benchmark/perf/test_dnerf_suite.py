@@ -43,3 +43,28 @@ def test_the_suite_fits_a_scene_and_scores_the_object_against_alpha(tmp_path, mo
     table = lines[-1]
     assert "| Hook |" in table and "37.42 / 0.9867 / 0.0144" in table
     assert f"{row['measures']['test_psnr'] - 37.42:+.2f}" in table
+
+
+@pytest.mark.slow
+def test_perf_skip_measures_each_skip_on_a_dnerf_scene(tmp_path, monkeypatch):
+    """perf skip --scene: full, static and converged fits of the scene, its own table and plot."""
+    from benchmark.perf import skip
+
+    monkeypatch.setenv("TRASE_BENCH_CACHE", str(tmp_path / "cache"))
+    scene = Path(shutil.copytree(HOOK, tmp_path / "hook"))
+    lines: list[str] = []
+    out = skip.run(quick=True, echo=lines.append, datasets=[], scenes=[scene], overrides=["capture.image_scale=1"],
+                   out_dir=tmp_path / "out")
+    assert not out["failed"], out["runs"]
+    full, _, converged = out["runs"]
+    assert [r["variant"] for r in out["runs"]] == ["full", "static", "converged"]
+    assert {r["dataset"] for r in out["runs"]} == {"dnerf/hook"}
+    assert full["stopping"] == {} and set(converged["stopping"]) == {"geometry", "features"}
+    assert {s: st["cap"] for s, st in converged["stopping"].items()} == {"geometry": 60, "features": 30}
+    for r in out["runs"]:
+        assert np.isfinite(r["measures"]["test_psnr"]) and 0 <= r["foreground_worst"] <= r["foreground_iou"] <= 1
+        assert r["seconds"]["geometry"] > 0 and r["gaussians"] > 0
+    assert full["static_gaussians"] == 0
+    text = "\n".join(lines)
+    assert "foreground IoU" in text and "dnerf/hook" in text and "geometry s vs full" in text
+    assert (tmp_path / "out" / "skip-dnerf-hook.png").stat().st_size > 1000
