@@ -21,6 +21,7 @@ checksums (files), or the geometry stage's key and the tracker's constants (clas
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 from collections import Counter
@@ -101,7 +102,8 @@ def run(ctx: SequenceRun) -> list[StageRecord]:
         if settings.tracking == "files":
             return write_files(ctx.scene.train, Path(settings.tracks_dir), d)
         gaussians, deformation = ctx.geometry
-        return track_classical(ctx.scene.train, gaussians, deformation, d, truth=ctx.scene.truth)
+        return track_classical(ctx.scene.train, gaussians, deformation, d, truth=ctx.scene.truth,
+                               progress=ctx.progress)
 
     return [ctx.cache.run("tracks", key, work, cfg)]
 
@@ -221,6 +223,28 @@ def write_files(views, src: Path, out: Path) -> dict:
 
 
 # -- classical: the project's tracker -----------------------------------------------------------
+@contextlib.contextmanager
+def _views_bar(total: int, shown: bool):
+    """A rich progress bar over the tracked views (nothing where not ``shown``) -> advance(text)."""
+    if not shown:
+        yield lambda last: None
+        return
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
+
+    bar = Progress(TextColumn("tracks"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), TimeRemainingColumn(),
+                   TextColumn("{task.fields[last]}"))
+    task = bar.add_task("tracks", total=total, last="")
+    with bar:
+        yield lambda last: bar.update(task, advance=1, last=last)
+
+
 def time_order(views) -> list:
     """The training views in time order (ties: by name, so the cameras of one instant follow
     one another in a fixed order)."""
@@ -237,7 +261,7 @@ def camera_key(camera) -> bytes:
 def track_classical(views, gaussians, deformation, out: Path, truth=None, memory: int = MEMORY,
                     part_of_share: float | None = PART_OF, same_camera: bool = SAME_CAMERA,
                     merge_cosine: float | None = MERGE_COSINE, merge_max_together: float = MERGE_MAX_TOGETHER,
-                    votes=None) -> dict:
+                    votes=None, progress: bool = False) -> dict:
     """Track ids for the anything masks in ``out`` (one file per view, as the masks stage wrote
     them): per view in time order, segments (``segments_from_masks``), then the previous view's
     ids warped into this one (``trase.warp.backward_warp``), segments matched to the warped
@@ -253,7 +277,8 @@ def track_classical(views, gaussians, deformation, out: Path, truth=None, memory
     ``memory``, ``part_of_share`` (None: no parts), ``same_camera``, ``merge_cosine`` (None:
     no merging) and ``merge_max_together`` change those steps for measurements
     (scripts/measure_tracking.py), which may pass a ``masks.track_merging.TrackVotes`` as
-    ``votes`` to keep the views' votes; the stage uses the constants."""
+    ``votes`` to keep the views' votes; the stage uses the constants. ``progress``: a bar over
+    the views (a large rig's take minutes)."""
     import masks as masklib
     from masks.generate import read_instance_map
     from masks.generators.base import min_area_for
@@ -279,62 +304,64 @@ def track_classical(views, gaussians, deformation, out: Path, truth=None, memory
     maps = {}
     voting = merge_cosine is not None or votes is not None
     votes = TrackVotes(gaussians.num_gaussians) if votes is None else votes
-    for v in time_order(views):
-        path = masklib.mask_path(out, v.name)
-        ms = masklib.load(path)
-        if (ms.height, ms.width) != (v.camera.height, v.camera.width):
-            raise masklib.MaskFileError(path, f"masks are {ms.width}x{ms.height} but training view {v.name} is "
-                                              f"{v.camera.width}x{v.camera.height} (WxH)")
-        seg = segments_from_masks(ms.masks, MIN_KEPT, min_area_for(ms.height, ms.width))
-        n_seg = int(seg.max())
-        geo = view_geometry(gaussians, deformation, v.camera)
-        track_of = np.zeros(n_seg + 1, np.int64)
-        last = None  # the previous view's overlaps, for the parts
-        key = camera_key(v.camera)
-        candidates = list(reversed(recent))
-        own = latest_of_camera.get(key) if same_camera else None
-        if own is not None and not any(own is c for c in candidates):
-            candidates.insert(1, own)  # after the previous view, before the memory
-        for back, (prev, prev_ids) in enumerate(candidates):
+    with _views_bar(len(views), progress) as advance:
+        for v in time_order(views):
+            path = masklib.mask_path(out, v.name)
+            ms = masklib.load(path)
+            if (ms.height, ms.width) != (v.camera.height, v.camera.width):
+                raise masklib.MaskFileError(path, f"masks are {ms.width}x{ms.height} but training view {v.name} is "
+                                                  f"{v.camera.width}x{v.camera.height} (WxH)")
+            seg = segments_from_masks(ms.masks, MIN_KEPT, min_area_for(ms.height, ms.width))
+            n_seg = int(seg.max())
+            geo = view_geometry(gaussians, deformation, v.camera)
+            track_of = np.zeros(n_seg + 1, np.int64)
+            last = None  # the previous view's overlaps, for the parts
+            key = camera_key(v.camera)
+            candidates = list(reversed(recent))
+            own = latest_of_camera.get(key) if same_camera else None
+            if own is not None and not any(own is c for c in candidates):
+                candidates.insert(1, own)  # after the previous view, before the memory
+            for back, (prev, prev_ids) in enumerate(candidates):
+                free = np.flatnonzero(track_of[1:] == 0)
+                if not free.shape[0] or not n_tracks:
+                    break
+                warped = backward_warp(gaussians, deformation, prev, geo, prev_ids)
+                counts = overlap_counts(seg, warped, n_seg, n_tracks)
+                if back == 0:
+                    last = counts
+                iou = overlap_iou(seg, warped, n_seg, n_tracks)
+                iou[:, track_of[track_of > 0] - 1] = 0.0  # a track continues in one segment only
+                match = match_segments(iou[free], IOU_THRESHOLD)
+                for s, t in match.items():
+                    track_of[free[s] + 1] = t + 1
+                if back == 0:
+                    continued += len(match)
+                else:
+                    resumed += len(match)
             free = np.flatnonzero(track_of[1:] == 0)
-            if not free.shape[0] or not n_tracks:
-                break
-            warped = backward_warp(gaussians, deformation, prev, geo, prev_ids)
-            counts = overlap_counts(seg, warped, n_seg, n_tracks)
-            if back == 0:
-                last = counts
-            iou = overlap_iou(seg, warped, n_seg, n_tracks)
-            iou[:, track_of[track_of > 0] - 1] = 0.0  # a track continues in one segment only
-            match = match_segments(iou[free], IOU_THRESHOLD)
-            for s, t in match.items():
-                track_of[free[s] + 1] = t + 1
-            if back == 0:
-                continued += len(match)
+            if last is not None and free.shape[0] and part_of_share is not None:
+                inter, known, _ = last
+                area = np.bincount(seg.ravel(), minlength=n_seg + 1)[1:]
+                parts = part_of(inter[free], known[free], area[free], part_of_share)
+                for s, t in parts.items():
+                    track_of[free[s] + 1] = t + 1
+                joined += len(parts)
+            for s in range(1, n_seg + 1):
+                if track_of[s] == 0:
+                    n_tracks += 1
+                    track_of[s] = n_tracks
+                    started += 1
+            ids = track_of[seg].astype(np.int32)
+            maps[v.name] = ids
+            if voting:
+                votes.add(ids, *visible_gaussians(geo), present=track_of[1:])
+            recent = [*recent, (geo, ids)][-(max(memory, 0) + 1):]  # the previous view and `memory` before it
+            views_left[key] -= 1
+            if views_left[key] > 0:
+                latest_of_camera[key] = recent[-1]
             else:
-                resumed += len(match)
-        free = np.flatnonzero(track_of[1:] == 0)
-        if last is not None and free.shape[0] and part_of_share is not None:
-            inter, known, _ = last
-            area = np.bincount(seg.ravel(), minlength=n_seg + 1)[1:]
-            parts = part_of(inter[free], known[free], area[free], part_of_share)
-            for s, t in parts.items():
-                track_of[free[s] + 1] = t + 1
-            joined += len(parts)
-        for s in range(1, n_seg + 1):
-            if track_of[s] == 0:
-                n_tracks += 1
-                track_of[s] = n_tracks
-                started += 1
-        ids = track_of[seg].astype(np.int32)
-        maps[v.name] = ids
-        if voting:
-            votes.add(ids, *visible_gaussians(geo), present=track_of[1:])
-        recent = [*recent, (geo, ids)][-(max(memory, 0) + 1):]  # the previous view and `memory` before it
-        views_left[key] -= 1
-        if views_left[key] > 0:
-            latest_of_camera[key] = recent[-1]
-        else:
-            latest_of_camera.pop(key, None)  # its last view: kept no longer
+                latest_of_camera.pop(key, None)  # its last view: kept no longer
+            advance(f"{n_tracks} tracks")
     merged = {}
     if merge_cosine is not None and n_tracks > 1:
         vote_matrix, shown = votes.matrices(n_tracks)
@@ -358,5 +385,6 @@ def track_classical(views, gaussians, deformation, out: Path, truth=None, memory
             if k in info}
 
 
-__all__ = ["CLASSICAL", "IOU_THRESHOLD", "MEMORY", "MERGE_COSINE", "MERGE_MAX_TOGETHER", "MIN_KEPT", "PART_OF", "SAME_CAMERA", "camera_key", "find_track_files",
+__all__ = ["CLASSICAL", "IOU_THRESHOLD", "MEMORY", "MERGE_COSINE", "MERGE_MAX_TOGETHER", "MIN_KEPT", "PART_OF",
+           "SAME_CAMERA", "camera_key", "find_track_files",
            "link_masks", "run", "time_order", "track_classical", "write_files", "write_synthetic"]
