@@ -78,15 +78,26 @@ def recorded_masks(masks: dict) -> dict:
     return out
 
 
-def recorded_stopping(section):
-    """``section`` (nested dicts) as a run records and hashes it: in each dict with a
-    ``stop_interval`` of 0 (stopping when converged is off) the ``stop_*`` settings are left
-    out, so runs without stopping keep the config hash, name and stage keys they had before
-    those settings existed."""
+# Settings added after runs had been recorded, with the value that does what the code did before
+# they existed: where a section holds that value, the setting (and the settings whose names start
+# with the given prefix, which act only through it) is left out of the run's record, config hash
+# and stage keys, so runs that do not use it keep their names and cached stages. Measured: the
+# geometry reconstructed with static_threshold 0 and deform_scale_rule "clamp" is bit for bit the
+# geometry of the code before those settings (its checksum on all five built-in formats).
+AS_BEFORE = {
+    "stop_interval": (0, "stop_"),  # stages that stop when converged (trase.convergence): off
+    "static_threshold": (0.0, "static_"),  # static gaussians (trase.static_gaussians): off
+    "deform_scale_rule": ("clamp", "deform_scale_rule"),  # the CPU presets' scale rule, the only one before
+}
+
+
+def recorded_settings(section):
+    """``section`` (nested dicts) as a run records and hashes it: in each dict, the settings of
+    AS_BEFORE that hold their "as before" value are left out with those that go with them."""
     if not isinstance(section, dict):
         return section
-    off = section.get("stop_interval", None) == 0
-    return {k: recorded_stopping(v) for k, v in section.items() if not (off and k.startswith("stop_"))}
+    dropped = tuple(prefix for key, (value, prefix) in AS_BEFORE.items() if key in section and section[key] == value)
+    return {k: recorded_settings(v) for k, v in section.items() if not k.startswith(dropped)}
 
 
 @dataclasses.dataclass
@@ -105,7 +116,7 @@ class GeometrySettings:
 def key_config(settings) -> dict:
     """What a stage's cache key hashes of a settings section: its resolved values without the
     preset's name, so two presets with the same values share the stage."""
-    d = recorded_stopping(dataclasses.asdict(settings))
+    d = recorded_settings(dataclasses.asdict(settings))
     d.pop("preset", None)
     return d
 
@@ -144,7 +155,7 @@ class RunSettings:
         if self.capture is not None:
             out["capture"] = dict(self.capture)
         out["seed"] = self.seed
-        return recorded_stopping(out)
+        return recorded_settings(out)
 
 
 def run_settings(method, spec, variant: str, overrides: dict, image_size: tuple[int, int] | None = None) -> RunSettings:
@@ -205,7 +216,7 @@ def _resolve(method, ctx: Context, overrides: dict, masks: dict, extra: dict) ->
     # the same run without its seed (an explicit seed of one section stays), and without --set
     group = _with_devices(merge(apply_seed(base, 0), plain), settings)
     default = _with_devices(merge(base, {}), settings)
-    settings.group_hash = config_hash(recorded_stopping({**group, "masks": recorded_masks(group["masks"])}))
+    settings.group_hash = config_hash(recorded_settings({**group, "masks": recorded_masks(group["masks"])}))
     settings.is_default = preset == auto_preset and group == default
     return settings
 
@@ -317,5 +328,5 @@ def _get(d: dict, path: tuple[str, ...]):
 
 __all__ = ["GEOMETRY_PRESETS", "SEED_PATHS", "TRACKING", "CaptureMaskSettings", "GeometrySettings", "MaskSettings",
            "PromptProtocol", "RunSettings", "apply_seed", "capture_settings", "key_config", "recorded_masks",
-           "recorded_stopping", "run_seed",
+           "recorded_settings", "run_seed",
            "run_settings", "take_preset", "without_seed"]

@@ -89,3 +89,27 @@ def test_stopping_settings_are_recorded_and_keyed_only_where_stopping_is_on():
     # features-only stopping shares the geometry stage with the run without it
     feats_only = _settings()
     assert key_config(feats_only.geometry) == key_config(off.geometry)
+
+
+def test_settings_at_their_as_before_value_are_neither_recorded_nor_keyed():
+    """Static gaussians off (static_threshold 0) and the cpu presets' scale rule ("clamp") do what
+    the code did before those settings existed: left out of the record, the hash and the
+    geometry stage's key, with the static_* settings that act only through the threshold."""
+    from benchmark.pipeline.settings import AS_BEFORE
+
+    assert set(AS_BEFORE) >= {"stop_interval", "static_threshold", "deform_scale_rule"}
+    base = _settings()
+    assert base.geometry.train.static_threshold == 0.0 and base.geometry.train.deform_scale_rule == "clamp"
+    rec, key = base.to_dict()["geometry"]["train"], key_config(base.geometry)["train"]
+    for d in (rec, key):
+        assert not any(k.startswith("static_") for k in d) and "deform_scale_rule" not in d
+    # a static_from of its own changes nothing while the threshold is 0 ...
+    assert _settings("geometry.train.static_from=2000").group_hash == base.group_hash
+    # ... and everything once it is on; so does another scale rule
+    on = _settings("geometry.train.static_threshold=0.01")
+    assert on.to_dict()["geometry"]["train"]["static_from"] == base.geometry.train.static_from
+    assert key_config(on.geometry) != key_config(base.geometry) and on.group_hash != base.group_hash
+    mirror = _settings("geometry.train.deform_scale_rule=mirror")
+    assert mirror.to_dict()["geometry"]["train"]["deform_scale_rule"] == "mirror"
+    assert key_config(mirror.geometry) != key_config(base.geometry)
+    assert _settings("preset=paper").to_dict()["geometry"]["train"]["deform_scale_rule"] == "mirror"
