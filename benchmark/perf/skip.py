@@ -139,36 +139,40 @@ def run(quick: bool = False, echo: Callable[[str], None] = print, dataset: str |
 def run_scenes(scenes: list[Path], vs: dict[str, list[str]], extra: list[str], quick: bool, out_dir: Path,
                echo: Callable[[str], None]) -> list[dict]:
     """Each variant a ``trase-bench fit`` of each D-NeRF scene as ``perf dnerf`` makes it, one
-    stage cache per scene (the variants share its scaled images and masks); the table printed."""
+    fresh stage cache per scene (its variants share its masks, nothing from earlier runs); the
+    table printed. ``extra`` reaches the scenes' fits (and the built-in runs: settings both read)."""
     from benchmark.captures.fit import FitOptions, fit_capture
     from benchmark.perf.dnerf import QUICK_SET, foreground_iou
 
     runs, rows = [], []
     for scene in scenes:
         name = f"dnerf/{scene.name}"
-        for variant, ov in vs.items():
-            sets = ["capture.image_scale=2", *(QUICK_SET if quick else []), *extra, *ov]
-            entry = {"dataset": name, "variant": variant, "overrides": sets}
-            t0 = time.perf_counter()
-            try:
-                fit_json = fit_capture(FitOptions(scene, out_dir / "skip-dnerf" / scene.name / variant, holdout="layout",
-                                                  overrides=sets, cache_dir=out_dir / "skip-dnerf" / f".cache-{scene.name}",
-                                                  progress=False))
-                fg = foreground_iou(fit_json.parent, echo)
-            except Exception as exc:  # noqa: BLE001 - reported per run, not hidden
-                entry |= {"error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc(limit=3)}
+        # a fresh stage cache per scene, shared by its variants only: a stage taken from an
+        # earlier run would report that run's seconds as this one's
+        with tempfile.TemporaryDirectory(prefix="trase-perf-skip-dnerf-") as cache:
+            for variant, ov in vs.items():
+                sets = ["capture.image_scale=2", *(QUICK_SET if quick else []), *extra, *ov]
+                entry = {"dataset": name, "variant": variant, "overrides": sets}
+                t0 = time.perf_counter()
+                try:
+                    fit_json = fit_capture(FitOptions(scene, out_dir / "skip-dnerf" / scene.name / variant,
+                                                      holdout="layout", overrides=sets, cache_dir=Path(cache),
+                                                      progress=False))
+                    entry |= _fit_figures(json.loads(fit_json.read_text()), foreground_iou(fit_json.parent, echo))
+                except Exception as exc:  # noqa: BLE001 - reported per run, not hidden
+                    entry |= {"error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc(limit=3)}
+                    runs.append(entry)
+                    rows.append([name, variant, "FAILED"] + [""] * (len(SCENE_HEADER) - 3))
+                    continue
+                entry["wall_seconds"] = time.perf_counter() - t0
                 runs.append(entry)
-                rows.append([name, variant, "FAILED"] + [""] * (len(SCENE_HEADER) - 3))
-                continue
-            entry |= _fit_figures(json.loads(fit_json.read_text()), fg) | {"wall_seconds": time.perf_counter() - t0}
-            runs.append(entry)
-            s, m = entry["seconds"], entry["measures"]
-            f = lambda x, p: "-" if x is None else f"{x:.{p}f}"
-            rows.append([name, variant, f"{s.get('geometry', 0):.0f}", f"{s.get('features', 0):.0f}",
-                         f(m.get("test_psnr"), 2), f(m.get("test_ssim"), 4), f(m.get("validation_psnr"), 2),
-                         f"{entry['static_gaussians'] / max(entry['gaussians'], 1):.0%}", f(entry["foreground_iou"], 4),
-                         f(entry["foreground_worst"], 4), _stopped(entry), _ratio(runs, name, variant, "geometry"),
-                         _ratio(runs, name, variant, "features")])
+                s, m = entry["seconds"], entry["measures"]
+                f = lambda x, p: "-" if x is None else f"{x:.{p}f}"
+                rows.append([name, variant, f"{s.get('geometry', 0):.0f}", f"{s.get('features', 0):.0f}",
+                             f(m.get("test_psnr"), 2), f(m.get("test_ssim"), 4), f(m.get("validation_psnr"), 2),
+                             f"{entry['static_gaussians'] / max(entry['gaussians'], 1):.0%}",
+                             f(entry["foreground_iou"], 4), f(entry["foreground_worst"], 4), _stopped(entry),
+                             _ratio(runs, name, variant, "geometry"), _ratio(runs, name, variant, "features")])
     if rows:
         echo(table(rows, SCENE_HEADER))
     return runs
@@ -197,7 +201,7 @@ def _plots(runs: list[dict], out_dir: Path, echo: Callable[[str], None], score: 
     for ds in dict.fromkeys(r["dataset"] for r in runs):
         ok = [{"label": r["variant"], "miou": r[score],
                "seconds": r["seconds"].get("geometry", 0.0) + r["seconds"].get("features", 0.0)}
-              for r in runs if r["dataset"] == ds and "error" not in r]
+              for r in runs if r["dataset"] == ds and "error" not in r and r[score] is not None]
         if not ok:
             continue
         front = pareto_front([(r["seconds"], r["miou"]) for r in ok])

@@ -17,6 +17,7 @@ from benchmark.cache import config_hash
 from benchmark.config import ConfigError, flatten, merge, typed
 from benchmark.datasets.registry import get_dataset
 from lazyspecs.presets import Context, Derived, When
+from trase.feature_config import FeatureConfig
 from trase.reconstruction_config import ReconstructionConfig
 from trase.reconstruction_presets import RECONSTRUCTION_PRESETS
 
@@ -79,25 +80,31 @@ def recorded_masks(masks: dict) -> dict:
 
 
 # Settings added after runs had been recorded, with the value that does what the code did before
-# they existed: where a section holds that value, the setting (and the settings whose names start
-# with the given prefix, which act only through it) is left out of the run's record, config hash
-# and stage keys, so runs that do not use it keep their names and cached stages. Measured: the
-# geometry reconstructed with static_threshold 0 and deform_scale_rule "clamp" is bit for bit the
-# geometry of the code before those settings (its checksum on all five built-in formats).
+# they existed: where a section holds that value, the setting and the settings that act only
+# through it (named exactly) are left out of the run's record, config hash and stage keys, so runs
+# that do not use it keep their names and cached stages. Measured: the geometry reconstructed with
+# static_threshold 0 and deform_scale_rule "clamp" is bit for bit the geometry of the code before
+# those settings (its checksum on all five built-in formats).
+def _named(cls, prefix: str) -> tuple[str, ...]:
+    return tuple(f.name for f in dataclasses.fields(cls) if f.name.startswith(prefix))
+
+
 AS_BEFORE = {
-    "stop_interval": (0, "stop_"),  # stages that stop when converged (trase.convergence): off
-    "static_threshold": (0.0, "static_"),  # static gaussians (trase.static_gaussians): off
-    "deform_scale_rule": ("clamp", "deform_scale_rule"),  # the CPU presets' scale rule, the only one before
+    # stages that stop when converged (trase.convergence): off
+    "stop_interval": (0, tuple(dict.fromkeys(_named(ReconstructionConfig, "stop_") + _named(FeatureConfig, "stop_")))),
+    "static_threshold": (0.0, _named(ReconstructionConfig, "static_")),  # static gaussians: off
+    "deform_scale_rule": ("clamp", ("deform_scale_rule",)),  # the CPU presets' scale rule, the only one before
 }
 
 
 def recorded_settings(section):
     """``section`` (nested dicts) as a run records and hashes it: in each dict, the settings of
-    AS_BEFORE that hold their "as before" value are left out with those that go with them."""
+    AS_BEFORE that hold their "as before" value are left out with those named beside them."""
     if not isinstance(section, dict):
         return section
-    dropped = tuple(prefix for key, (value, prefix) in AS_BEFORE.items() if key in section and section[key] == value)
-    return {k: recorded_settings(v) for k, v in section.items() if not k.startswith(dropped)}
+    dropped = {name for key, (value, names) in AS_BEFORE.items() if key in section and section[key] == value
+               for name in names}
+    return {k: recorded_settings(v) for k, v in section.items() if k not in dropped}
 
 
 @dataclasses.dataclass

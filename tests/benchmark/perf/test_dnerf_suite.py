@@ -1,5 +1,6 @@
 """perf dnerf: fit on a D-NeRF scene as published, beside the published row; foreground IoU."""
 
+import json
 import shutil
 from pathlib import Path
 
@@ -65,6 +66,10 @@ def test_perf_skip_measures_each_skip_on_a_dnerf_scene(tmp_path, monkeypatch):
         assert np.isfinite(r["measures"]["test_psnr"]) and 0 <= r["foreground_worst"] <= r["foreground_iou"] <= 1
         assert r["seconds"]["geometry"] > 0 and r["gaussians"] > 0
     assert full["static_gaussians"] == 0
+    # each variant trained its own geometry (the static threshold and the stopping are keyed)
+    keys = {v: json.loads((tmp_path / "out" / "skip-dnerf" / "hook" / v / "fit.json").read_text())["stages"]["geometry"]["key"]
+            for v in ("full", "static", "converged")}
+    assert len(set(keys.values())) == 3, keys
     text = "\n".join(lines)
     assert "foreground IoU" in text and "dnerf/hook" in text and "geometry s vs full" in text
     assert (tmp_path / "out" / "skip-dnerf-hook.png").stat().st_size > 1000

@@ -113,3 +113,10 @@ def test_settings_at_their_as_before_value_are_neither_recorded_nor_keyed():
     assert mirror.to_dict()["geometry"]["train"]["deform_scale_rule"] == "mirror"
     assert key_config(mirror.geometry) != key_config(base.geometry)
     assert _settings("preset=paper").to_dict()["geometry"]["train"]["deform_scale_rule"] == "mirror"
+    # with the threshold on, static_from is keyed again
+    assert _settings("geometry.train.static_threshold=0.01", "geometry.train.static_from=2000").group_hash != on.group_hash
+    # only the settings named beside a switch go, never a look-alike of another section
+    from benchmark.pipeline.settings import recorded_settings
+
+    other = {"stop_interval": 0, "stop_patience": 2, "stop_after_s": 5, "static_threshold": 0.0, "static_scene": "y"}
+    assert recorded_settings({"x": other}) == {"x": {"stop_after_s": 5, "static_scene": "y"}}
