@@ -229,17 +229,10 @@ def _views_bar(total: int, shown: bool):
     if not shown:
         yield lambda last: None
         return
-    from rich.progress import (
-        BarColumn,
-        MofNCompleteColumn,
-        Progress,
-        TextColumn,
-        TimeElapsedColumn,
-        TimeRemainingColumn,
-    )
+    from rich import progress as rp
 
-    bar = Progress(TextColumn("tracks"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), TimeRemainingColumn(),
-                   TextColumn("{task.fields[last]}"))
+    bar = rp.Progress(rp.TextColumn("tracks"), rp.BarColumn(), rp.MofNCompleteColumn(), rp.TimeElapsedColumn(),
+                      rp.TimeRemainingColumn(), rp.TextColumn("{task.fields[last]}"))
     task = bar.add_task("tracks", total=total, last="")
     with bar:
         yield lambda last: bar.update(task, advance=1, last=last)
