@@ -219,7 +219,12 @@ def overlap_counts(segments: np.ndarray, warped: np.ndarray, n_segments: int,
 def overlap_iou(segments: np.ndarray, warped: np.ndarray, n_segments: int, n_tracks: int) -> np.ndarray:
     """[S, T] IoU of each segment (labels 1..S) with each warped track (1..T) over the pixels
     where the warp is known (``overlap_counts``)."""
-    inter, s_area, t_area = overlap_counts(segments, warped, n_segments, n_tracks)
+    return iou_of(overlap_counts(segments, warped, n_segments, n_tracks))
+
+
+def iou_of(counts: tuple[np.ndarray, np.ndarray, np.ndarray]) -> np.ndarray:
+    """[S, T] IoU from ``overlap_counts``' (intersections, segments' known pixels, tracks' pixels)."""
+    inter, s_area, t_area = counts
     union = s_area[:, None] + t_area[None, :] - inter
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(union > 0, inter / union, 0.0)
@@ -295,6 +300,24 @@ def agreement(track_maps: list[np.ndarray], truth_maps: list[np.ndarray]) -> dic
             "n_masks": n_masks, "n_tracks": len(major), "n_objects": len(objects)}
 
 
-__all__ = ["IDS_SUFFIX", "INFO_FILE", "MAX_TRACKS", "SOURCES", "TrackFileError", "agreement", "ids_path", "load_ids",
-           "load_tracks_info", "match_segments", "overlap_counts", "overlap_iou", "part_of", "read_id_image", "remap_ids", "save_ids",
-           "save_tracks_info", "segments_from_masks"]
+__all__ = [
+    "IDS_SUFFIX",
+    "INFO_FILE",
+    "MAX_TRACKS",
+    "SOURCES",
+    "TrackFileError",
+    "agreement",
+    "ids_path",
+    "iou_of",
+    "load_ids",
+    "load_tracks_info",
+    "match_segments",
+    "overlap_counts",
+    "overlap_iou",
+    "part_of",
+    "read_id_image",
+    "remap_ids",
+    "save_ids",
+    "save_tracks_info",
+    "segments_from_masks",
+]

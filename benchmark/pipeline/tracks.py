@@ -279,9 +279,9 @@ def track_classical(views, gaussians, deformation, out: Path, truth=None, memory
     from masks.tracked import (
         agreement,
         ids_path,
+        iou_of,
         match_segments,
         overlap_counts,
-        overlap_iou,
         part_of,
         save_ids,
         save_tracks_info,
@@ -322,7 +322,7 @@ def track_classical(views, gaussians, deformation, out: Path, truth=None, memory
                 counts = overlap_counts(seg, warped, n_seg, n_tracks)
                 if back == 0:
                     last = counts
-                iou = overlap_iou(seg, warped, n_seg, n_tracks)
+                iou = iou_of(counts)  # the same counts, not counted again
                 iou[:, track_of[track_of > 0] - 1] = 0.0  # a track continues in one segment only
                 match = match_segments(iou[free], IOU_THRESHOLD)
                 for s, t in match.items():
