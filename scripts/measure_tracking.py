@@ -90,11 +90,11 @@ def main(argv=None) -> int:
                **({"same_camera": False} if args.no_same_camera else {}),
                **({"merge_cosine": args.merge_cosine} if args.merge_cosine is not None else {}),
                **({"merge_cosine": None} if args.no_merge else {})}
+    cosines = [float(c) for c in args.merge_sweep.split(",") if c]
+    if cosines and not args.no_merge:
+        ap.error("--merge-sweep merges the tracks of one unmerged pass: give --no-merge too")
+    sweep = (cosines, [float(m) for m in args.together_sweep.split(",") if m]) if cosines else ()
     for d in args.datasets.split(","):
-        cosines = [float(c) for c in args.merge_sweep.split(",") if c]
-        if cosines and not args.no_merge:
-            ap.error("--merge-sweep merges the tracks of one unmerged pass: give --no-merge too")
-        sweep = (cosines, [float(m) for m in args.together_sweep.split(",") if m]) if cosines else ()
         print(json.dumps(measure(d, args.seed, args.size, args.root, sweep=sweep, **tracker)), flush=True)
     return 0
 

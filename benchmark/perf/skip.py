@@ -65,16 +65,22 @@ def variants(threshold: float, quick: bool = False) -> dict[str, list[str]]:
             "converged": converged(QUICK_STOP_INTERVAL if quick else STOP_INTERVAL)}
 
 
-def _figures(rec: dict) -> dict:
+def _stage_figures(rec: dict) -> dict:
+    """What a run's or a fit's record says of its stages: where each stopped, their seconds, the
+    gaussians and how many of them were static."""
     stages = rec["stages"]
     geo = stages["geometry"].get("info") or {}
-    ceiling = rec.get("ceiling") or {}
-    movers = ceiling.get("mover_frames") or {}  # the ceiling in the frames where objects move, and the others
     stopping = {s: (stages[s].get("info") or {}).get("stopping") for s in ("geometry", "features") if s in stages}
     return {"stopping": {s: {"stopped_at": st["stopped_at"], "cap": st["cap"]} for s, st in stopping.items() if st},
             "seconds": {s: float(stages[s]["seconds"]) for s in STAGES if s in stages},
-            "test_psnr": geo.get("test_psnr"), "gaussians": int(rec["n_gaussians"]),
-            "static_gaussians": geo.get("static_gaussians", 0),
+            "gaussians": int(rec["n_gaussians"]), "static_gaussians": geo.get("static_gaussians", 0)}
+
+
+def _figures(rec: dict) -> dict:
+    geo = rec["stages"]["geometry"].get("info") or {}
+    ceiling = rec.get("ceiling") or {}
+    movers = ceiling.get("mover_frames") or {}  # the ceiling in the frames where objects move, and the others
+    return {**_stage_figures(rec), "test_psnr": geo.get("test_psnr"),
             "ceiling": ceiling.get("miou"), "ceiling_moving_frames": movers.get("miou"),
             "ceiling_other_frames": movers.get("other_miou"),
             "miou": rec["metrics"]["official"]["miou"], "metric": rec["metrics"]["official"]["metric_version"]}
@@ -180,13 +186,8 @@ def run_scenes(scenes: list[Path], vs: dict[str, list[str]], extra: list[str], q
 
 def _fit_figures(rec: dict, fg: dict) -> dict:
     """A fit's figures (fit.json) beside its foreground IoU (perf dnerf's click)."""
-    stages = rec["stages"]
-    geo = stages["geometry"].get("info") or {}
-    stopping = {s: (stages[s].get("info") or {}).get("stopping") for s in ("geometry", "features") if s in stages}
-    return {"stopping": {s: {"stopped_at": st["stopped_at"], "cap": st["cap"]} for s, st in stopping.items() if st},
-            "seconds": {s: float(stages[s]["seconds"]) for s in STAGES if s in stages},
-            "measures": rec.get("image_measures", {}), "test_psnr": (rec.get("image_measures") or {}).get("test_psnr"),
-            "gaussians": int(rec["n_gaussians"]), "static_gaussians": geo.get("static_gaussians", 0),
+    measures = rec.get("image_measures") or {}
+    return {**_stage_figures(rec), "measures": measures, "test_psnr": measures.get("test_psnr"),
             "foreground_iou": fg["mean"], "foreground_worst": fg["worst"]}
 
 
