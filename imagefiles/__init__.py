@@ -13,7 +13,10 @@ The rule:
   reconstruction's ``white_background`` setting decides it for a run);
 * ``read_rgb8`` is ``round(255 * read_rgb)``, so an 8-bit RGB file comes back byte for byte.
 
-Label images (instance maps, ground-truth masks) are not pictures and have readers of their own.
+Label images (instance maps, ground-truth masks) are not pictures and have readers of their own;
+``read_mask`` reads a drawn or cut-out mask (a selection prompt): the alpha channel where the
+file has one (alpha >= 0.5: an RGBA cut-out of the object, as D-NeRF's frames are), else every
+pixel with a non-zero sample (0/255, 0/1 or coloured masks).
 """
 
 from __future__ import annotations
@@ -82,6 +85,14 @@ def read_rgb8(path: os.PathLike | str, background=None) -> np.ndarray:
     return np.round(_picture(rgb, alpha, top, background) * 255.0).astype(np.uint8)
 
 
+def read_mask(path: os.PathLike | str) -> np.ndarray:
+    """[H, W] bool mask of an image file by the module docstring's rule."""
+    rgb, alpha, top = _decode(path)
+    if alpha is not None:
+        return alpha.astype(np.float32) >= np.float32(0.5 * top)
+    return rgb.any(axis=2)
+
+
 def png_bytes(image: np.ndarray) -> bytes:
     """PNG file bytes of an RGB uint8 [H, W, 3] picture or a one-channel 8/16-bit map [H, W]."""
     import cv2
@@ -93,4 +104,4 @@ def png_bytes(image: np.ndarray) -> bytes:
     return buf.tobytes()
 
 
-__all__ = ["BLACK", "WHITE", "ImageFileError", "png_bytes", "read_rgb", "read_rgb8"]
+__all__ = ["BLACK", "WHITE", "ImageFileError", "png_bytes", "read_mask", "read_rgb", "read_rgb8"]

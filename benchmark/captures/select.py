@@ -1,9 +1,14 @@
-"""``trase-bench select``: objects of a fitted capture chosen by clicks, as masks of its views.
+"""``trase-bench select``: objects of a fitted capture chosen by clicks or 2D masks, as masks of
+its views.
 
 A click ``VIEW:X,Y`` names a view of the capture and a pixel (column X, row Y, as an image
 viewer shows them); the method's click rule picks the cluster under it (the rules of
-``trase.prompts.click_to_cluster``), and the chosen clusters are rendered at every view with
-the method's filter and alpha threshold. Masks land in ``<out>/<view>.png`` (0 / 255).
+``trase.prompts.click_to_cluster``). A mask ``VIEW:PATH`` names a view and an image file of a
+2D mask of it (``imagefiles.read_mask``: the alpha of an RGBA cut-out, else non-zero pixels;
+scaled to the view when only its size differs), e.g. what Grounded-SAM gives for a text
+prompt; the clusters it covers are chosen (``trase.prompts.mask_to_clusters``, rule
+``cover``). The chosen clusters are rendered at every view with the method's filter and alpha
+threshold. Masks land in ``<out>/<view>.png`` (0 / 255).
 """
 
 from __future__ import annotations
@@ -24,6 +29,38 @@ def parse_click(text: str) -> tuple[str, float, float]:
     if not m:
         raise UserError(f"--click {text!r}: expected VIEW:X,Y (a view name and a pixel's column and row)")
     return m["view"], float(m["x"]), float(m["y"])
+
+
+def parse_mask(text: str) -> tuple[str, Path]:
+    """``VIEW:PATH`` -> (view, path); the view is everything before the last ':' that is
+    followed by an existing file, so view names and paths may hold ':' themselves."""
+    for i in [k for k, ch in enumerate(text) if ch == ":"][::-1]:
+        if Path(text[i + 1:]).is_file():
+            return text[:i], Path(text[i + 1:])
+    if ":" not in text:
+        raise UserError(f"--mask {text!r}: expected VIEW:PATH (a view's name and a mask image)")
+    raise UserError(f"--mask {text!r}: mask image {text.rsplit(':', 1)[1]!r} not found")
+
+
+def mask_for_view(path: Path, width: int, height: int) -> np.ndarray:
+    """[height, width] bool mask prompt from an image file; a file of another size with the
+    view's aspect ratio is scaled (area filter, then >= 0.5), any other size is an error."""
+    import cv2
+
+    from imagefiles import ImageFileError, read_mask
+
+    try:
+        m = read_mask(path)
+    except ImageFileError as e:
+        raise UserError(str(e)) from None
+    h, w = m.shape
+    if (w, h) != (width, height):
+        if abs(w * height - h * width) > max(w, h):  # not the view's aspect ratio (1 px of rounding)
+            raise UserError(f"{path}: mask is {w}x{h}, the view is {width}x{height} (another aspect ratio)")
+        m = cv2.resize(m.astype(np.float32), (width, height), interpolation=cv2.INTER_AREA) >= 0.5
+    if not m.any():
+        raise UserError(f"{path}: the mask is empty (no pixel set), it selects nothing")
+    return m
 
 
 def fitted_capture(fit_dir: Path | str):
@@ -51,15 +88,17 @@ def fitted_capture(fit_dir: Path | str):
     return record, method, fitted, scene
 
 
-def select_clicks(fit_dir: Path | str, clicks: list[str], out_dir: Path | str | None = None) -> dict:
-    """Clusters chosen by ``clicks`` and their masks at every view, written to ``out_dir``
-    (default ``<fit>/selection``) -> {"clusters", "per_click", "masks": {view: bool [H, W]}}."""
+def select_clicks(fit_dir: Path | str, clicks: list[str], out_dir: Path | str | None = None,
+                  masks: list[str] = ()) -> dict:
+    """Clusters chosen by ``clicks`` (``VIEW:X,Y``) and ``masks`` (``VIEW:PATH``) and their
+    masks at every view, written to ``out_dir`` (default ``<fit>/selection``) ->
+    {"clusters", "per_click", "per_mask", "masks": {view: bool [H, W]}}."""
     from benchmark.io import atomic_directory, atomic_write_bytes
     from benchmark.protocol.prompts import BenchmarkPrompts
-    from trase.prompts import Click
+    from trase.prompts import Click, mask_to_clusters
 
-    if not clicks:
-        raise UserError("give at least one --click VIEW:X,Y")
+    if not clicks and not masks:
+        raise UserError("give at least one --click VIEW:X,Y or --mask VIEW:PATH")
     _, method, fitted, scene = fitted_capture(fit_dir)
     names = [v.name for v in scene.test]
     parsed = []
@@ -71,19 +110,31 @@ def select_clicks(fit_dir: Path | str, clicks: list[str], out_dir: Path | str | 
         if not (0 <= x < cam.width and 0 <= y < cam.height):
             raise UserError(f"--click {text!r}: pixel outside the {cam.width}x{cam.height} view")
         parsed.append(Click(x + 0.5, y + 0.5, view, cam.time, names.index(view)))  # the pixel's centre
-    prompts = BenchmarkPrompts(parsed[0].view_index, parsed[0].view, parsed[0].time, parsed, source="command-line")
-    per_click = method.click_clusters(fitted, scene, prompts)
-    clusters = sorted({k for k in per_click if k >= 0})
-    masks = method.render_selection(fitted, scene, clusters)
+    per_click = []
+    if parsed:
+        prompts = BenchmarkPrompts(parsed[0].view_index, parsed[0].view, parsed[0].time, parsed, source="command-line")
+        per_click = method.click_clusters(fitted, scene, prompts)
+    per_mask = []
+    for text in masks:
+        view, path = parse_mask(text)
+        if view not in names:
+            raise UserError(f"--mask {text!r}: no view {view!r} in {fit_dir} (e.g. {', '.join(names[:3])})")
+        cam = scene.test[names.index(view)].camera
+        per_mask.append(mask_to_clusters(fitted.gaussians, fitted.deformation, cam,
+                                         mask_for_view(path, cam.width, cam.height), fitted.labels))
+    clusters = sorted({k for k in per_click if k >= 0} | {k for ks in per_mask for k in ks})
+    rendered = method.render_selection(fitted, scene, clusters)
     out = Path(out_dir) if out_dir else Path(fit_dir) / "selection"
     from imagefiles import png_bytes
 
     with atomic_directory(out) as d:
-        for name, m in zip(names, masks):
+        for name, m in zip(names, rendered):
             atomic_write_bytes(d / f"{name.replace('/', '_')}.png", png_bytes(np.asarray(m, np.uint8) * 255))
         atomic_write_bytes(d / "selection.json", json.dumps(
-            {"clicks": list(clicks), "per_click": per_click, "clusters": clusters}, indent=1).encode())
-    return {"clusters": clusters, "per_click": per_click, "masks": dict(zip(names, masks)), "dir": out}
+            {"clicks": list(clicks), "per_click": per_click, "masks": list(masks), "per_mask": per_mask,
+             "clusters": clusters}, indent=1).encode())
+    return {"clusters": clusters, "per_click": per_click, "per_mask": per_mask,
+            "masks": dict(zip(names, rendered)), "dir": out}
 
 
-__all__ = ["fitted_capture", "parse_click", "select_clicks"]
+__all__ = ["fitted_capture", "mask_for_view", "parse_click", "parse_mask", "select_clicks"]

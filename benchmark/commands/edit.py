@@ -12,6 +12,8 @@ def _selection_options(f):
     f = click.option("--selected", is_flag=True, help="The clusters the run's prompts chose.")(f)
     f = click.option("--click", "clicks", multiple=True, metavar="VIEW:X,Y",
                      help="Select the cluster under a pixel of a view (repeatable).")(f)
+    f = click.option("--mask", "masks", multiple=True, metavar="VIEW:PATH",
+                     help="Select the clusters a 2D mask image of a view covers (repeatable).")(f)
     f = click.option("--clusters", default=None, metavar="IDS", help="Cluster ids, e.g. 3,7.")(f)
     f = click.option("--cache", type=click.Path(file_okay=False), default=None,
                      help="Stage cache of a run (default: the .cache above it).")(f)
@@ -21,14 +23,14 @@ def _selection_options(f):
                         help="A run, a trase-bench fit folder or an edited scene.")(f)
 
 
-def _open(run_dir, cache, clusters, clicks, selected):
+def _open(run_dir, cache, clusters, clicks, selected, masks):
     from benchmark.errors import UserError
     from benchmark.scene.folders import open_scene_folder, resolve_selection
 
     folder = open_scene_folder(run_dir, cache)
-    ks, sel = resolve_selection(folder, clusters, clicks, selected)
+    ks, sel = resolve_selection(folder, clusters, clicks, selected, masks=masks)
     if sel is None:
-        raise UserError("say what to edit: --clusters IDS, --click VIEW:X,Y or --selected")
+        raise UserError("say what to edit: --clusters IDS, --click VIEW:X,Y, --mask VIEW:PATH or --selected")
     if not sel.any():
         raise UserError(f"the selection (clusters {ks}) holds no gaussians")
     return folder, ks, sel
@@ -51,12 +53,12 @@ def edit() -> None:
 
 @edit.command(name="remove")
 @_selection_options
-def remove_cmd(run_dir, out_dir, cache, clusters, clicks, selected) -> None:
+def remove_cmd(run_dir, out_dir, cache, clusters, clicks, selected, masks) -> None:
     """Delete the selected gaussians."""
     from benchmark.scene.edit import write_edit
     from trase.edit import remove
 
-    folder, ks, sel = _open(run_dir, cache, clusters, clicks, selected)
+    folder, ks, sel = _open(run_dir, cache, clusters, clicks, selected, masks)
     _done(write_edit(folder, remove(folder.model, sel), out_dir, "remove", {"clusters": ks}), f"clusters {ks}")
 
 
@@ -66,12 +68,12 @@ def remove_cmd(run_dir, out_dir, cache, clusters, clicks, selected) -> None:
               help="Also write the object as one 3DGS PLY (what 3DGS viewers open).")
 @click.option("--time", "at_time", default=None, type=click.FloatRange(0.0, 1.0),
               help="With --ply: the object as it stands at this time (0..1), its motion applied; default canonical.")
-def extract_cmd(run_dir, out_dir, cache, clusters, clicks, selected, ply_path, at_time) -> None:
+def extract_cmd(run_dir, out_dir, cache, clusters, clicks, selected, masks, ply_path, at_time) -> None:
     """Keep only the selected gaussians (and, with --ply, write them as one PLY)."""
     from benchmark.scene.edit import write_edit
     from trase.edit import export_object_ply, extract
 
-    folder, ks, sel = _open(run_dir, cache, clusters, clicks, selected)
+    folder, ks, sel = _open(run_dir, cache, clusters, clicks, selected, masks)
     _done(write_edit(folder, extract(folder.model, sel), out_dir, "extract", {"clusters": ks}), f"clusters {ks}")
     if ply_path:
         export_object_ply(folder.model, sel, ply_path, time=at_time)
@@ -83,7 +85,7 @@ def extract_cmd(run_dir, out_dir, cache, clusters, clicks, selected, ply_path, a
 @_selection_options
 @click.option("--rgb", default=None, metavar="R,G,B", help="Set the colour (0..1 each).")
 @click.option("--shift", default=None, metavar="R,G,B", help="Add to the colour (-1..1 each).")
-def recolor_cmd(run_dir, out_dir, cache, clusters, clicks, selected, rgb, shift) -> None:
+def recolor_cmd(run_dir, out_dir, cache, clusters, clicks, selected, masks, rgb, shift) -> None:
     """Set or shift the colour of the selected gaussians."""
     from benchmark.errors import UserError
     from benchmark.scene.edit import parse_vector, write_edit
@@ -91,7 +93,7 @@ def recolor_cmd(run_dir, out_dir, cache, clusters, clicks, selected, rgb, shift)
 
     if (rgb is None) == (shift is None):
         raise UserError("recolor: give exactly one of --rgb R,G,B or --shift R,G,B")
-    folder, ks, sel = _open(run_dir, cache, clusters, clicks, selected)
+    folder, ks, sel = _open(run_dir, cache, clusters, clicks, selected, masks)
     value = {"rgb": parse_vector(rgb, "--rgb"), "shift": parse_vector(shift, "--shift")}
     edited = recolor(folder.model, sel, **value)
     _done(write_edit(folder, edited, out_dir, "recolor", {"clusters": ks, **value}), f"clusters {ks}")
@@ -106,17 +108,17 @@ def recolor_cmd(run_dir, out_dir, cache, clusters, clicks, selected, rgb, shift)
 @click.option("--translate", default="0,0,0", metavar="X,Y,Z", help="Move the object (scene units).")
 @click.option("--rotate", default="0,0,0", metavar="RX,RY,RZ", help="Turn it (degrees about x, y, z).")
 @click.option("--time-offset", default=0.0, type=float, help="The object shows its time t + offset.")
-def compose_cmd(run_dir, out_dir, cache, clusters, clicks, selected, from_dir, from_clusters, from_clicks,
+def compose_cmd(run_dir, out_dir, cache, clusters, clicks, selected, masks, from_dir, from_clusters, from_clicks,
                 from_selected, translate, rotate, time_offset) -> None:
     """Insert an object of another scene (or of this one) with a rigid transform and a time
-    offset; each part keeps its own motion. --clusters/--click/--selected pick nothing here:
+    offset; each part keeps its own motion. --clusters/--click/--mask/--selected pick nothing here:
     the base scene is kept whole (use them to remove first, with edit remove)."""
     from benchmark.errors import UserError
     from benchmark.scene.edit import parse_vector, write_edit
     from benchmark.scene.folders import open_scene_folder, resolve_selection
     from trase.edit import RigidTransform, compose, extract
 
-    if clusters or clicks or selected:
+    if clusters or clicks or selected or masks:
         raise UserError("compose: select the object with --from-clusters/--from-click/--from-selected")
     base = open_scene_folder(run_dir, cache)
     other = open_scene_folder(from_dir, cache)
@@ -139,7 +141,7 @@ def compose_cmd(run_dir, out_dir, cache, clusters, clicks, selected, from_dir, f
 @click.option("--iterations", default=200, type=int, show_default=True)
 @click.option("--lr", default=0.02, type=float, show_default=True)
 @click.option("--quiet", is_flag=True, help="No progress bar.")
-def style_cmd(run_dir, out_dir, cache, clusters, clicks, selected, style_path, vgg_path, iterations, lr,
+def style_cmd(run_dir, out_dir, cache, clusters, clicks, selected, masks, style_path, vgg_path, iterations, lr,
               quiet) -> None:
     """Restyle the selection's colours after a style image (NNFM on VGG-16 features)."""
     from rich.progress import Progress
@@ -149,7 +151,7 @@ def style_cmd(run_dir, out_dir, cache, clusters, clicks, selected, style_path, v
     from trase.edit.style import StyleConfig, VGG16Features, stylize
 
     vgg = VGG16Features.load(vgg_path)  # before anything else: the usual missing piece
-    folder, ks, sel = _open(run_dir, cache, clusters, clicks, selected)
+    folder, ks, sel = _open(run_dir, cache, clusters, clicks, selected, masks)
     cfg = StyleConfig(iterations=iterations, lr=lr)
     with Progress(disable=quiet, transient=True) as bar:
         task = bar.add_task("style", total=iterations)

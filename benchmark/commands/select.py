@@ -1,4 +1,4 @@
-"""``trase-bench select``: objects of a fitted capture chosen by clicks."""
+"""``trase-bench select``: objects of a fitted capture chosen by clicks or 2D masks."""
 
 from __future__ import annotations
 
@@ -8,14 +8,18 @@ import click
 @click.command(name="select")
 @click.option("--fit", "fit_dir", required=True, type=click.Path(file_okay=False),
               help="A folder written by trase-bench fit.")
-@click.option("--click", "clicks", multiple=True, required=True, metavar="VIEW:X,Y",
+@click.option("--click", "clicks", multiple=True, metavar="VIEW:X,Y",
               help="A view's name and a pixel (column X, row Y); repeat for more objects.")
+@click.option("--mask", "masks", multiple=True, metavar="VIEW:PATH",
+              help="A view's name and an image of a 2D mask of it (alpha of an RGBA cut-out, else non-zero "
+                   "pixels): the clusters it covers; repeatable.")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False), default=None,
               help="Where the masks go (default <fit>/selection).")
-def select(fit_dir, clicks, out_dir) -> None:
-    """Masks of the clicked objects at every view of the capture (PNG, 0/255)."""
+def select(fit_dir, clicks, masks, out_dir) -> None:
+    """Masks of the objects chosen by clicks or 2D masks at every view of the capture (PNG, 0/255)."""
     from benchmark.captures.select import select_clicks
 
-    res = select_clicks(fit_dir, list(clicks), out_dir)
-    chosen = ", ".join(map(str, res["clusters"])) or "none (the clicks hit no surface)"
-    click.echo(f"clusters {chosen} (per click: {res['per_click']}); {len(res['masks'])} masks -> {res['dir']}")
+    res = select_clicks(fit_dir, list(clicks), out_dir, masks=list(masks))
+    chosen = ", ".join(map(str, res["clusters"])) or "none (the prompts hit no surface)"
+    per = [f"per click: {res['per_click']}"] * bool(clicks) + [f"per mask: {res['per_mask']}"] * bool(masks)
+    click.echo(f"clusters {chosen} ({'; '.join(per)}); {len(res['masks'])} masks -> {res['dir']}")

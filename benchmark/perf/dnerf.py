@@ -3,13 +3,13 @@ as published (no preparation), measured beside the geometry's published figures.
 
 Per scene: the fit at half size (``capture.image_scale=2``, scaled on the fly), black background
 (Deformable-3DGS's protocol), the test split held out (``--holdout layout``), the validation
-split measured and never trained on; then one click on the object (the deepest interior pixel
-of its alpha in the middle training view) through ``trase-bench select``, whose masks at the
-held-out views are scored against their alpha (the exact ground truth of "the object" on
-D-NeRF). Printed: test PSNR / SSIM and validation PSNR beside Deformable-3DGS's published test
+split measured and never trained on; then the object is selected in the middle training view
+through ``trase-bench select``, by one click (the deepest interior pixel of its alpha) and by
+its alpha as a mask prompt (``--mask``), and the selections' masks at the held-out views are
+scored against their alpha (the exact ground truth of "the object" on D-NeRF). Printed: test PSNR / SSIM and validation PSNR beside Deformable-3DGS's published test
 PSNR / SSIM / LPIPS (benchmark/data/published/deformable3dgs_dnerf.csv: full resolution, 40k
 iterations on a GPU, so a like-for-like row only under the same settings), the foreground IoU
-(mean and worst view) and the fit's stage times. Settings are compared on the validation views.
+(mean and worst view, each prompt) and the fit's stage times. Settings are compared on the validation views.
 
 Scenes: ``--scene`` folders (the eight D-NeRF scenes keep their folder names: hook, mutant,
 ...), else every such folder under $TRASE_DNERF.
@@ -72,24 +72,33 @@ def read_alpha(path: Path) -> np.ndarray:
     return img[:, :, 3].astype(np.float64) / (255.0 if img.dtype == np.uint8 else 65535.0)
 
 
+def _alpha_ious(views: list[dict], masks: dict) -> dict:
+    """{"per_view", "mean", "worst"}: IoU of each view's selection mask against its alpha >= 0.5."""
+    ious = {}
+    for t in views:
+        gt = read_alpha(Path(t["image"])) >= 0.5
+        pred = masks[t["name"]]
+        union = int((gt | pred).sum())
+        ious[t["name"]] = 1.0 if union == 0 else float((gt & pred).sum()) / union
+    vals = list(ious.values())
+    return {"per_view": ious, "mean": float(np.mean(vals)) if vals else None, "worst": float(np.min(vals)) if vals else None}
+
+
 def foreground_iou(fit_dir: Path, echo=print) -> dict:
-    """One click on the object in the middle training view; IoU of the selection's masks
-    against the alpha at every held-out view."""
+    """The object selected in the middle training view, scored against the alpha of every
+    held-out view: by one click (its deepest interior pixel; the top-level keys) and by its
+    alpha as a 2D mask prompt (``"mask"``: the clusters the object's silhouette covers, what a
+    text prompt's Grounded-SAM mask would give)."""
     from benchmark.captures.select import select_clicks
 
     views = json.loads((fit_dir / "views.json").read_text())
     v = views["train"][len(views["train"]) // 2]
     x, y = foreground_click(read_alpha(Path(v["image"])))
-    res = select_clicks(fit_dir, [f"{v['name']}:{x},{y}"], fit_dir / "selection")
-    ious = {}
-    for t in views["test"]:
-        gt = read_alpha(Path(t["image"])) >= 0.5
-        pred = res["masks"][t["name"]]
-        union = int((gt | pred).sum())
-        ious[t["name"]] = 1.0 if union == 0 else float((gt & pred).sum()) / union
-    vals = list(ious.values())
-    return {"click": f"{v['name']}:{x},{y}", "clusters": res["clusters"], "per_view": ious,
-            "mean": float(np.mean(vals)) if vals else None, "worst": float(np.min(vals)) if vals else None}
+    by_click = select_clicks(fit_dir, [f"{v['name']}:{x},{y}"], fit_dir / "selection")
+    by_mask = select_clicks(fit_dir, [], fit_dir / "selection-mask", masks=[f"{v['name']}:{v['image']}"])
+    return {"click": f"{v['name']}:{x},{y}", "clusters": by_click["clusters"], **_alpha_ious(views["test"], by_click["masks"]),
+            "mask": {"prompt": f"{v['name']}:{v['image']}", "clusters": by_mask["clusters"],
+                     **_alpha_ious(views["test"], by_mask["masks"])}}
 
 
 def test_lpips(fit_dir: Path, scene_dir: Path, sets: list[str], lpips) -> float:
@@ -148,14 +157,16 @@ def run(quick: bool = False, echo=print, out_dir: Path | None = None, scenes: li
 def _line(row: dict) -> str:
     m, fg = row["measures"], row["foreground_iou"]
     return (f"{row['scene']}: test PSNR {m.get('test_psnr', float('nan')):.2f} dB, SSIM {m.get('test_ssim', float('nan')):.4f}"
-            f"; validation PSNR {m.get('validation_psnr', float('nan')):.2f} dB; foreground IoU {fg['mean']:.3f} "
-            f"(worst {fg['worst']:.3f}); fit {row['fit_seconds']:.0f} s, {row['n_gaussians']} gaussians")
+            f"; validation PSNR {m.get('validation_psnr', float('nan')):.2f} dB; foreground IoU: one click {fg['mean']:.3f} "
+            f"(worst {fg['worst']:.3f}), mask prompt {fg['mask']['mean']:.3f} (worst {fg['mask']['worst']:.3f}); "
+            f"fit {row['fit_seconds']:.0f} s, {row['n_gaussians']} gaussians")
 
 
 def render_table(rows: list[dict]) -> str:
     """The scenes beside Deformable-3DGS's published row (markdown)."""
     lines = [("| scene | test PSNR (dB) | test SSIM | test LPIPS (VGG) | validation PSNR | published PSNR / SSIM / "
-              "LPIPS (VGG) | PSNR gap | foreground IoU: mean / worst | fit (s) |"), "|---|---|---|---|---|---|---|---|---|"]
+              "LPIPS (VGG) | PSNR gap | foreground IoU, one click: mean / worst | foreground IoU, mask prompt: mean / worst "
+              "| fit (s) |"), "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         m, p, fg = r["measures"], r["published"], r["foreground_iou"]
         ours = m.get("test_psnr")
@@ -164,5 +175,6 @@ def render_table(rows: list[dict]) -> str:
         lp = f"{m['test_lpips']:.4f}" if m.get("test_lpips") is not None else "— (no weights)"
         lines.append(f"| {p['name'] if p else r['scene']} | {ours:.2f} | {m.get('test_ssim', float('nan')):.4f} | {lp} | "
                      f"{m.get('validation_psnr', float('nan')):.2f} | {pub} | {gap} | "
-                     f"{fg['mean']:.3f} / {fg['worst']:.3f} | {r['fit_seconds']:.0f} |")
+                     f"{fg['mean']:.3f} / {fg['worst']:.3f} | {fg['mask']['mean']:.3f} / {fg['mask']['worst']:.3f} | "
+                     f"{r['fit_seconds']:.0f} |")
     return "\n".join(lines)

@@ -147,12 +147,15 @@ def parse_clusters(text: str | None) -> list[int]:
 
 
 def resolve_selection(folder: SceneFolder, clusters: str | None = None, clicks: tuple[str, ...] = (),
-                      selected: bool = False, filtered: bool = True) -> tuple[list[int], np.ndarray | None]:
+                      selected: bool = False, filtered: bool = True,
+                      masks: tuple[str, ...] = ()) -> tuple[list[int], np.ndarray | None]:
     """(cluster ids, [N] bool or None when nothing was asked) from ``--clusters``,
-    ``--click VIEW:X,Y`` (the method's click rule; pixel centres) and ``--selected`` (the
+    ``--click VIEW:X,Y`` (the method's click rule; pixel centres), ``--mask VIEW:PATH`` (the
+    clusters a 2D mask covers, ``trase.prompts.mask_to_clusters``) and ``--selected`` (the
     clusters the run's prompts chose)."""
-    from benchmark.captures.select import parse_click
-    from trase.edit import by_click, by_clusters
+    from benchmark.captures.select import mask_for_view, parse_click, parse_mask
+    from trase.edit import by_click, by_clusters, by_mask
+    from trase.prompts import MASK_MIN_COVER
 
     ks = set(parse_clusters(clusters))
     n = folder.model.n_clusters
@@ -172,7 +175,14 @@ def resolve_selection(folder: SceneFolder, clusters: str | None = None, clicks: 
         if k < 0:
             raise UserError(f"--click {text!r}: the click hits no surface (rendered alpha below 0.5 there)")
         ks.add(k)
-    if not ks and not (clusters or clicks or selected):
+    for text in masks:
+        view, path = parse_mask(text)
+        cam = folder.camera(view)
+        found, _ = by_mask(folder.model, cam, mask_for_view(path, cam.width, cam.height))
+        if not found:
+            raise UserError(f"--mask {text!r}: the mask covers no cluster (none has {MASK_MIN_COVER:.0%} of its visible pixels in it)")
+        ks |= set(found)
+    if not ks and not (clusters or clicks or selected or masks):
         return [], None
     chosen = sorted(ks)
     return chosen, by_clusters(folder.model, chosen, filtered)

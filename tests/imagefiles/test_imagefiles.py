@@ -4,7 +4,7 @@ import cv2
 import numpy as np
 import pytest
 
-from imagefiles import WHITE, ImageFileError, read_rgb, read_rgb8
+from imagefiles import WHITE, ImageFileError, read_mask, read_rgb, read_rgb8
 
 
 def _write(path, img):
@@ -53,6 +53,17 @@ def test_alpha_is_straight_and_composited_over_the_background(tmp_path):
     white = read_rgb(p, WHITE)
     assert np.allclose(white[0, 1], 1) and np.allclose(white[0, 2], 0.2 * np.array([200, 20, 10]) / 255 + 0.8)
     assert np.array_equal(read_rgb8(p, WHITE), np.round(white * 255).astype(np.uint8))
+
+
+def test_a_mask_is_the_alpha_of_a_cut_out_else_its_non_zero_pixels(tmp_path):
+    bgra = np.full((1, 3, 4), 255, np.uint8)
+    bgra[0, :, 3] = (255, 127, 128)  # alpha >= 0.5 of 255: 128 in, 127 out
+    assert read_mask(_write(tmp_path / "a.png", bgra)).tolist() == [[True, False, True]]
+    gray = np.array([[0, 1, 255]], np.uint8)
+    assert read_mask(_write(tmp_path / "g.png", gray)).tolist() == [[False, True, True]]
+    colour = np.zeros((1, 2, 3), np.uint16)
+    colour[0, 1, 2] = 7
+    assert read_mask(_write(tmp_path / "c.png", colour)).tolist() == [[False, True]]
 
 
 def test_mask_generation_and_reconstruction_see_the_same_picture(tmp_path):

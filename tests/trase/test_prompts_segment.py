@@ -273,3 +273,28 @@ def test_feature_click_reads_the_models_own_features():
     click = Click(16.0, 12.0)
     assert click_to_cluster(g, None, cam, click, labels, rule="feature") == \
         click_to_cluster(gm, None, cam, click, labels, rule="feature", features=feats) == 0
+
+
+def test_mask_rules_cover_every_part_share_only_large_ones():
+    """An object cut into a large and a small cluster: ``cover`` (each cluster's share inside the
+    mask) chooses both parts, ``share`` (each cluster's share of the mask) only the parts above
+    its threshold; a neighbour the mask grazes is chosen by neither."""
+    import cv2
+
+    gm, deform, ids, views = tiny_scene()
+    cam = views[1].camera
+    obj = exact_masks(gm, deform, ids, views[1]).masks[1]
+    labels = ids.copy()
+    xs = gm.means[:, 0].detach().numpy()
+    part = (ids == 1) & (xs > np.quantile(xs[ids == 1], 0.8))  # the object's outer fifth
+    labels[part] = 2
+    grazing = cv2.dilate(obj.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    assert mask_to_clusters(gm, deform, cam, grazing, labels) == [1, 2]
+    assert mask_to_clusters(gm, deform, cam, grazing, labels, rule="share", min_share=0.4) == [1]
+    # low enough for the small part, ``share`` takes the grazed neighbour as well
+    assert mask_to_clusters(gm, deform, cam, grazing, labels, rule="share", min_share=0.01) == [0, 1, 2]
+    # a mask on half of the small part only: under min_cover of it
+    assert 2 not in mask_to_clusters(gm, deform, cam, obj & (np.arange(obj.shape[1]) < 5)[None, :], labels)
+    assert mask_to_clusters(gm, deform, cam, np.zeros_like(obj), labels) == []
+    with pytest.raises(PromptError, match="unknown mask rule"):
+        mask_to_clusters(gm, deform, cam, obj, labels, rule="iou")

@@ -30,8 +30,9 @@ def by_click(model: EditableModel, camera: Camera, u: float, v: float, rule: str
     return k, by_clusters(model, [k] if k >= 0 else [], filtered)
 
 
-def by_mask(model: EditableModel, camera: Camera, mask: np.ndarray, min_share: float = 0.05,
+def by_mask(model: EditableModel, camera: Camera, mask: np.ndarray, rule: str = "cover",
             filtered: bool = True) -> tuple[list[int], np.ndarray]:
-    """(clusters, [N] bool) covered by the 2D ``mask`` [H, W] of ``camera``."""
-    ks = mask_to_clusters(model.gaussians, model.deformation, camera, mask, model.labels, min_share=min_share)
+    """(clusters, [N] bool) covered by the 2D ``mask`` [H, W] of ``camera`` (``rule``: see
+    ``trase.prompts.mask_to_clusters``)."""
+    ks = mask_to_clusters(model.gaussians, model.deformation, camera, mask, model.labels, rule=rule)
     return ks, by_clusters(model, ks, filtered)

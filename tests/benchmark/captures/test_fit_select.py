@@ -13,7 +13,7 @@ import pytest
 import masks as masklib
 from benchmark.captures import CaptureOptions, load_capture
 from benchmark.captures.fit import FitOptions, fit_capture, monocular, next_steps
-from benchmark.captures.select import parse_click, select_clicks
+from benchmark.captures.select import mask_for_view, parse_click, parse_mask, select_clicks
 from benchmark.config import ConfigError, parse_overrides
 from benchmark.errors import UserError
 from benchmark.methods import get_method
@@ -101,6 +101,31 @@ def test_click_parsing():
             parse_click(bad)
 
 
+def test_mask_prompt_parsing_and_reading(tmp_path):
+    import cv2
+
+    m = np.zeros((20, 40), np.uint8)
+    m[4:14, 10:30] = 255
+    path = tmp_path / "a:b.png"  # a ':' in the path too
+    cv2.imwrite(str(path), m)
+    assert parse_mask(f"images/000002:{path}") == ("images/000002", path)
+    with pytest.raises(UserError, match="expected VIEW:PATH"):
+        parse_mask("000002")
+    with pytest.raises(UserError, match="not found"):
+        parse_mask("000002:nothere.png")
+    assert np.array_equal(mask_for_view(path, 40, 20), m > 0)
+    half = mask_for_view(path, 20, 10)  # the view's aspect ratio: scaled, area filter
+    assert np.array_equal(half, m[::2, ::2] > 0)
+    with pytest.raises(UserError, match="another aspect ratio"):
+        mask_for_view(path, 40, 40)
+    cv2.imwrite(str(tmp_path / "empty.png"), np.zeros((20, 40), np.uint8))
+    with pytest.raises(UserError, match="empty"):
+        mask_for_view(tmp_path / "empty.png", 40, 20)
+    (tmp_path / "bad.png").write_bytes(b"not a png")
+    with pytest.raises(UserError, match="bad.png: cannot decode"):
+        mask_for_view(tmp_path / "bad.png", 40, 20)
+
+
 @pytest.mark.slow
 def test_fit_exports_a_folder_that_select_reads(capture_dirs, tmp_path):
     out = tmp_path / "fit"
@@ -135,6 +160,23 @@ def test_fit_exports_a_folder_that_select_reads(capture_dirs, tmp_path):
     res = select_clicks(out, [f"{v['name']}:{v['camera']['width'] // 2},{v['camera']['height'] // 2}"])
     assert len(res["masks"]) == 4 and (out / "selection" / "selection.json").is_file()
     assert sorted(p.name for p in (out / "selection").glob("*.png")) == sorted(f"{n}.png" for n in res["masks"])
+    # a cluster's own mask in a view, as a mask prompt, chooses it
+    from benchmark.captures.select import fitted_capture
+    from imagefiles import png_bytes
+
+    _, method, fitted, scene = fitted_capture(out)
+    names = [w.name for w in scene.test]
+    sizes = {k: int(method.render_selection(fitted, scene, [k])[names.index(v["name"])].sum())
+             for k in np.unique(fitted.labels).tolist()}
+    k = max(sizes, key=sizes.get)
+    assert sizes[k] > 0
+    (tmp_path / "object.png").write_bytes(png_bytes(
+        method.render_selection(fitted, scene, [k])[names.index(v["name"])].astype(np.uint8) * 255))
+    by_mask = select_clicks(out, [], tmp_path / "by-mask", masks=[f"{v['name']}:{tmp_path / 'object.png'}"])
+    assert k in by_mask["per_mask"][0] and by_mask["clusters"] == by_mask["per_mask"][0]
+    assert (tmp_path / "by-mask" / "selection.json").is_file()
+    with pytest.raises(UserError, match="at least one --click VIEW:X,Y or --mask"):
+        select_clicks(out, [])
     with pytest.raises(UserError, match="pixel outside"):
         select_clicks(out, [f"{v['name']}:10000,1"])
     with pytest.raises(UserError, match="not a fitted capture"):

@@ -41,6 +41,8 @@ def test_the_suite_fits_a_scene_and_scores_the_object_against_alpha(tmp_path, mo
     assert row["measures"]["test_lpips"] > 0
     fg = row["foreground_iou"]
     assert set(fg["per_view"]) == {"test/r_000", "test/r_010"} and 0 <= fg["worst"] <= fg["mean"] <= 1
+    assert set(fg["mask"]["per_view"]) == set(fg["per_view"]) and 0 <= fg["mask"]["worst"] <= fg["mask"]["mean"] <= 1
+    assert fg["mask"]["prompt"].startswith(fg["click"].split(":")[0] + ":")  # the clicked view's alpha
     table = lines[-1]
     assert "| Hook |" in table and "37.42 / 0.9867 / 0.0144" in table
     assert f"{row['measures']['test_psnr'] - 37.42:+.2f}" in table

@@ -85,6 +85,8 @@ def test_edit_folders_reopen_and_chain(run_dir, tmp_path, capsys):
     (["render", "--run", "{run}", "--click", "bad"], "expected VIEW:X,Y"),
     (["render", "--run", "{run}", "--cache", "{tmp}"], "not in the cache given"),
     (["edit", "remove", "--run", "{run}", "--out", "{tmp}/x"], "say what to edit"),
+    (["edit", "remove", "--run", "{run}", "--mask", "cam/00:{tmp}/none.png", "--out", "{tmp}/x"], "not found"),
+    (["edit", "compose", "--run", "{run}", "--from", "{run}", "--mask", "v:{tmp}", "--out", "{tmp}/x"], "compose: select"),
     (["edit", "recolor", "--run", "{run}", "--clusters", "0", "--out", "{tmp}/x"], "exactly one of --rgb"),
     (["edit", "recolor", "--run", "{run}", "--clusters", "0", "--rgb", "1,0", "--out", "{tmp}/x"], "expected 3 numbers"),
     (["edit", "recolor", "--run", "{run}", "--clusters", "0", "--rgb", "2,0,0", "--out", "{tmp}/x"], "in [0, 1]"),
