@@ -339,8 +339,9 @@ def run_job(target, job: SweepJob, log: str | None = None, task_id: str | None =
     from benchmark.runner import run
 
     target = getattr(target, "target", target)
+    threads = {"omp_wait_policy": os.environ.get("OMP_WAIT_POLICY")}  # beside its seconds: how idle threads waited
     write_state(target, job, state="running", host=socket.gethostname(), pid=os.getpid(), started=time.time(),
-                log=log, scheduler_id=task_id, executor=executor)
+                log=log, scheduler_id=task_id, executor=executor, **threads)
     print(f"[{time.strftime('%H:%M:%S')}] job {job.id}: {job.label()}", flush=True)
     t0 = time.time()
     try:
@@ -349,11 +350,11 @@ def run_job(target, job: SweepJob, log: str | None = None, task_id: str | None =
         line = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         error = line if is_user_error(exc) else f"{type(exc).__name__}: {line}"
         write_state(target, job, state="failed", error=error, log=log, seconds=time.time() - t0,
-                    scheduler_id=task_id, executor=executor)
+                    scheduler_id=task_id, executor=executor, **threads)
         print(f"[{time.strftime('%H:%M:%S')}] job {job.id} failed: {error}", flush=True)
         raise
     write_state(target, job, state="done", results=paths, log=log, seconds=time.time() - t0,
-                scheduler_id=task_id, executor=executor)
+                scheduler_id=task_id, executor=executor, **threads)
     print(f"[{time.strftime('%H:%M:%S')}] job {job.id} done in {time.time() - t0:.0f}s: {', '.join(paths)}", flush=True)
     return paths
 
@@ -507,6 +508,26 @@ def submission_error(exc: BaseException) -> str:
     return f"submission failed: {type(exc).__name__}: {lines[-1] if lines else ''}"
 
 
+PASSIVE_THREADS = {"OMP_WAIT_POLICY": "PASSIVE"}
+
+
+@contextlib.contextmanager
+def idle_threads_sleep(on: bool):
+    """While submitting local workers that share this machine: their idle OpenMP threads sleep
+    instead of spinning (``OMP_WAIT_POLICY=PASSIVE``, inherited by the workers; a value the user
+    set is kept). Why: torch trains on two threads (the cpu presets' ``torch_threads``), and two
+    such processes side by side on 2 cores took 195 ms per step each with spinning threads
+    against 103 ms passive (an MLP step over 15k points, this machine; docs/performance.md).
+    Scheduling only: the numbers computed are the same."""
+    added = {k: v for k, v in PASSIVE_THREADS.items() if on and k not in os.environ}
+    os.environ.update(added)
+    try:
+        yield
+    finally:
+        for k in added:
+            os.environ.pop(k, None)
+
+
 def submit(spec: SweepSpec, wait: bool = True, echo=print, states: list | None = None) -> dict:
     """Submit the jobs neither done nor in flight: ``local``, ``workers`` processes on this
     machine (submitit's local executor), each running its share in order; ``slurm``, one array
@@ -544,7 +565,8 @@ def submit(spec: SweepSpec, wait: bool = True, echo=print, states: list | None =
                     host=socket.gethostname(), submitted=time.time())
     said = io.StringIO()  # sbatch's own output, which submitit copies to ours: the error below says it once
     try:
-        with contextlib.redirect_stderr(said), contextlib.redirect_stdout(said), ex.batch():
+        with idle_threads_sleep(spec.executor == "local" and len(tasks) > 1), contextlib.redirect_stderr(said), \
+                contextlib.redirect_stdout(said), ex.batch():
             handles = [ex.submit(t) for t in tasks]
     except Exception as exc:  # noqa: BLE001 - nothing was queued: the states go back, one line says why
         _restore(spec, jobs, before)

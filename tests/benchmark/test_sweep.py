@@ -110,8 +110,24 @@ account = "vision"
     assert str(spec.state_dir / "logs") in script
 
 
+def test_local_workers_side_by_side_let_idle_threads_sleep(monkeypatch):
+    from benchmark.sweep import idle_threads_sleep
+
+    monkeypatch.delenv("OMP_WAIT_POLICY", raising=False)
+    with idle_threads_sleep(False):
+        assert "OMP_WAIT_POLICY" not in os.environ  # one worker: left as it is
+    with idle_threads_sleep(True):
+        assert os.environ["OMP_WAIT_POLICY"] == "PASSIVE"
+    assert "OMP_WAIT_POLICY" not in os.environ
+    monkeypatch.setenv("OMP_WAIT_POLICY", "ACTIVE")  # the user's choice is kept
+    with idle_threads_sleep(True):
+        assert os.environ["OMP_WAIT_POLICY"] == "ACTIVE"
+    assert os.environ["OMP_WAIT_POLICY"] == "ACTIVE"
+
+
 @pytest.mark.slow
-def test_a_local_sweep_computes_shared_stages_once_and_reruns_nothing(tmp_path, capsys):
+def test_a_local_sweep_computes_shared_stages_once_and_reruns_nothing(tmp_path, capsys, monkeypatch):
+    monkeypatch.delenv("OMP_WAIT_POLICY", raising=False)
     path = _spec(tmp_path, TINY)
     assert main(["sweep", str(path), "--dry-run"]) == 0
     plan = capsys.readouterr().out
@@ -121,6 +137,8 @@ def test_a_local_sweep_computes_shared_stages_once_and_reruns_nothing(tmp_path, 
     spec = load_spec(path)
     states = [read_state(spec, j) for j in spec.jobs()]
     assert [s["state"] for s in states] == ["done", "done"]
+    assert [s["omp_wait_policy"] for s in states] == ["PASSIVE", "PASSIVE"]  # two workers: idle threads sleep
+    assert "OMP_WAIT_POLICY" not in os.environ  # set for the workers only
     records = [json.loads(Path(s["results"][0]).read_text())["stages"] for s in states]
     for stage in ("masks", "geometry", "prompts", "ceiling"):  # the two workers share these
         assert sum(not r[stage]["skipped"] for r in records) == 1, stage
