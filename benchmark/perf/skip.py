@@ -53,7 +53,8 @@ HEADER = ["format", "variant", "geometry s", "features s", "test PSNR", "static"
 
 
 SCENE_HEADER = ["scene", "variant", "geometry s", "features s", "test PSNR", "test SSIM", "validation PSNR", "static",
-                "foreground IoU", "worst view", "stopped at", "geometry s vs full", "features s vs full"]
+                "foreground IoU, click", "worst view", "foreground IoU, mask prompt", "worst view", "stopped at",
+                "geometry s vs full", "features s vs full"]
 # D-NeRF scenes with --quick: perf dnerf's short fit, its warm-up and checks early enough to act
 QUICK_SCENE = ["geometry.train.warm_up=10", "geometry.train.static_from=10", "geometry.train.static_interval=20",
                "geometry.train.stop_holdout_every=3", "method.features.stop_holdout_every=3"]
@@ -177,7 +178,8 @@ def run_scenes(scenes: list[Path], vs: dict[str, list[str]], extra: list[str], q
                 rows.append([name, variant, f"{s.get('geometry', 0):.0f}", f"{s.get('features', 0):.0f}",
                              f(m.get("test_psnr"), 2), f(m.get("test_ssim"), 4), f(m.get("validation_psnr"), 2),
                              f"{entry['static_gaussians'] / max(entry['gaussians'], 1):.0%}",
-                             f(entry["foreground_iou"], 4), f(entry["foreground_worst"], 4), _stopped(entry),
+                             f(entry["foreground_iou"], 4), f(entry["foreground_worst"], 4),
+                             f(entry["foreground_mask_iou"], 4), f(entry["foreground_mask_worst"], 4), _stopped(entry),
                              _ratio(runs, name, variant, "geometry"), _ratio(runs, name, variant, "features")])
     if rows:
         echo(table(rows, SCENE_HEADER))
@@ -185,10 +187,11 @@ def run_scenes(scenes: list[Path], vs: dict[str, list[str]], extra: list[str], q
 
 
 def _fit_figures(rec: dict, fg: dict) -> dict:
-    """A fit's figures (fit.json) beside its foreground IoU (perf dnerf's click)."""
+    """A fit's figures (fit.json) beside its foreground IoU (perf dnerf's click and mask prompt)."""
     measures = rec.get("image_measures") or {}
     return {**_stage_figures(rec), "measures": measures, "test_psnr": measures.get("test_psnr"),
-            "foreground_iou": fg["mean"], "foreground_worst": fg["worst"]}
+            "foreground_iou": fg["mean"], "foreground_worst": fg["worst"],
+            "foreground_mask_iou": fg["mask"]["mean"], "foreground_mask_worst": fg["mask"]["worst"]}
 
 
 def _plots(runs: list[dict], out_dir: Path, echo: Callable[[str], None], score: str = "miou") -> list[str]:

@@ -66,6 +66,7 @@ def test_perf_skip_measures_each_skip_on_a_dnerf_scene(tmp_path, monkeypatch):
     assert {s: st["cap"] for s, st in converged["stopping"].items()} == {"geometry": 60, "features": 30}
     for r in out["runs"]:
         assert np.isfinite(r["measures"]["test_psnr"]) and 0 <= r["foreground_worst"] <= r["foreground_iou"] <= 1
+        assert 0 <= r["foreground_mask_worst"] <= r["foreground_mask_iou"] <= 1
         assert r["seconds"]["geometry"] > 0 and r["gaussians"] > 0
     assert full["static_gaussians"] == 0
     # each variant trained its own geometry (the static threshold and the stopping are keyed)
@@ -73,5 +74,5 @@ def test_perf_skip_measures_each_skip_on_a_dnerf_scene(tmp_path, monkeypatch):
             for v in ("full", "static", "converged")}
     assert len(set(keys.values())) == 3, keys
     text = "\n".join(lines)
-    assert "foreground IoU" in text and "dnerf/hook" in text and "geometry s vs full" in text
+    assert "foreground IoU, mask prompt" in text and "dnerf/hook" in text and "geometry s vs full" in text
     assert (tmp_path / "out" / "skip-dnerf-hook.png").stat().st_size > 1000
