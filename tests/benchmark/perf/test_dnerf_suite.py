@@ -76,3 +76,10 @@ def test_perf_skip_measures_each_skip_on_a_dnerf_scene(tmp_path, monkeypatch):
     text = "\n".join(lines)
     assert "foreground IoU, mask prompt" in text and "dnerf/hook" in text and "geometry s vs full" in text
     assert (tmp_path / "out" / "skip-dnerf-hook.png").stat().st_size > 1000
+
+
+def test_capture_settings_reach_the_scenes_only():
+    from benchmark.perf.skip import for_runs
+
+    assert for_runs(["capture.image_scale=2", "geometry.train.iterations=60", " capture.max_side=400"]) == [
+        "geometry.train.iterations=60"]
