@@ -33,7 +33,7 @@ from baselines.cgc_inference import PATCH, THRESHOLD
 from benchmark.methods import FittedModel, MethodError, register_method
 from benchmark.methods.trase_method import TraseMethod, click_view
 from benchmark.methods.trase_presets import TRASE_PRESETS, TraseSettings
-from lazyspecs.presets import MONOCULAR, MULTIVIEW
+from lazyspecs.presets import MONOCULAR
 
 BASELINE_METHODS = ("trase-hard", "trase-all", "cgc", "opengaussian")
 
@@ -91,13 +91,13 @@ CGC_PRESETS = TRASE_PRESETS.extended("cgc", CGCSettings)
 # threshold rescaled to the mask resolution (baselines/cgc.py)
 CGC_PRESETS.declare("paper", {"features.objective_params": {"min_mask_pixels": "auto"}}, filter_threshold=None)
 CGC_PRESETS.declare("cpu", FULL_FEATURE_SCHEDULE, filter_threshold=None)
-# cgc's own cpu threshold, per rig: chosen on the seed-1 selection scenes, ground-truth geometry,
-# by the mean official mIoU of each rig's formats over {0.6, 0.7, 0.8, 0.9, 0.95} (and 0.5 on the monocular ones)
-# (docs/cpu-constants.md): the monocular ones (NeRF-DS, HyperNeRF) 0.6, mean 0.950 (the public
-# code's 0.7: 0.943); the multi-view ones 0.9, mean 0.916 (0.7: 0.717). With many views CGC's
-# features are sharper and a loose threshold takes in the neighbours
+# cgc's own cpu threshold, per rig: chosen on the seed-1 selection scenes with reconstructed
+# geometry (the main protocol's), by the mean official mIoU of each rig's formats over {0.6, 0.7,
+# 0.8, 0.9}, a value replacing the public code's 0.7 only when better by more than 0.005
+# (docs/cpu-constants.md): the monocular ones (NeRF-DS, HyperNeRF) 0.6; the multi-view ones keep
+# 0.7 (mean 0.935; 0.9: 0.879). A first grid on ground-truth geometry had chosen 0.9 for the
+# multi-view rigs, where CGC's features are sharper than on the geometry the benchmark scores
 CGC_PRESETS.declare("cpu", {"cgc.threshold": 0.6}, when=MONOCULAR)
-CGC_PRESETS.declare("cpu", {"cgc.threshold": 0.9}, when=MULTIVIEW)
 
 OPENGAUSSIAN_PRESETS = TRASE_PRESETS.extended("opengaussian")
 # every gaussian keeps its class (codebook semantics): no filter
