@@ -6,10 +6,11 @@ Per scene: the fit at half size (``capture.image_scale=2``, scaled on the fly), 
 split measured and never trained on; then the object is selected in the middle training view
 through ``trase-bench select``, by one click (the deepest interior pixel of its alpha) and by
 its alpha as a mask prompt (``--mask``), and the selections' masks at the held-out views are
-scored against their alpha (the exact ground truth of "the object" on D-NeRF). Printed: test PSNR / SSIM and validation PSNR beside Deformable-3DGS's published test
-PSNR / SSIM / LPIPS (benchmark/data/published/deformable3dgs_dnerf.csv: full resolution, 40k
-iterations on a GPU, so a like-for-like row only under the same settings), the foreground IoU
-(mean and worst view, each prompt) and the fit's stage times. Settings are compared on the validation views.
+scored against their alpha (the exact ground truth of "the object" on D-NeRF). Printed: test
+PSNR / SSIM and validation PSNR beside Deformable-3DGS's published test PSNR / SSIM / LPIPS
+(benchmark/data/published/deformable3dgs_dnerf.csv: full resolution, 40k iterations on a GPU,
+so a like-for-like row only under the same settings), the foreground IoU (mean and worst view,
+each prompt) and the fit's stage times. Settings are compared on the validation views.
 
 Scenes: ``--scene`` folders (the eight D-NeRF scenes keep their folder names: hook, mutant,
 ...), else every such folder under $TRASE_DNERF.
@@ -81,7 +82,8 @@ def _alpha_ious(views: list[dict], masks: dict) -> dict:
         union = int((gt | pred).sum())
         ious[t["name"]] = 1.0 if union == 0 else float((gt & pred).sum()) / union
     vals = list(ious.values())
-    return {"per_view": ious, "mean": float(np.mean(vals)) if vals else None, "worst": float(np.min(vals)) if vals else None}
+    return {"per_view": ious, "mean": float(np.mean(vals)) if vals else None,
+            "worst": float(np.min(vals)) if vals else None}
 
 
 def foreground_iou(fit_dir: Path, echo=print) -> dict:
@@ -96,7 +98,8 @@ def foreground_iou(fit_dir: Path, echo=print) -> dict:
     x, y = foreground_click(read_alpha(Path(v["image"])))
     by_click = select_clicks(fit_dir, [f"{v['name']}:{x},{y}"], fit_dir / "selection")
     by_mask = select_clicks(fit_dir, [], fit_dir / "selection-mask", masks=[f"{v['name']}:{v['image']}"])
-    return {"click": f"{v['name']}:{x},{y}", "clusters": by_click["clusters"], **_alpha_ious(views["test"], by_click["masks"]),
+    return {"click": f"{v['name']}:{x},{y}", "clusters": by_click["clusters"],
+            **_alpha_ious(views["test"], by_click["masks"]),
             "mask": {"prompt": f"{v['name']}:{v['image']}", "clusters": by_mask["clusters"],
                      **_alpha_ious(views["test"], by_mask["masks"])}}
 
