@@ -152,8 +152,8 @@ def next_steps(fit_json: Path) -> list[str]:
     v = views[len(views) // 2]
     u, w = v["camera"]["width"] // 2, v["camera"]["height"] // 2
     return [f"look at the clusters beside the images: {out / 'previews'}/",
-            ("select objects by clicks (view:x,y in pixels; repeat --click): "
-             f"trase-bench select --fit {out} --click {v['name']}:{u},{w}"),
+            ("select objects by clicks (view:x,y in pixels; repeat --click), or by a 2D mask of a view "
+             f"(--mask {v['name']}:MASK.png): trase-bench select --fit {out} --click {v['name']}:{u},{w}"),
             f"look at it in the browser (time, modes, click selection, edits): trase-bench view --run {out}",
             f"render a clip: trase-bench render --run {out} --cameras orbit --mode clusters",
             f"edit it: trase-bench edit remove --run {out} --click {v['name']}:{u},{w} --out {out}-edited",

@@ -144,7 +144,7 @@ def test_fit_exports_a_folder_that_select_reads(capture_dirs, tmp_path):
     assert g.num_gaussians == rec["n_gaussians"]
     assert find_runs(tmp_path) == []  # a fitted capture is never a benchmark result
     steps = next_steps(fit_json)
-    assert any("trase-bench select --fit" in line for line in steps)
+    assert any("trase-bench select --fit" in line and "--mask" in line for line in steps)
     assert any(f"trase-bench view --run {out}" in line for line in steps)
     from benchmark.scene.folders import open_scene_folder
 
