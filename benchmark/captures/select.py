@@ -63,6 +63,14 @@ def mask_for_view(path: Path, width: int, height: int) -> np.ndarray:
     return m
 
 
+def mask_prompt(text: str, camera_of) -> tuple[object, np.ndarray]:
+    """``--mask VIEW:PATH`` -> (the view's camera, bool mask [H, W] at the camera's size);
+    ``camera_of(view)`` gives the view's camera or raises a UserError naming what exists."""
+    view, path = parse_mask(text)
+    cam = camera_of(view)
+    return cam, mask_for_view(path, cam.width, cam.height)
+
+
 def fitted_capture(fit_dir: Path | str):
     """(fit record, method, FittedModel with its geometry, Scene whose test views are all the
     capture's views) of a ``trase-bench fit`` folder."""
@@ -114,14 +122,15 @@ def select_clicks(fit_dir: Path | str, clicks: list[str], out_dir: Path | str | 
     if parsed:
         prompts = BenchmarkPrompts(parsed[0].view_index, parsed[0].view, parsed[0].time, parsed, source="command-line")
         per_click = method.click_clusters(fitted, scene, prompts)
+    def camera_of(view: str):
+        if view not in names:
+            raise UserError(f"--mask: no view {view!r} in {fit_dir} (e.g. {', '.join(names[:3])})")
+        return scene.test[names.index(view)].camera
+
     per_mask = []
     for text in masks:
-        view, path = parse_mask(text)
-        if view not in names:
-            raise UserError(f"--mask {text!r}: no view {view!r} in {fit_dir} (e.g. {', '.join(names[:3])})")
-        cam = scene.test[names.index(view)].camera
-        per_mask.append(mask_to_clusters(fitted.gaussians, fitted.deformation, cam,
-                                         mask_for_view(path, cam.width, cam.height), fitted.labels))
+        cam, mask = mask_prompt(text, camera_of)
+        per_mask.append(mask_to_clusters(fitted.gaussians, fitted.deformation, cam, mask, fitted.labels))
     clusters = sorted({k for k in per_click if k >= 0} | {k for ks in per_mask for k in ks})
     rendered = method.render_selection(fitted, scene, clusters)
     out = Path(out_dir) if out_dir else Path(fit_dir) / "selection"
@@ -137,4 +146,4 @@ def select_clicks(fit_dir: Path | str, clicks: list[str], out_dir: Path | str | 
             "masks": dict(zip(names, rendered)), "dir": out}
 
 
-__all__ = ["fitted_capture", "mask_for_view", "parse_click", "parse_mask", "select_clicks"]
+__all__ = ["fitted_capture", "mask_for_view", "mask_prompt", "parse_click", "parse_mask", "select_clicks"]

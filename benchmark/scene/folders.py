@@ -153,7 +153,7 @@ def resolve_selection(folder: SceneFolder, clusters: str | None = None, clicks: 
     ``--click VIEW:X,Y`` (the method's click rule; pixel centres), ``--mask VIEW:PATH`` (the
     clusters a 2D mask covers, ``trase.prompts.mask_to_clusters``) and ``--selected`` (the
     clusters the run's prompts chose)."""
-    from benchmark.captures.select import mask_for_view, parse_click, parse_mask
+    from benchmark.captures.select import mask_prompt, parse_click
     from trase.edit import by_click, by_clusters, by_mask
     from trase.prompts import MASK_MIN_COVER
 
@@ -176,9 +176,8 @@ def resolve_selection(folder: SceneFolder, clusters: str | None = None, clicks: 
             raise UserError(f"--click {text!r}: the click hits no surface (rendered alpha below 0.5 there)")
         ks.add(k)
     for text in masks:
-        view, path = parse_mask(text)
-        cam = folder.camera(view)
-        found, _ = by_mask(folder.model, cam, mask_for_view(path, cam.width, cam.height))
+        cam, mask = mask_prompt(text, folder.camera)
+        found, _ = by_mask(folder.model, cam, mask)
         if not found:
             raise UserError(f"--mask {text!r}: the mask covers no cluster (none has {MASK_MIN_COVER:.0%} of its visible pixels in it)")
         ks |= set(found)
