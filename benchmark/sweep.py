@@ -516,8 +516,8 @@ def idle_threads_sleep(on: bool):
     """While submitting local workers that share this machine: their idle OpenMP threads sleep
     instead of spinning (``OMP_WAIT_POLICY=PASSIVE``, inherited by the workers; a value the user
     set is kept). Why: torch trains on two threads (the cpu presets' ``torch_threads``), and two
-    such processes side by side on 2 cores took 195 ms per step each with spinning threads
-    against 103 ms passive (an MLP step over 15k points, this machine; docs/performance.md).
+    such processes side by side on 2 loaded cores took 200-303 ms per step each with spinning
+    threads against 92-99 ms passive (``scripts/measure_idle_threads.py``; docs/performance.md).
     Scheduling only: the numbers computed are the same."""
     added = {k: v for k, v in PASSIVE_THREADS.items() if on and k not in os.environ}
     os.environ.update(added)
