@@ -176,13 +176,14 @@ class _Trainer:
     frozen: torch.Tensor | None = None
     plateau: Plateau | None = None  # the stopping checks (stop_interval > 0)
 
-    def deformation(self):
-        """What renders this step: the network, or the network for the moving gaussians only."""
+    def deformation(self, probe: bool = False):
+        """What renders this step: the network, or the network for the moving gaussians only
+        (``probe``: for the static ones too, straight-through; trase.static_gaussians)."""
         if self.deform is None or self.static is None:  # static rows not measured yet
             return self.deform
         from trase.static_gaussians import PartlyStaticDeformation
 
-        return PartlyStaticDeformation(self.deform, self.static, self.frozen)
+        return PartlyStaticDeformation(self.deform, self.static, self.frozen, probe)
 
     @property
     def n_static(self) -> int:
@@ -503,7 +504,8 @@ def _forward_backward(tr: _Trainer, it: int, data: ImageCache, bg: torch.Tensor,
     if use_deform:
         noise = float(torch.randn(1, generator=tr.gen))
         offset = noise * time_noise_scale(it, cfg) / n_views
-    out, means_t = render_view(tr.gaussians, tr.deformation(), cam, bg, backend, offset, use_deform,
+    probe = cfg.static_probe_every > 0 and it % cfg.static_probe_every == 0
+    out, means_t = render_view(tr.gaussians, tr.deformation(probe), cam, bg, backend, offset, use_deform,
                                visible_only=cfg.deform_visible_only)
     tr.strategy.step_pre_backward(out, means_t)
     image = out.color  # [H, W, 3]

@@ -10,6 +10,11 @@ whose network motion rises well above the threshold (``WAKE_FACTOR`` times it) i
 (``update_static``); it goes on from its frozen offsets, not from what the network, untrained
 for it meanwhile, gives it: the difference is kept and added to the network's output.
 Densified children inherit the flag with their parent's row (``trase.densify``'s row carry).
+A frozen gaussian's network output is no longer trained, so motion the network had not learned
+when it froze (an object crossing the scene in a few frames, learned late) would never wake it:
+on a *probe* step the network runs for the static rows too, their render unchanged (the
+frozen offsets) but the gradient passed straight through to the network's output for them, so
+the network goes on learning what the images ask of them and the next check can wake them.
 
 Shapes: ``static`` [N] bool, ``frozen`` [N, 10] = d_xyz 3 | d_rot 4 | d_scale 3: a static
 row's offsets; a moving row's correction added to the network's (zero unless it was woken).
@@ -34,8 +39,9 @@ class PartlyStaticDeformation(nn.Module):
     Row-aligned with its gaussians (``rows`` subsets it, as edits and the visible-only
     training pass do); the network itself is shared, not copied."""
 
-    def __init__(self, net: nn.Module, static: torch.Tensor, frozen: torch.Tensor) -> None:
+    def __init__(self, net: nn.Module, static: torch.Tensor, frozen: torch.Tensor, probe: bool = False) -> None:
         super().__init__()
+        self.probe = bool(probe)  # the network runs for the static rows too (straight-through; see the module)
         if static.dim() != 1 or frozen.shape != (static.shape[0], FROZEN_WIDTH):
             raise ValueError(f"static must be [N] and frozen [N, {FROZEN_WIDTH}], got {tuple(static.shape)} "
                              f"and {tuple(frozen.shape)}")
@@ -53,7 +59,7 @@ class PartlyStaticDeformation(nn.Module):
 
     def rows(self, mask) -> PartlyStaticDeformation:
         m = torch.as_tensor(mask, dtype=torch.bool, device=self.static.device)
-        return PartlyStaticDeformation(self.net, self.static[m], self.frozen[m])
+        return PartlyStaticDeformation(self.net, self.static[m], self.frozen[m], self.probe)
 
     def forward(self, xyz: torch.Tensor, t) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         if xyz.shape[0] != self.num_gaussians:
@@ -62,6 +68,11 @@ class PartlyStaticDeformation(nn.Module):
         frozen = self.frozen.to(device=xyz.device, dtype=xyz.dtype)
         moving = torch.nonzero(~self.static.to(xyz.device)).reshape(-1)  # [M]
         d_xyz, d_rot, d_scale = split_offsets(frozen)
+        if self.probe and moving.numel() < self.num_gaussians:
+            static = self.static.to(xyz.device)[:, None]  # [N, 1]
+            # static rows: the frozen offsets' value, the network's gradient; moving: network + correction
+            return tuple(o + c - torch.where(static, o.detach(), torch.zeros_like(o))
+                         for o, c in zip(self.net(xyz, t), (d_xyz, d_rot, d_scale)))
         if moving.numel() == self.num_gaussians:  # nothing static now (woken rows keep a correction)
             return tuple(o + c for o, c in zip(self.net(xyz, t), (d_xyz, d_rot, d_scale)))
         if moving.numel() == 0:

@@ -84,6 +84,41 @@ def test_a_static_gaussian_that_starts_to_move_is_woken_up():
     assert c["woken"] == 0
 
 
+class LateMover(torch.nn.Module):
+    """Offsets shift * t along y for every gaussian: a motion the network can still learn."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.shift = torch.nn.Parameter(torch.tensor(0.0))
+
+    def forward(self, xyz, t):
+        n = xyz.shape[0]
+        d_xyz = torch.zeros(n, 3)
+        d_xyz[:, 1] = self.shift * float(t)
+        return d_xyz, torch.zeros(n, 4), torch.zeros(n, 3)
+
+
+def test_a_probe_step_renders_the_frozen_offsets_and_trains_the_network_for_the_static_rows():
+    net, xyz, scales = LateMover(), _xyz(), torch.full((40, 3), 0.05)
+    static, frozen, c = update_static(net, xyz, scales, [0.0, 0.5, 1.0], 1.0, 1e-3, torch.zeros(40, dtype=torch.bool),
+                                      torch.zeros(40, 10))
+    assert c["static"] == 40  # nothing learned yet: every gaussian froze
+    frozen = frozen + 0.02  # frozen offsets that differ from the network's, as after training
+    plain, probe = PartlyStaticDeformation(net, static, frozen), PartlyStaticDeformation(net, static, frozen, probe=True)
+    for t in (0.0, 1.0):
+        assert all(torch.equal(x, y) for x, y in zip(plain(xyz, t), probe(xyz, t)))  # the same render
+    # a plain step gives the network nothing; a probe step its gradient for every static row
+    assert not plain(xyz, 1.0)[0].requires_grad
+    probe(xyz, 1.0)[0][:, 1].sum().backward()
+    assert net.shift.grad == pytest.approx(40.0)
+    # so what the images ask of the static rows reaches the network, and the next check wakes them
+    with torch.no_grad():
+        net.shift.fill_(0.3)
+    _, _, c = update_static(net, xyz, scales, [0.0, 0.5, 1.0], 1.0, 1e-3, static, frozen)
+    assert c["woken"] == 40
+    assert probe.rows(torch.arange(40) < 5).probe  # edits and the visible-only pass keep the step's kind
+
+
 def test_visible_only_pass_takes_the_rows_of_a_partly_static_deformation():
     from trase.gaussians import GaussianModel
 
@@ -121,6 +156,11 @@ def test_training_with_static_gaussians_saves_reloads_and_resumes(tmp_path):
     g3, d3 = reconstruct(views, pts, None, CFG, tmp_path / "split", progress=False)
     assert g3.num_gaussians == g.num_gaussians and torch.equal(d3.static, d.static)
     assert torch.allclose(g3.means, g.means, atol=1e-4)
+    # probe steps: the same schedule, the network trained on the static rows too
+    _, dp = reconstruct(views, pts, None, dataclasses.replace(CFG, static_probe_every=2), tmp_path / "probe",
+                        progress=False)
+    assert isinstance(dp, PartlyStaticDeformation) and not dp.probe  # the saved model renders as any other
+    assert any(not torch.equal(a, b) for a, b in zip(dp.net.state_dict().values(), d.net.state_dict().values()))
     # off (the default): no static rows, a plain network
     _, plain = reconstruct(views, pts, None, dataclasses.replace(CFG, static_threshold=0.0), tmp_path / "off",
                            progress=False)
