@@ -170,10 +170,11 @@ class _Trainer:
     # (iteration, loss [], squared error []) of the steps not yet folded into the smoothed
     # values: read from the device only when the log or a checkpoint needs them (``fold``)
     pending: list = dataclasses.field(default_factory=list)
-    # static gaussians (trase.static_gaussians; None until the first check): [N] bool and
-    # their frozen offsets [N, 10]
+    # static gaussians (trase.static_gaussians; None until the first check): [N] bool, their
+    # frozen offsets [N, 10] and the network's mean offsets when they froze [N, 10] (probe steps)
     static: torch.Tensor | None = None
     frozen: torch.Tensor | None = None
+    anchor: torch.Tensor | None = None
     plateau: Plateau | None = None  # the stopping checks (stop_interval > 0)
 
     def deformation(self, probe: bool = False):
@@ -183,7 +184,7 @@ class _Trainer:
             return self.deform
         from trase.static_gaussians import PartlyStaticDeformation
 
-        return PartlyStaticDeformation(self.deform, self.static, self.frozen, probe)
+        return PartlyStaticDeformation(self.deform, self.static, self.frozen, self.anchor, probe)
 
     @property
     def n_static(self) -> int:
@@ -213,7 +214,8 @@ class _Trainer:
             "rng": self.gen.get_state(),
             "view_stack": torch.tensor(self.view_stack, dtype=torch.int64),
             "ema_loss": self.ema_loss, "ema_psnr": self.ema_psnr,
-            **({} if self.static is None else {"static": self.static.cpu(), "frozen": self.frozen.cpu()}),
+            **({} if self.static is None else {"static": self.static.cpu(), "frozen": self.frozen.cpu(),
+                                               "anchor": self.anchor.cpu()}),
             **({} if self.plateau is None else {"plateau": self.plateau.state()}),
         }
 
@@ -283,6 +285,8 @@ def _resumed_trainer(out_dir: Path, start: int, cfg: ReconstructionConfig, dev,
                   float(state["ema_loss"]), float(state["ema_psnr"]))
     if "static" in state:
         tr.static, tr.frozen = state["static"].to(dev), state["frozen"].to(dev)
+        # states written before probe steps existed hold no anchor: only probe steps read it
+        tr.anchor = state["anchor"].to(dev) if "anchor" in state else torch.zeros_like(tr.frozen)
     if cfg.stop_interval > 0:
         tr.plateau = Plateau(cfg.stop_rule())
         tr.plateau.restore(state.get("plateau"))
@@ -389,11 +393,11 @@ def _train(tr: _Trainer, data: ImageCache, bg: torch.Tensor, cfg: Reconstruction
                     bar.update(it, f"loss {tr.ema_loss:.4f}  psnr {tr.ema_psnr:.2f} dB  N={n}{static}")
                     log.write(it, tr.ema_loss, tr.ema_psnr, n, time.perf_counter() - t0, time.process_time() - c0,
                               tr.n_static)
-                carry = None if tr.static is None else {"static": tr.static, "frozen": tr.frozen}
+                carry = None if tr.static is None else {"static": tr.static, "frozen": tr.frozen, "anchor": tr.anchor}
                 carry = tr.strategy.step_post_backward(it, tr.gaussians, tr.opt_g, step.out, step.means, step.camera,
                                                        tr.gen, carry)
                 if carry is not None:
-                    tr.static, tr.frozen = carry["static"], carry["frozen"]
+                    tr.static, tr.frozen, tr.anchor = carry["static"], carry["frozen"], carry["anchor"]
                 _optimizer_step(tr, step.use_deform)
                 _check_static(tr, it, cfg, data)
                 converged = _converged(tr, it, cfg, held, bg, backend)
@@ -440,9 +444,11 @@ def _check_static(tr: _Trainer, it: int, cfg: ReconstructionConfig, data: ImageC
     if tr.static is None:
         tr.static = torch.zeros(g.num_gaussians, dtype=torch.bool, device=g.means.device)
         tr.frozen = torch.zeros(g.num_gaussians, FROZEN_WIDTH, device=g.means.device)
+        tr.anchor = torch.zeros_like(tr.frozen)
     times = check_times([c.time for c in data.cameras])
-    tr.static, tr.frozen, _ = update_static(tr.deform, g.means.detach(), g.scales.detach(), times,
-                                            tr.strategy.extent, cfg.static_threshold, tr.static, tr.frozen)
+    tr.static, tr.frozen, tr.anchor, _ = update_static(tr.deform, g.means.detach(), g.scales.detach(), times,
+                                                       tr.strategy.extent, cfg.static_threshold, tr.static,
+                                                       tr.frozen, tr.anchor)
 
 
 def _checkpoint(tr: _Trainer, out_dir: Path, it: int, cfg: ReconstructionConfig, t0: float,

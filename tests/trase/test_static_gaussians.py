@@ -44,8 +44,9 @@ def test_partly_static_matches_the_network_on_moving_rows_and_freezes_the_others
     assert times == [0.0, 0.25, 0.5, 0.75, 1.0]
     mv, mean = motion(net, xyz, scales, times, extent=1.0)
     assert torch.all(mv[xyz[:, 0] <= 0] == 0) and torch.all(mv[xyz[:, 0] > 0] > 0.1)
-    static, frozen, counts = update_static(net, xyz, scales, times, 1.0, 1e-3, torch.zeros(40, dtype=torch.bool),
-                                           torch.zeros(40, 10))
+    static, frozen, anchor, counts = update_static(net, xyz, scales, times, 1.0, 1e-3,
+                                                   torch.zeros(40, dtype=torch.bool), torch.zeros(40, 10), torch.zeros(40, 10))
+    assert torch.equal(anchor[~static], torch.zeros(20, 10)) and torch.equal(anchor[static], frozen[static])
     assert torch.equal(static, xyz[:, 0] <= 0) and counts == {"static": 20, "newly": 20, "woken": 0}
     d = PartlyStaticDeformation(net, static, frozen)
     for t in (0.0, 0.6, 1.0):
@@ -65,14 +66,15 @@ def test_partly_static_matches_the_network_on_moving_rows_and_freezes_the_others
 def test_a_static_gaussian_that_starts_to_move_is_woken_up():
     net, xyz, scales = SideWays(speed=0.0), _xyz(), torch.full((40, 3), 0.05)
     times = [0.0, 0.5, 1.0]
-    static, frozen, c = update_static(net, xyz, scales, times, 1.0, 1e-3, torch.zeros(40, dtype=torch.bool),
-                                      torch.zeros(40, 10))
+    static, frozen, anchor, c = update_static(net, xyz, scales, times, 1.0, 1e-3, torch.zeros(40, dtype=torch.bool),
+                                              torch.zeros(40, 10), torch.zeros(40, 10))
     assert c["static"] == 40
     with torch.no_grad():
         net.speed.fill_(0.3)  # the right half moves now (the network learned it from its neighbours)
-    static2, frozen2, c = update_static(net, xyz, scales, times, 1.0, 1e-3, static, frozen)
+    static2, frozen2, anchor2, c = update_static(net, xyz, scales, times, 1.0, 1e-3, static, frozen, anchor)
     assert c == {"static": 20, "newly": 0, "woken": 20} and torch.equal(static2, xyz[:, 0] <= 0)
     assert torch.equal(frozen2[static2], frozen[static2])  # the still ones keep their frozen offsets
+    assert torch.equal(anchor2[static2], anchor[static2]) and not anchor2[~static2].any()
     # a woken gaussian goes on from its frozen offsets: its mean offset over time is unchanged
     d = PartlyStaticDeformation(net, static2, frozen2)
     mean_after = torch.stack([torch.cat(d(xyz, t), 1) for t in times]).mean(0)
@@ -80,7 +82,7 @@ def test_a_static_gaussian_that_starts_to_move_is_woken_up():
     # and a motion between the threshold and WAKE_FACTOR x it wakes nobody (no flicker)
     with torch.no_grad():
         net.speed.fill_(0.003)  # the right half moves 1.5e-3 from its mean: above 1e-3, below 2 x 1e-3
-    _, _, c = update_static(net, xyz, scales, times, 1.0, 1e-3, static, frozen)
+    _, _, _, c = update_static(net, xyz, scales, times, 1.0, 1e-3, static, frozen, anchor)
     assert c["woken"] == 0
 
 
@@ -98,25 +100,37 @@ class LateMover(torch.nn.Module):
         return d_xyz, torch.zeros(n, 4), torch.zeros(n, 3)
 
 
-def test_a_probe_step_renders_the_frozen_offsets_and_trains_the_network_for_the_static_rows():
+def test_a_probe_step_drives_the_static_rows_from_their_frozen_offsets_and_trains_the_network():
     net, xyz, scales = LateMover(), _xyz(), torch.full((40, 3), 0.05)
-    static, frozen, c = update_static(net, xyz, scales, [0.0, 0.5, 1.0], 1.0, 1e-3, torch.zeros(40, dtype=torch.bool),
-                                      torch.zeros(40, 10))
-    assert c["static"] == 40  # nothing learned yet: every gaussian froze
-    frozen = frozen + 0.02  # frozen offsets that differ from the network's, as after training
-    plain, probe = PartlyStaticDeformation(net, static, frozen), PartlyStaticDeformation(net, static, frozen, probe=True)
+    moving = torch.zeros(40, dtype=torch.bool)
+    moving[:10] = True  # rows the network drives at every step (none froze yet)
+    static, frozen, anchor, c = update_static(net, xyz[10:], scales[10:], [0.0, 0.5, 1.0], 1.0, 1e-3,
+                                              torch.zeros(30, dtype=torch.bool), torch.zeros(30, 10), torch.zeros(30, 10))
+    assert c["static"] == 30  # nothing learned yet: the other rows froze
+    static = torch.cat([torch.zeros(10, dtype=torch.bool), static])
+    frozen = torch.cat([torch.zeros(10, 10), frozen + 0.02])  # frozen offsets unlike the network's, as after training
+    anchor = torch.cat([torch.zeros(10, 10), anchor])
+    plain = PartlyStaticDeformation(net, static, frozen, anchor)
+    probe = PartlyStaticDeformation(net, static, frozen, anchor, probe=True)
+    # the network has not moved since they froze: the probe renders what a plain step renders
     for t in (0.0, 1.0):
-        assert all(torch.equal(x, y) for x, y in zip(plain(xyz, t), probe(xyz, t)))  # the same render
-    # a plain step gives the network nothing; a probe step its gradient for every static row
-    assert not plain(xyz, 1.0)[0].requires_grad
+        assert all(torch.allclose(x, y) for x, y in zip(plain(xyz, t), probe(xyz, t)))
+    # a plain step trains the network on the moving rows only, a probe step on every row
+    plain(xyz, 1.0)[0][:, 1].sum().backward()
+    assert net.shift.grad == pytest.approx(10.0)
+    net.shift.grad = None
     probe(xyz, 1.0)[0][:, 1].sum().backward()
     assert net.shift.grad == pytest.approx(40.0)
-    # so what the images ask of the static rows reaches the network, and the next check wakes them
+    # once the network moves, a probe moves the static rows with it, from their frozen offsets
     with torch.no_grad():
         net.shift.fill_(0.3)
-    _, _, c = update_static(net, xyz, scales, [0.0, 0.5, 1.0], 1.0, 1e-3, static, frozen)
-    assert c["woken"] == 40
+    d_xyz = probe(xyz, 1.0)[0]
+    assert torch.allclose(d_xyz[10:, 1], frozen[10:, 1] + 0.3) and torch.equal(plain(xyz, 1.0)[0][10:], frozen[10:, :3])
+    _, _, _, c = update_static(net, xyz, scales, [0.0, 0.5, 1.0], 1.0, 1e-3, static, frozen, anchor)
+    assert c["woken"] == 30  # and the next check wakes them
     assert probe.rows(torch.arange(40) < 5).probe  # edits and the visible-only pass keep the step's kind
+    with pytest.raises(ValueError, match="anchor"):
+        PartlyStaticDeformation(net, static, frozen, probe=True)
 
 
 def test_visible_only_pass_takes_the_rows_of_a_partly_static_deformation():
@@ -125,8 +139,8 @@ def test_visible_only_pass_takes_the_rows_of_a_partly_static_deformation():
     g = GaussianModel(_xyz(), torch.full((40, 3), -3.0), torch.tensor([[1.0, 0, 0, 0]]).repeat(40, 1),
                       torch.zeros(40), torch.zeros(40, 3))
     net = SideWays()
-    static, frozen, _ = update_static(net, g.means, g.scales, [0.0, 1.0], 1.0, 1e-3,
-                                      torch.zeros(40, dtype=torch.bool), torch.zeros(40, 10))
+    static, frozen, _, _ = update_static(net, g.means, g.scales, [0.0, 1.0], 1.0, 1e-3,
+                                         torch.zeros(40, dtype=torch.bool), torch.zeros(40, 10), torch.zeros(40, 10))
     d = PartlyStaticDeformation(net, static, frozen)
     visible = lambda m, q, s: m[:, 1] > -0.2
     a = deformed_visible(g, d, 0.7, visible)
@@ -177,8 +191,8 @@ def test_an_edit_of_a_partly_static_model_keeps_its_rows(tmp_path):
     g = GaussianModel(_xyz(), torch.full((40, 3), -3.0), torch.tensor([[1.0, 0, 0, 0]]).repeat(40, 1),
                       torch.zeros(40), torch.zeros(40, 3))
     net = DeformMLP.preset("small")
-    static, frozen, _ = update_static(net, g.means, g.scales, [0.0, 1.0], 1.0, 1e9,  # everything still
-                                      torch.zeros(40, dtype=torch.bool), torch.zeros(40, 10))
+    static, frozen, _, _ = update_static(net, g.means, g.scales, [0.0, 1.0], 1.0, 1e9,  # everything still
+                                         torch.zeros(40, dtype=torch.bool), torch.zeros(40, 10), torch.zeros(40, 10))
     static[::2] = False
     model = EditableModel(g, PartlyStaticDeformation(net, static, frozen), np.zeros(40, int), np.ones(40, bool))
     keep = np.arange(40) % 3 != 0
