@@ -398,6 +398,8 @@ def _train(tr: _Trainer, data: ImageCache, bg: torch.Tensor, cfg: Reconstruction
                                                        tr.gen, carry)
                 if carry is not None:
                     tr.static, tr.frozen, tr.anchor = carry["static"], carry["frozen"], carry["anchor"]
+                    if "child" in carry:  # densified just now: children start awake
+                        _wake_children(tr, carry["child"], data)
                 _optimizer_step(tr, step.use_deform)
                 _check_static(tr, it, cfg, data)
                 converged = _converged(tr, it, cfg, held, bg, backend)
@@ -449,6 +451,15 @@ def _check_static(tr: _Trainer, it: int, cfg: ReconstructionConfig, data: ImageC
     tr.static, tr.frozen, tr.anchor, _ = update_static(tr.deform, g.means.detach(), g.scales.detach(), times,
                                                        tr.strategy.extent, cfg.static_threshold, tr.static,
                                                        tr.frozen, tr.anchor)
+
+
+def _wake_children(tr: _Trainer, child: torch.Tensor, data: ImageCache) -> None:
+    """Densified children of static gaussians start awake (trase.static_gaussians.wake_rows)."""
+    from trase.static_gaussians import check_times, wake_rows
+
+    times = check_times([c.time for c in data.cameras])
+    tr.static, tr.frozen, tr.anchor, _ = wake_rows(tr.deform, tr.gaussians.means.detach(), times, child, tr.static,
+                                                   tr.frozen, tr.anchor)
 
 
 def _checkpoint(tr: _Trainer, out_dir: Path, it: int, cfg: ReconstructionConfig, t0: float,

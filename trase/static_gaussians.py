@@ -9,7 +9,11 @@ evaluates the network for the others only. Training re-measures at intervals, so
 whose network motion rises well above the threshold (``WAKE_FACTOR`` times it) is woken up
 (``update_static``); it goes on from its frozen offsets, not from what the network, untrained
 for it meanwhile, gives it: the difference is kept and added to the network's output.
-Densified children inherit the flag with their parent's row (``trase.densify``'s row carry).
+Densified children start awake (``wake_rows``): a clone or split child of a static gaussian
+starts from its parent's frozen offsets, but the network drives it until a check has measured
+its own motion. Freezing them with their parents (the first design) lost an object that
+crossed the scene in a few frames (the HyperNeRF format's benchmark scene): its motion is
+learned late, by gaussians densified where it is missing, and those were born frozen.
 A frozen gaussian's network output is no longer trained, so motion the network had not learned
 when it froze (an object crossing the scene in a few frames, learned late) would never wake it:
 on a *probe* step the network runs for the static rows too and drives them as it drives a
@@ -140,6 +144,23 @@ def update_static(net: nn.Module, xyz: torch.Tensor, scales: torch.Tensor, times
     return static, frozen, anchor, {"static": int(static.sum()), "newly": int(newly.sum()), "woken": int(woken.sum())}
 
 
+@torch.no_grad()
+def wake_rows(net: nn.Module, xyz: torch.Tensor, times: list[float], rows: torch.Tensor, static: torch.Tensor,
+              frozen: torch.Tensor, anchor: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, int]:
+    """The static gaussians among ``rows`` [N] bool wake up, the network driving them from their
+    frozen offsets (their correction: frozen - the network's mean over ``times`` now).
+    -> (static [N], frozen [N, 10], anchor [N, 10], how many woke)."""
+    woken = rows & static
+    n = int(woken.sum())
+    if n == 0:
+        return static, frozen, anchor, 0
+    idx = torch.nonzero(woken).reshape(-1)
+    mean = offsets_over_time(net, xyz[idx], times).mean(0).to(frozen.dtype)  # [n, 10]
+    frozen = frozen.index_copy(0, idx, frozen[idx] - mean)
+    anchor = anchor.index_copy(0, idx, torch.zeros_like(mean))
+    return static & ~woken, frozen, anchor, n
+
+
 def check_times(view_times: list[float], n: int = 16) -> list[float]:
     """Up to ``n`` of the training views' distinct times, evenly spread (the measurement's)."""
     ts = sorted({round(float(t), 9) for t in view_times})
@@ -150,4 +171,4 @@ def check_times(view_times: list[float], n: int = 16) -> list[float]:
 
 
 __all__ = ["FROZEN_WIDTH", "WAKE_FACTOR", "PartlyStaticDeformation", "check_times", "motion", "offsets_over_time",
-           "split_offsets", "update_static"]
+           "split_offsets", "update_static", "wake_rows"]

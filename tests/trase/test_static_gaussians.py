@@ -16,7 +16,7 @@ from recon_scene import write_scene
 from trase.checkpoint import load_model
 from trase.deformation import DeformMLP, deformed, deformed_visible
 from trase.reconstruct import ReconstructionConfig, evaluate_psnr, reconstruct
-from trase.static_gaussians import PartlyStaticDeformation, check_times, motion, update_static
+from trase.static_gaussians import PartlyStaticDeformation, check_times, motion, update_static, wake_rows
 
 
 class SideWays(torch.nn.Module):
@@ -131,6 +131,22 @@ def test_a_probe_step_drives_the_static_rows_from_their_frozen_offsets_and_train
     assert probe.rows(torch.arange(40) < 5).probe  # edits and the visible-only pass keep the step's kind
     with pytest.raises(ValueError, match="anchor"):
         PartlyStaticDeformation(net, static, frozen, probe=True)
+
+
+def test_densified_children_start_awake_from_their_parents_frozen_offsets():
+    net, xyz, scales, times = SideWays(), _xyz(), torch.full((40, 3), 0.05), [0.0, 0.5, 1.0]
+    static, frozen, anchor, _ = update_static(net, xyz, scales, times, 1.0, 1e-3, torch.zeros(40, dtype=torch.bool),
+                                              torch.zeros(40, 10), torch.zeros(40, 10))
+    frozen = frozen + 0.02 * static[:, None]  # frozen offsets unlike the network's, as after training
+    child = torch.arange(40) % 2 == 0  # rows a densification just created (their parents' rows copied)
+    static2, frozen2, anchor2, n = wake_rows(net, xyz, times, child, static, frozen, anchor)
+    assert n == int((child & static).sum()) == 10 and torch.equal(static2, static & ~child)
+    assert not anchor2[child].any() and torch.equal(frozen2[~child], frozen[~child])
+    # a woken child renders, over time, around the offsets it was frozen at
+    d = PartlyStaticDeformation(net, static2, frozen2, anchor2)
+    mean_after = torch.stack([torch.cat(d(xyz, t), 1) for t in times]).mean(0)
+    assert torch.allclose(mean_after[child & static], frozen[child & static], atol=1e-6)
+    assert wake_rows(net, xyz, times, torch.zeros(40, dtype=torch.bool), static, frozen, anchor)[3] == 0
 
 
 def test_visible_only_pass_takes_the_rows_of_a_partly_static_deformation():
