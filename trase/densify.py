@@ -78,8 +78,7 @@ def densify_and_prune(g: GaussianModel, opt, cfg: ReconstructionConfig, grad_acc
     to zero by the densification, so that test never fires; it is left out here.)
 
     ``carry``: other per-gaussian tensors [N, ...] (e.g. static flags) that follow the rows:
-    a clone or a split child gets its parent's row. Returns them renumbered like the model,
-    with ``"child"`` [N] bool added: the rows this call created (clones and split children)."""
+    a clone or a split child gets its parent's row. Returns them renumbered like the model."""
     grads = torch.where(denom > 0, grad_accum / denom.clamp_min(1), torch.zeros_like(grad_accum))
     big = g.scales.max(dim=1).values > cfg.percent_dense * extent
     cand = grads >= cfg.densify_grad_threshold
@@ -107,11 +106,9 @@ def densify_and_prune(g: GaussianModel, opt, cfg: ReconstructionConfig, grad_acc
     if carry is None:
         return None
     out = {}
-    child = torch.zeros(n0, dtype=torch.bool, device=prune.device)
-    for name, t in {**carry, "child": child}.items():  # the same row operations, in the same order
-        t = torch.cat([t, torch.ones_like(t[clone]) if name == "child" else t[clone]])
-        kids = t[split].repeat((2,) + (1,) * (t.dim() - 1))  # split_gaussians' n = 2 children
-        t = torch.cat([t, torch.ones_like(kids) if name == "child" else kids])
+    for name, t in carry.items():  # the same row operations, in the same order
+        t = torch.cat([t, t[clone]])
+        t = torch.cat([t, t[split].repeat((2,) + (1,) * (t.dim() - 1))])  # split_gaussians' n = 2 children
         keep = torch.ones(t.shape[0], dtype=torch.bool, device=t.device)
         keep[:n1][split] = False
         out[name] = t[keep][~prune]

@@ -170,21 +170,19 @@ class _Trainer:
     # (iteration, loss [], squared error []) of the steps not yet folded into the smoothed
     # values: read from the device only when the log or a checkpoint needs them (``fold``)
     pending: list = dataclasses.field(default_factory=list)
-    # static gaussians (trase.static_gaussians; None until the first check): [N] bool, their
-    # frozen offsets [N, 10] and the network's mean offsets when they froze [N, 10] (probe steps)
+    # static gaussians (trase.static_gaussians; None until the first check): [N] bool and
+    # their frozen offsets [N, 10]
     static: torch.Tensor | None = None
     frozen: torch.Tensor | None = None
-    anchor: torch.Tensor | None = None
     plateau: Plateau | None = None  # the stopping checks (stop_interval > 0)
 
-    def deformation(self, probe: bool = False):
-        """What renders this step: the network, or the network for the moving gaussians only
-        (``probe``: for the static ones too, straight-through; trase.static_gaussians)."""
+    def deformation(self):
+        """What renders this step: the network, or the network for the moving gaussians only."""
         if self.deform is None or self.static is None:  # static rows not measured yet
             return self.deform
         from trase.static_gaussians import PartlyStaticDeformation
 
-        return PartlyStaticDeformation(self.deform, self.static, self.frozen, self.anchor, probe)
+        return PartlyStaticDeformation(self.deform, self.static, self.frozen)
 
     @property
     def n_static(self) -> int:
@@ -214,8 +212,7 @@ class _Trainer:
             "rng": self.gen.get_state(),
             "view_stack": torch.tensor(self.view_stack, dtype=torch.int64),
             "ema_loss": self.ema_loss, "ema_psnr": self.ema_psnr,
-            **({} if self.static is None else {"static": self.static.cpu(), "frozen": self.frozen.cpu(),
-                                               "anchor": self.anchor.cpu()}),
+            **({} if self.static is None else {"static": self.static.cpu(), "frozen": self.frozen.cpu()}),
             **({} if self.plateau is None else {"plateau": self.plateau.state()}),
         }
 
@@ -285,8 +282,6 @@ def _resumed_trainer(out_dir: Path, start: int, cfg: ReconstructionConfig, dev,
                   float(state["ema_loss"]), float(state["ema_psnr"]))
     if "static" in state:
         tr.static, tr.frozen = state["static"].to(dev), state["frozen"].to(dev)
-        # states written before probe steps existed hold no anchor: only probe steps read it
-        tr.anchor = state["anchor"].to(dev) if "anchor" in state else torch.zeros_like(tr.frozen)
     if cfg.stop_interval > 0:
         tr.plateau = Plateau(cfg.stop_rule())
         tr.plateau.restore(state.get("plateau"))
@@ -393,13 +388,11 @@ def _train(tr: _Trainer, data: ImageCache, bg: torch.Tensor, cfg: Reconstruction
                     bar.update(it, f"loss {tr.ema_loss:.4f}  psnr {tr.ema_psnr:.2f} dB  N={n}{static}")
                     log.write(it, tr.ema_loss, tr.ema_psnr, n, time.perf_counter() - t0, time.process_time() - c0,
                               tr.n_static)
-                carry = None if tr.static is None else {"static": tr.static, "frozen": tr.frozen, "anchor": tr.anchor}
+                carry = None if tr.static is None else {"static": tr.static, "frozen": tr.frozen}
                 carry = tr.strategy.step_post_backward(it, tr.gaussians, tr.opt_g, step.out, step.means, step.camera,
                                                        tr.gen, carry)
                 if carry is not None:
-                    tr.static, tr.frozen, tr.anchor = carry["static"], carry["frozen"], carry["anchor"]
-                    if "child" in carry:  # densified just now: children start awake
-                        _wake_children(tr, carry["child"], data)
+                    tr.static, tr.frozen = carry["static"], carry["frozen"]
                 _optimizer_step(tr, step.use_deform)
                 _check_static(tr, it, cfg, data)
                 converged = _converged(tr, it, cfg, held, bg, backend)
@@ -446,20 +439,9 @@ def _check_static(tr: _Trainer, it: int, cfg: ReconstructionConfig, data: ImageC
     if tr.static is None:
         tr.static = torch.zeros(g.num_gaussians, dtype=torch.bool, device=g.means.device)
         tr.frozen = torch.zeros(g.num_gaussians, FROZEN_WIDTH, device=g.means.device)
-        tr.anchor = torch.zeros_like(tr.frozen)
     times = check_times([c.time for c in data.cameras])
-    tr.static, tr.frozen, tr.anchor, _ = update_static(tr.deform, g.means.detach(), g.scales.detach(), times,
-                                                       tr.strategy.extent, cfg.static_threshold, tr.static,
-                                                       tr.frozen, tr.anchor)
-
-
-def _wake_children(tr: _Trainer, child: torch.Tensor, data: ImageCache) -> None:
-    """Densified children of static gaussians start awake (trase.static_gaussians.wake_rows)."""
-    from trase.static_gaussians import check_times, wake_rows
-
-    times = check_times([c.time for c in data.cameras])
-    tr.static, tr.frozen, tr.anchor, _ = wake_rows(tr.deform, tr.gaussians.means.detach(), times, child, tr.static,
-                                                   tr.frozen, tr.anchor)
+    tr.static, tr.frozen, _ = update_static(tr.deform, g.means.detach(), g.scales.detach(), times,
+                                            tr.strategy.extent, cfg.static_threshold, tr.static, tr.frozen)
 
 
 def _checkpoint(tr: _Trainer, out_dir: Path, it: int, cfg: ReconstructionConfig, t0: float,
@@ -521,8 +503,7 @@ def _forward_backward(tr: _Trainer, it: int, data: ImageCache, bg: torch.Tensor,
     if use_deform:
         noise = float(torch.randn(1, generator=tr.gen))
         offset = noise * time_noise_scale(it, cfg) / n_views
-    probe = cfg.static_probe_every > 0 and it % cfg.static_probe_every == 0
-    out, means_t = render_view(tr.gaussians, tr.deformation(probe), cam, bg, backend, offset, use_deform,
+    out, means_t = render_view(tr.gaussians, tr.deformation(), cam, bg, backend, offset, use_deform,
                                visible_only=cfg.deform_visible_only)
     tr.strategy.step_pre_backward(out, means_t)
     image = out.color  # [H, W, 3]

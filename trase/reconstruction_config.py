@@ -77,14 +77,10 @@ class ReconstructionConfig:
     # every static_interval iterations, gaussians whose centre, size and surface move less than
     # static_threshold x the scene extent over the scene's times are frozen at their mean
     # offsets and the network runs for the others only;
-    # a gaussian whose motion rises again is woken up. 0 = off (the public code).
-    # static_probe_every k > 0: every k-th iteration the network also runs for the static
-    # gaussians, their render unchanged but its gradient passed to the network, so motion
-    # learned after they froze wakes them (0: never; the network then sees only moving rows)
+    # a gaussian whose motion rises again is woken up. 0 = off (the public code)
     static_threshold: float = 0.0
     static_from: int = 1_000
     static_interval: int = 500
-    static_probe_every: int = 0
     # stop when converged (trase.convergence): every stop_interval iterations (0 = off, the
     # public code's full schedule) the PSNR of the training views held out for it (every
     # stop_holdout_every-th in time order, not trained on) is measured; the run stops once it
@@ -128,11 +124,9 @@ class ReconstructionConfig:
         deform_shape(self.deform_preset)  # a bad name fails here, not after the warm-up
         if self.deform_scale_rule not in ("mirror", "clamp"):
             raise ValueError(f"deform_scale_rule must be mirror or clamp, got {self.deform_scale_rule!r}")
-        if (self.static_threshold < 0 or self.static_interval < 1 or self.static_from < 0
-                or self.static_probe_every < 0):
-            raise ValueError("static_threshold must be >= 0, static_interval >= 1, static_from >= 0 and "
-                             f"static_probe_every >= 0, got {self.static_threshold}, {self.static_interval}, "
-                             f"{self.static_from}, {self.static_probe_every}")
+        if self.static_threshold < 0 or self.static_interval < 1 or self.static_from < 0:
+            raise ValueError("static_threshold must be >= 0, static_interval >= 1 and static_from >= 0, got "
+                             f"{self.static_threshold}, {self.static_interval}, {self.static_from}")
         self.stop_rule()  # a bad stopping rule fails here
         if self.stop_interval > 0 and self.stop_holdout_every < 2:
             raise ValueError(f"stop_holdout_every must be >= 2 when stopping is on, got {self.stop_holdout_every}")

@@ -9,24 +9,10 @@ evaluates the network for the others only. Training re-measures at intervals, so
 whose network motion rises well above the threshold (``WAKE_FACTOR`` times it) is woken up
 (``update_static``); it goes on from its frozen offsets, not from what the network, untrained
 for it meanwhile, gives it: the difference is kept and added to the network's output.
-Densified children start awake (``wake_rows``): a clone or split child of a static gaussian
-starts from its parent's frozen offsets, but the network drives it until a check has measured
-its own motion. Freezing them with their parents (the first design) lost an object that
-crossed the scene in a few frames (the HyperNeRF format's benchmark scene): its motion is
-learned late, by gaussians densified where it is missing, and those were born frozen.
-A frozen gaussian's network output is no longer trained, so motion the network had not learned
-when it froze (an object crossing the scene in a few frames, learned late) would never wake it:
-on a *probe* step the network runs for the static rows too and drives them as it drives a
-woken row, from their frozen offsets (network + frozen - anchor, the anchor being the network's
-mean offsets when the row froze), so the network goes on learning what the images ask of them
-and the next check can wake them. (Passing only the gradient to the network, the render kept
-at the frozen offsets, was measured first: with nothing pushing back, the network's output for
-the static rows drifted, and the next check woke 89-96% of them.)
+Densified children inherit the flag with their parent's row (``trase.densify``'s row carry).
 
 Shapes: ``static`` [N] bool, ``frozen`` [N, 10] = d_xyz 3 | d_rot 4 | d_scale 3: a static
 row's offsets; a moving row's correction added to the network's (zero unless it was woken).
-``anchor`` [N, 10]: a static row's network mean offsets when it froze (zero on moving rows);
-read on probe steps only, so a trained model keeps none.
 """
 
 from __future__ import annotations
@@ -48,19 +34,14 @@ class PartlyStaticDeformation(nn.Module):
     Row-aligned with its gaussians (``rows`` subsets it, as edits and the visible-only
     training pass do); the network itself is shared, not copied."""
 
-    def __init__(self, net: nn.Module, static: torch.Tensor, frozen: torch.Tensor,
-                 anchor: torch.Tensor | None = None, probe: bool = False) -> None:
+    def __init__(self, net: nn.Module, static: torch.Tensor, frozen: torch.Tensor) -> None:
         super().__init__()
         if static.dim() != 1 or frozen.shape != (static.shape[0], FROZEN_WIDTH):
             raise ValueError(f"static must be [N] and frozen [N, {FROZEN_WIDTH}], got {tuple(static.shape)} "
                              f"and {tuple(frozen.shape)}")
-        if probe and (anchor is None or anchor.shape != frozen.shape):
-            raise ValueError(f"a probe step needs the anchor [N, {FROZEN_WIDTH}] of the static rows")
         self.net = net
-        self.probe = bool(probe)  # the network drives the static rows too (see the module)
         self.register_buffer("static", static.to(torch.bool))
         self.register_buffer("frozen", frozen.to(torch.float32))
-        self.anchor = anchor
 
     @property
     def scale_rule(self) -> str | None:
@@ -72,8 +53,7 @@ class PartlyStaticDeformation(nn.Module):
 
     def rows(self, mask) -> PartlyStaticDeformation:
         m = torch.as_tensor(mask, dtype=torch.bool, device=self.static.device)
-        anchor = None if self.anchor is None else self.anchor[m]
-        return PartlyStaticDeformation(self.net, self.static[m], self.frozen[m], anchor, self.probe)
+        return PartlyStaticDeformation(self.net, self.static[m], self.frozen[m])
 
     def forward(self, xyz: torch.Tensor, t) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         if xyz.shape[0] != self.num_gaussians:
@@ -82,10 +62,6 @@ class PartlyStaticDeformation(nn.Module):
         frozen = self.frozen.to(device=xyz.device, dtype=xyz.dtype)
         moving = torch.nonzero(~self.static.to(xyz.device)).reshape(-1)  # [M]
         d_xyz, d_rot, d_scale = split_offsets(frozen)
-        if self.probe and moving.numel() < self.num_gaussians:
-            # every row: network + correction; a static row's correction is frozen - anchor
-            shift = frozen - self.anchor.to(device=xyz.device, dtype=xyz.dtype)  # [N, 10] (anchor 0 on moving rows)
-            return tuple(o + c for o, c in zip(self.net(xyz, t), split_offsets(shift)))
         if moving.numel() == self.num_gaussians:  # nothing static now (woken rows keep a correction)
             return tuple(o + c for o, c in zip(self.net(xyz, t), (d_xyz, d_rot, d_scale)))
         if moving.numel() == 0:
@@ -126,39 +102,21 @@ def motion(net: nn.Module, xyz: torch.Tensor, scales: torch.Tensor, times: list[
 
 @torch.no_grad()
 def update_static(net: nn.Module, xyz: torch.Tensor, scales: torch.Tensor, times: list[float], extent: float,
-                  threshold: float, static: torch.Tensor, frozen: torch.Tensor, anchor: torch.Tensor
-                  ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, dict]:
+                  threshold: float, static: torch.Tensor, frozen: torch.Tensor
+                  ) -> tuple[torch.Tensor, torch.Tensor, dict]:
     """Re-measure every gaussian: moving ones below ``threshold`` become static with their mean
-    offsets (the network's plus their correction) frozen and the network's mean as their anchor;
-    static ones whose network motion rose above WAKE_FACTOR x ``threshold`` wake up, the network
-    driving them again from their frozen offsets (their correction: frozen - the network's mean).
-    A static gaussian that stays static keeps its frozen offsets and anchor (only the network's
-    motion over time is read for it). -> (static [N], frozen [N, 10], anchor [N, 10], counts)."""
+    offsets (the network's plus their correction) frozen; static ones whose network motion rose
+    above WAKE_FACTOR x ``threshold`` wake up, the network driving them again from their frozen
+    offsets (their correction: frozen - the network's mean). A static gaussian that stays static
+    keeps its frozen offsets (the network's output for it is no longer trained, so only its
+    motion over time is read). -> (static [N], frozen [N, 10], counts)."""
     mv, mean = motion(net, xyz, scales, times, extent)
     mean = mean.to(frozen.dtype)
     newly = ~static & (mv < threshold)
     woken = static & (mv > WAKE_FACTOR * threshold)
     frozen = torch.where(newly[:, None], mean + frozen, torch.where(woken[:, None], frozen - mean, frozen))
-    anchor = torch.where(newly[:, None], mean, torch.where(woken[:, None], torch.zeros_like(anchor), anchor))
     static = (static & ~woken) | newly
-    return static, frozen, anchor, {"static": int(static.sum()), "newly": int(newly.sum()), "woken": int(woken.sum())}
-
-
-@torch.no_grad()
-def wake_rows(net: nn.Module, xyz: torch.Tensor, times: list[float], rows: torch.Tensor, static: torch.Tensor,
-              frozen: torch.Tensor, anchor: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, int]:
-    """The static gaussians among ``rows`` [N] bool wake up, the network driving them from their
-    frozen offsets (their correction: frozen - the network's mean over ``times`` now).
-    -> (static [N], frozen [N, 10], anchor [N, 10], how many woke)."""
-    woken = rows & static
-    n = int(woken.sum())
-    if n == 0:
-        return static, frozen, anchor, 0
-    idx = torch.nonzero(woken).reshape(-1)
-    mean = offsets_over_time(net, xyz[idx], times).mean(0).to(frozen.dtype)  # [n, 10]
-    frozen = frozen.index_copy(0, idx, frozen[idx] - mean)
-    anchor = anchor.index_copy(0, idx, torch.zeros_like(mean))
-    return static & ~woken, frozen, anchor, n
+    return static, frozen, {"static": int(static.sum()), "newly": int(newly.sum()), "woken": int(woken.sum())}
 
 
 def check_times(view_times: list[float], n: int = 16) -> list[float]:
@@ -171,4 +129,4 @@ def check_times(view_times: list[float], n: int = 16) -> list[float]:
 
 
 __all__ = ["FROZEN_WIDTH", "WAKE_FACTOR", "PartlyStaticDeformation", "check_times", "motion", "offsets_over_time",
-           "split_offsets", "update_static", "wake_rows"]
+           "split_offsets", "update_static"]

@@ -16,7 +16,7 @@ from recon_scene import write_scene
 from trase.checkpoint import load_model
 from trase.deformation import DeformMLP, deformed, deformed_visible
 from trase.reconstruct import ReconstructionConfig, evaluate_psnr, reconstruct
-from trase.static_gaussians import PartlyStaticDeformation, check_times, motion, update_static, wake_rows
+from trase.static_gaussians import PartlyStaticDeformation, check_times, motion, update_static
 
 
 class SideWays(torch.nn.Module):
@@ -44,9 +44,8 @@ def test_partly_static_matches_the_network_on_moving_rows_and_freezes_the_others
     assert times == [0.0, 0.25, 0.5, 0.75, 1.0]
     mv, mean = motion(net, xyz, scales, times, extent=1.0)
     assert torch.all(mv[xyz[:, 0] <= 0] == 0) and torch.all(mv[xyz[:, 0] > 0] > 0.1)
-    static, frozen, anchor, counts = update_static(net, xyz, scales, times, 1.0, 1e-3,
-                                                   torch.zeros(40, dtype=torch.bool), torch.zeros(40, 10), torch.zeros(40, 10))
-    assert torch.equal(anchor[~static], torch.zeros(20, 10)) and torch.equal(anchor[static], frozen[static])
+    static, frozen, counts = update_static(net, xyz, scales, times, 1.0, 1e-3, torch.zeros(40, dtype=torch.bool),
+                                           torch.zeros(40, 10))
     assert torch.equal(static, xyz[:, 0] <= 0) and counts == {"static": 20, "newly": 20, "woken": 0}
     d = PartlyStaticDeformation(net, static, frozen)
     for t in (0.0, 0.6, 1.0):
@@ -66,15 +65,14 @@ def test_partly_static_matches_the_network_on_moving_rows_and_freezes_the_others
 def test_a_static_gaussian_that_starts_to_move_is_woken_up():
     net, xyz, scales = SideWays(speed=0.0), _xyz(), torch.full((40, 3), 0.05)
     times = [0.0, 0.5, 1.0]
-    static, frozen, anchor, c = update_static(net, xyz, scales, times, 1.0, 1e-3, torch.zeros(40, dtype=torch.bool),
-                                              torch.zeros(40, 10), torch.zeros(40, 10))
+    static, frozen, c = update_static(net, xyz, scales, times, 1.0, 1e-3, torch.zeros(40, dtype=torch.bool),
+                                      torch.zeros(40, 10))
     assert c["static"] == 40
     with torch.no_grad():
         net.speed.fill_(0.3)  # the right half moves now (the network learned it from its neighbours)
-    static2, frozen2, anchor2, c = update_static(net, xyz, scales, times, 1.0, 1e-3, static, frozen, anchor)
+    static2, frozen2, c = update_static(net, xyz, scales, times, 1.0, 1e-3, static, frozen)
     assert c == {"static": 20, "newly": 0, "woken": 20} and torch.equal(static2, xyz[:, 0] <= 0)
     assert torch.equal(frozen2[static2], frozen[static2])  # the still ones keep their frozen offsets
-    assert torch.equal(anchor2[static2], anchor[static2]) and not anchor2[~static2].any()
     # a woken gaussian goes on from its frozen offsets: its mean offset over time is unchanged
     d = PartlyStaticDeformation(net, static2, frozen2)
     mean_after = torch.stack([torch.cat(d(xyz, t), 1) for t in times]).mean(0)
@@ -82,71 +80,8 @@ def test_a_static_gaussian_that_starts_to_move_is_woken_up():
     # and a motion between the threshold and WAKE_FACTOR x it wakes nobody (no flicker)
     with torch.no_grad():
         net.speed.fill_(0.003)  # the right half moves 1.5e-3 from its mean: above 1e-3, below 2 x 1e-3
-    _, _, _, c = update_static(net, xyz, scales, times, 1.0, 1e-3, static, frozen, anchor)
+    _, _, c = update_static(net, xyz, scales, times, 1.0, 1e-3, static, frozen)
     assert c["woken"] == 0
-
-
-class LateMover(torch.nn.Module):
-    """Offsets shift * t along y for every gaussian: a motion the network can still learn."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.shift = torch.nn.Parameter(torch.tensor(0.0))
-
-    def forward(self, xyz, t):
-        n = xyz.shape[0]
-        d_xyz = torch.zeros(n, 3)
-        d_xyz[:, 1] = self.shift * float(t)
-        return d_xyz, torch.zeros(n, 4), torch.zeros(n, 3)
-
-
-def test_a_probe_step_drives_the_static_rows_from_their_frozen_offsets_and_trains_the_network():
-    net, xyz, scales = LateMover(), _xyz(), torch.full((40, 3), 0.05)
-    moving = torch.zeros(40, dtype=torch.bool)
-    moving[:10] = True  # rows the network drives at every step (none froze yet)
-    static, frozen, anchor, c = update_static(net, xyz[10:], scales[10:], [0.0, 0.5, 1.0], 1.0, 1e-3,
-                                              torch.zeros(30, dtype=torch.bool), torch.zeros(30, 10), torch.zeros(30, 10))
-    assert c["static"] == 30  # nothing learned yet: the other rows froze
-    static = torch.cat([torch.zeros(10, dtype=torch.bool), static])
-    frozen = torch.cat([torch.zeros(10, 10), frozen + 0.02])  # frozen offsets unlike the network's, as after training
-    anchor = torch.cat([torch.zeros(10, 10), anchor])
-    plain = PartlyStaticDeformation(net, static, frozen, anchor)
-    probe = PartlyStaticDeformation(net, static, frozen, anchor, probe=True)
-    # the network has not moved since they froze: the probe renders what a plain step renders
-    for t in (0.0, 1.0):
-        assert all(torch.allclose(x, y) for x, y in zip(plain(xyz, t), probe(xyz, t)))
-    # a plain step trains the network on the moving rows only, a probe step on every row
-    plain(xyz, 1.0)[0][:, 1].sum().backward()
-    assert net.shift.grad == pytest.approx(10.0)
-    net.shift.grad = None
-    probe(xyz, 1.0)[0][:, 1].sum().backward()
-    assert net.shift.grad == pytest.approx(40.0)
-    # once the network moves, a probe moves the static rows with it, from their frozen offsets
-    with torch.no_grad():
-        net.shift.fill_(0.3)
-    d_xyz = probe(xyz, 1.0)[0]
-    assert torch.allclose(d_xyz[10:, 1], frozen[10:, 1] + 0.3) and torch.equal(plain(xyz, 1.0)[0][10:], frozen[10:, :3])
-    _, _, _, c = update_static(net, xyz, scales, [0.0, 0.5, 1.0], 1.0, 1e-3, static, frozen, anchor)
-    assert c["woken"] == 30  # and the next check wakes them
-    assert probe.rows(torch.arange(40) < 5).probe  # edits and the visible-only pass keep the step's kind
-    with pytest.raises(ValueError, match="anchor"):
-        PartlyStaticDeformation(net, static, frozen, probe=True)
-
-
-def test_densified_children_start_awake_from_their_parents_frozen_offsets():
-    net, xyz, scales, times = SideWays(), _xyz(), torch.full((40, 3), 0.05), [0.0, 0.5, 1.0]
-    static, frozen, anchor, _ = update_static(net, xyz, scales, times, 1.0, 1e-3, torch.zeros(40, dtype=torch.bool),
-                                              torch.zeros(40, 10), torch.zeros(40, 10))
-    frozen = frozen + 0.02 * static[:, None]  # frozen offsets unlike the network's, as after training
-    child = torch.arange(40) % 2 == 0  # rows a densification just created (their parents' rows copied)
-    static2, frozen2, anchor2, n = wake_rows(net, xyz, times, child, static, frozen, anchor)
-    assert n == int((child & static).sum()) == 10 and torch.equal(static2, static & ~child)
-    assert not anchor2[child].any() and torch.equal(frozen2[~child], frozen[~child])
-    # a woken child renders, over time, around the offsets it was frozen at
-    d = PartlyStaticDeformation(net, static2, frozen2, anchor2)
-    mean_after = torch.stack([torch.cat(d(xyz, t), 1) for t in times]).mean(0)
-    assert torch.allclose(mean_after[child & static], frozen[child & static], atol=1e-6)
-    assert wake_rows(net, xyz, times, torch.zeros(40, dtype=torch.bool), static, frozen, anchor)[3] == 0
 
 
 def test_visible_only_pass_takes_the_rows_of_a_partly_static_deformation():
@@ -155,8 +90,8 @@ def test_visible_only_pass_takes_the_rows_of_a_partly_static_deformation():
     g = GaussianModel(_xyz(), torch.full((40, 3), -3.0), torch.tensor([[1.0, 0, 0, 0]]).repeat(40, 1),
                       torch.zeros(40), torch.zeros(40, 3))
     net = SideWays()
-    static, frozen, _, _ = update_static(net, g.means, g.scales, [0.0, 1.0], 1.0, 1e-3,
-                                         torch.zeros(40, dtype=torch.bool), torch.zeros(40, 10), torch.zeros(40, 10))
+    static, frozen, _ = update_static(net, g.means, g.scales, [0.0, 1.0], 1.0, 1e-3,
+                                      torch.zeros(40, dtype=torch.bool), torch.zeros(40, 10))
     d = PartlyStaticDeformation(net, static, frozen)
     visible = lambda m, q, s: m[:, 1] > -0.2
     a = deformed_visible(g, d, 0.7, visible)
@@ -186,11 +121,6 @@ def test_training_with_static_gaussians_saves_reloads_and_resumes(tmp_path):
     g3, d3 = reconstruct(views, pts, None, CFG, tmp_path / "split", progress=False)
     assert g3.num_gaussians == g.num_gaussians and torch.equal(d3.static, d.static)
     assert torch.allclose(g3.means, g.means, atol=1e-4)
-    # probe steps: the same schedule, the network trained on the static rows too
-    _, dp = reconstruct(views, pts, None, dataclasses.replace(CFG, static_probe_every=2), tmp_path / "probe",
-                        progress=False)
-    assert isinstance(dp, PartlyStaticDeformation) and not dp.probe  # the saved model renders as any other
-    assert any(not torch.equal(a, b) for a, b in zip(dp.net.state_dict().values(), d.net.state_dict().values()))
     # off (the default): no static rows, a plain network
     _, plain = reconstruct(views, pts, None, dataclasses.replace(CFG, static_threshold=0.0), tmp_path / "off",
                            progress=False)
@@ -207,8 +137,8 @@ def test_an_edit_of_a_partly_static_model_keeps_its_rows(tmp_path):
     g = GaussianModel(_xyz(), torch.full((40, 3), -3.0), torch.tensor([[1.0, 0, 0, 0]]).repeat(40, 1),
                       torch.zeros(40), torch.zeros(40, 3))
     net = DeformMLP.preset("small")
-    static, frozen, _, _ = update_static(net, g.means, g.scales, [0.0, 1.0], 1.0, 1e9,  # everything still
-                                         torch.zeros(40, dtype=torch.bool), torch.zeros(40, 10), torch.zeros(40, 10))
+    static, frozen, _ = update_static(net, g.means, g.scales, [0.0, 1.0], 1.0, 1e9,  # everything still
+                                      torch.zeros(40, dtype=torch.bool), torch.zeros(40, 10))
     static[::2] = False
     model = EditableModel(g, PartlyStaticDeformation(net, static, frozen), np.zeros(40, int), np.ones(40, bool))
     keep = np.arange(40) % 3 != 0
