@@ -1,6 +1,7 @@
 """How much of a reconstruction moves, checkpoint by checkpoint: when its motion is learned.
 
     python scripts/measure_motion.py MODEL_DIR [MODEL_DIR ...] [--times 50] [--above 0.05 0.1 0.2]
+        [--dataset hypernerf --scene SCENE_DIR [--scene ...]]
 
 MODEL_DIR: a reconstruction's model folder (``<stage cache>/geometry/<key>/model`` or a fit's
 ``model``), with ``deform/iteration_N`` checkpoints (the cpu preset keeps 2000 and 4000). For
@@ -8,7 +9,10 @@ each checkpoint, the deformation network's motion of every gaussian over ``--tim
 evenly spread over [0, 1] (``trase.static_gaussians.motion``, in the capture's units: the
 extent given as 1), and how many gaussians move more than each ``--above`` value. Why: static
 gaussians are measured from iteration 1600 on; a scene whose movers have not learned their
-motion by then loses them (docs/skip.md).
+motion by then loses them (docs/skip.md). With ``--scene`` (one per MODEL_DIR, read as
+``--dataset``): the PSNR of each training view rendered at its time (black background, as the
+cpu preset trains), its median, the worst and the times of the three worst: a motion not yet
+learned shows as a few times much worse than the rest.
 """
 
 from __future__ import annotations
@@ -25,14 +29,22 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("model_dirs", nargs="+", type=Path)
     ap.add_argument("--times", type=int, default=50, help="times over [0, 1] the motion is measured at")
     ap.add_argument("--above", type=float, nargs="+", default=[0.05, 0.1, 0.2])
+    ap.add_argument("--scene", type=Path, action="append", default=[],
+                    help="the scene each MODEL_DIR was trained on (in order): training-view PSNR per checkpoint")
+    ap.add_argument("--dataset", default="hypernerf", help="the scenes' format (a trase-bench dataset name)")
     args = ap.parse_args(argv)
+    if args.scene and len(args.scene) != len(args.model_dirs):
+        print(f"--scene given {len(args.scene)} times for {len(args.model_dirs)} model folders", file=sys.stderr)
+        return 2
 
     from trase.checkpoint import available_iterations, load_model
     from trase.static_gaussians import PartlyStaticDeformation, motion
 
     times = [float(t) for t in np.linspace(0.0, 1.0, args.times)]
-    print("model | iteration | gaussians | max motion | " + " | ".join(f"> {a:g}" for a in args.above))
-    for d in args.model_dirs:
+    views_head = " | training views: median PSNR | worst | worst times" if args.scene else ""
+    print("model | iteration | gaussians | max motion | " + " | ".join(f"> {a:g}" for a in args.above) + views_head)
+    for i, d in enumerate(args.model_dirs):
+        views = training_views(args.dataset, args.scene[i]) if args.scene else None
         its = available_iterations(d)
         if not its:
             print(f"{d}: no checkpoint (point_cloud/iteration_N)", file=sys.stderr)
@@ -45,8 +57,38 @@ def main(argv: list[str] | None = None) -> int:
             net = deform.net if isinstance(deform, PartlyStaticDeformation) else deform
             mv, _ = motion(net, g.means.detach(), g.scales.detach(), times, 1.0)
             counts = " | ".join(str(int((mv > a).sum())) for a in args.above)
-            print(f"{d} | {it} | {g.num_gaussians} | {float(mv.max()):.3f} | {counts}")
+            row = f"{d} | {it} | {g.num_gaussians} | {float(mv.max()):.3f} | {counts}"
+            if views is not None:
+                ps, ts = view_psnrs(g, deform, views)
+                worst = np.argsort(ps)[:3]
+                row += (f" | {np.median(ps):.2f} dB | {ps.min():.2f} dB | "
+                        + ", ".join(f"t={ts[k]:.2f}" for k in worst))
+            print(row)
     return 0
+
+
+def training_views(dataset: str, scene_dir: Path) -> list:
+    from benchmark.datasets.loader import load_scene
+
+    return load_scene(dataset, scene_dir).train
+
+
+def view_psnrs(gaussians, deformation, views) -> tuple[np.ndarray, np.ndarray]:
+    """Each training view's PSNR (dB) at its time, and the times -> ([V], [V])."""
+    import torch
+
+    from trase.losses import psnr
+    from trase.reconstruct import render_view
+    from trase.training_images import load_image
+
+    black = np.zeros(3, np.float32)
+    ps = []
+    with torch.no_grad():
+        for v in views:
+            gt = torch.from_numpy(load_image(v.image_path, v.camera, black)).float()  # [H, W, 3]
+            image = render_view(gaussians, deformation, v.camera, None, "numba")[0].color.clamp(0, 1)
+            ps.append(float(psnr(image, gt)))
+    return np.array(ps), np.array([float(v.camera.time) for v in views])
 
 
 if __name__ == "__main__":

@@ -30,3 +30,17 @@ def test_counts_the_gaussians_the_network_moves_at_each_checkpoint(tmp_path, cap
     rows = capsys.readouterr().out.strip().splitlines()
     assert rows[-1].split(" | ")[1:3] == ["200", "30"] and rows[-1].endswith("| 30 | 0")
     assert main([str(tmp_path / "empty")]) == 2
+
+
+def test_training_view_psnr_of_the_scene_the_model_was_trained_on(tmp_path):
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "trase"))
+    from recon_scene import write_scene
+
+    views, _, g, deform = write_scene(tmp_path / "images", num=4, size=24)
+    script = runpy.run_path(str(SCRIPT))
+    ps, ts = script["view_psnrs"](g, deform, views)  # the ground truth against its own 8-bit images
+    assert ps.shape == (4,) and (ps > 35).all()
+    assert ts.tolist() == [v.camera.time for v in views]
+    assert script["main"]([str(tmp_path / "a"), str(tmp_path / "b"), "--scene", str(tmp_path)]) == 2
