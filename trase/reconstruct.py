@@ -394,7 +394,7 @@ def _train(tr: _Trainer, data: ImageCache, bg: torch.Tensor, cfg: Reconstruction
                 if carry is not None:
                     tr.static, tr.frozen = carry["static"], carry["frozen"]
                 _optimizer_step(tr, step.use_deform)
-                _check_static(tr, it, cfg, data)
+                _check_static(tr, it, cfg, data, bg, backend, out_dir)
                 converged = _converged(tr, it, cfg, held, bg, backend)
             if _checkpoint(tr, out_dir, it, cfg, t0, max_seconds, converged):
                 break
@@ -425,7 +425,11 @@ def _converged(tr: _Trainer, it: int, cfg: ReconstructionConfig, held: ImageCach
     return tr.plateau.observe(it, value, cap=cfg.iterations)
 
 
-def _check_static(tr: _Trainer, it: int, cfg: ReconstructionConfig, data: ImageCache) -> None:
+STATIC_CHECKS_FILE = "static_checks.csv"  # iteration, time_gap_db, freeze, static: one row per check
+
+
+def _check_static(tr: _Trainer, it: int, cfg: ReconstructionConfig, data: ImageCache, bg: torch.Tensor,
+                  backend: str, out_dir: Path) -> None:
     """On the schedule (``static_*`` settings), re-measure which gaussians move: the still ones
     skip the network from the next step, the ones that move again are woken up."""
     if cfg.static_threshold <= 0 or tr.deform is None:
@@ -440,8 +444,32 @@ def _check_static(tr: _Trainer, it: int, cfg: ReconstructionConfig, data: ImageC
         tr.static = torch.zeros(g.num_gaussians, dtype=torch.bool, device=g.means.device)
         tr.frozen = torch.zeros(g.num_gaussians, FROZEN_WIDTH, device=g.means.device)
     times = check_times([c.time for c in data.cameras])
+    gap = _time_gap(tr, data, times, bg, backend) if cfg.static_time_gap > 0 else None
+    freeze = gap is None or gap <= cfg.static_time_gap
     tr.static, tr.frozen, _ = update_static(tr.deform, g.means.detach(), g.scales.detach(), times,
-                                            tr.strategy.extent, cfg.static_threshold, tr.static, tr.frozen)
+                                            tr.strategy.extent, cfg.static_threshold, tr.static, tr.frozen, freeze)
+    if gap is not None:  # what held the freezing back, check by check
+        path = out_dir / STATIC_CHECKS_FILE
+        new = not path.exists()
+        with path.open("a") as f:
+            if new:
+                f.write("iteration,time_gap_db,freeze,static\n")
+            f.write(f"{it},{gap:.3f},{int(freeze)},{tr.n_static}\n")
+
+
+@torch.no_grad()
+def _time_gap(tr: _Trainer, data: ImageCache, times: list[float], bg: torch.Tensor, backend: str) -> float:
+    """trase.static_gaussians.time_gap over the training views at ``times`` (a static check's)."""
+    from trase.static_gaussians import time_gap
+
+    keep = {round(float(t), 9) for t in times}
+    deformation = tr.deformation()
+    ps, ts = [], []
+    for cam, gt in zip(data.cameras, data.images):
+        if round(float(cam.time), 9) in keep:
+            ps.append(psnr(render_view(tr.gaussians, deformation, cam, bg, backend)[0].color.clamp(0, 1), gt))
+            ts.append(cam.time)
+    return time_gap(ps, ts)
 
 
 def _checkpoint(tr: _Trainer, out_dir: Path, it: int, cfg: ReconstructionConfig, t0: float,

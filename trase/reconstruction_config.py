@@ -81,6 +81,9 @@ class ReconstructionConfig:
     static_threshold: float = 0.0
     static_from: int = 1_000
     static_interval: int = 500
+    # nothing new freezes at a check while the training views of the worst of its times lie
+    # more than static_time_gap dB below the median time's (a motion not learned yet; 0 = off)
+    static_time_gap: float = 0.0
     # stop when converged (trase.convergence): every stop_interval iterations (0 = off, the
     # public code's full schedule) the PSNR of the training views held out for it (every
     # stop_holdout_every-th in time order, not trained on) is measured; the run stops once it
@@ -124,7 +127,7 @@ class ReconstructionConfig:
         deform_shape(self.deform_preset)  # a bad name fails here, not after the warm-up
         if self.deform_scale_rule not in ("mirror", "clamp"):
             raise ValueError(f"deform_scale_rule must be mirror or clamp, got {self.deform_scale_rule!r}")
-        if self.static_threshold < 0 or self.static_interval < 1 or self.static_from < 0:
+        if self.static_threshold < 0 or self.static_interval < 1 or self.static_from < 0 or self.static_time_gap < 0:
             raise ValueError("static_threshold must be >= 0, static_interval >= 1 and static_from >= 0, got "
                              f"{self.static_threshold}, {self.static_interval}, {self.static_from}")
         self.stop_rule()  # a bad stopping rule fails here

@@ -11,11 +11,20 @@ whose network motion rises well above the threshold (``WAKE_FACTOR`` times it) i
 for it meanwhile, gives it: the difference is kept and added to the network's output.
 Densified children inherit the flag with their parent's row (``trase.densify``'s row carry).
 
+A frozen gaussian's network output is no longer trained, so a motion the network has not yet
+learned when the gaussians are measured (an object crossing the scene in a few frames, learned
+late) is frozen out for good. The training views show it: the views of the times it happens are
+far worse than the others. So nothing new freezes while the worst of the measured times' views
+lies more than ``time_gap`` dB below their median (``time_gap``; waking goes on).
+
 Shapes: ``static`` [N] bool, ``frozen`` [N, 10] = d_xyz 3 | d_rot 4 | d_scale 3: a static
 row's offsets; a moving row's correction added to the network's (zero unless it was woken).
 """
 
 from __future__ import annotations
+
+import math
+import statistics
 
 import torch
 from torch import nn
@@ -102,21 +111,35 @@ def motion(net: nn.Module, xyz: torch.Tensor, scales: torch.Tensor, times: list[
 
 @torch.no_grad()
 def update_static(net: nn.Module, xyz: torch.Tensor, scales: torch.Tensor, times: list[float], extent: float,
-                  threshold: float, static: torch.Tensor, frozen: torch.Tensor
+                  threshold: float, static: torch.Tensor, frozen: torch.Tensor, freeze: bool = True
                   ) -> tuple[torch.Tensor, torch.Tensor, dict]:
     """Re-measure every gaussian: moving ones below ``threshold`` become static with their mean
     offsets (the network's plus their correction) frozen; static ones whose network motion rose
     above WAKE_FACTOR x ``threshold`` wake up, the network driving them again from their frozen
     offsets (their correction: frozen - the network's mean). A static gaussian that stays static
     keeps its frozen offsets (the network's output for it is no longer trained, so only its
-    motion over time is read). -> (static [N], frozen [N, 10], counts)."""
+    motion over time is read). ``freeze`` False: only waking (a motion not learned yet: see
+    ``time_gap``). -> (static [N], frozen [N, 10], counts)."""
     mv, mean = motion(net, xyz, scales, times, extent)
     mean = mean.to(frozen.dtype)
-    newly = ~static & (mv < threshold)
+    newly = ~static & (mv < threshold) & freeze
     woken = static & (mv > WAKE_FACTOR * threshold)
     frozen = torch.where(newly[:, None], mean + frozen, torch.where(woken[:, None], frozen - mean, frozen))
     static = (static & ~woken) | newly
     return static, frozen, {"static": int(static.sum()), "newly": int(newly.sum()), "woken": int(woken.sum())}
+
+
+def time_gap(view_psnr: list[float], view_times: list[float]) -> float:
+    """dB by which the worst time's training views fall below the median time's (each time's
+    PSNR from the mean squared error of its views, so the cameras of a multi-view rig count as
+    one time). Large where some times show a motion not learned yet."""
+    if not view_psnr:
+        return 0.0
+    by_time: dict[float, list[float]] = {}
+    for p, t in zip(view_psnr, view_times):
+        by_time.setdefault(round(float(t), 9), []).append(10.0 ** (-float(p) / 10.0))  # PSNR -> MSE
+    per_time = [-10.0 * math.log10(max(sum(m) / len(m), 1e-20)) for m in by_time.values()]
+    return float(statistics.median(per_time) - min(per_time))
 
 
 def check_times(view_times: list[float], n: int = 16) -> list[float]:
@@ -129,4 +152,4 @@ def check_times(view_times: list[float], n: int = 16) -> list[float]:
 
 
 __all__ = ["FROZEN_WIDTH", "WAKE_FACTOR", "PartlyStaticDeformation", "check_times", "motion", "offsets_over_time",
-           "split_offsets", "update_static"]
+           "split_offsets", "time_gap", "update_static"]

@@ -4,6 +4,7 @@ checkpoints, resume)."""
 
 import csv
 import dataclasses
+import math
 import sys
 from pathlib import Path
 
@@ -16,7 +17,7 @@ from recon_scene import write_scene
 from trase.checkpoint import load_model
 from trase.deformation import DeformMLP, deformed, deformed_visible
 from trase.reconstruct import ReconstructionConfig, evaluate_psnr, reconstruct
-from trase.static_gaussians import PartlyStaticDeformation, check_times, motion, update_static
+from trase.static_gaussians import PartlyStaticDeformation, check_times, motion, time_gap, update_static
 
 
 class SideWays(torch.nn.Module):
@@ -84,6 +85,26 @@ def test_a_static_gaussian_that_starts_to_move_is_woken_up():
     assert c["woken"] == 0
 
 
+def test_time_gap_is_the_worst_times_views_below_the_median_time():
+    assert time_gap([30.0, 30.0, 20.0], [0.0, 0.5, 1.0]) == pytest.approx(10.0)
+    # a rig's cameras at one time count as one time, by their mean squared error
+    two = -10 * math.log10((1e-3 + 1e-2) / 2)
+    assert time_gap([30.0, 20.0, 30.0, 30.0, 30.0], [0.0, 0.0, 0.5, 1.0, 1.0]) == pytest.approx(30.0 - two)
+    assert time_gap([25.0] * 4, [0.0, 0.3, 0.6, 0.9]) == 0.0 and time_gap([], []) == 0.0
+
+
+def test_while_freezing_is_held_back_nothing_new_freezes_but_waking_goes_on():
+    net, xyz, scales, times = SideWays(speed=0.0), _xyz(), torch.full((40, 3), 0.05), [0.0, 0.5, 1.0]
+    static, frozen, c = update_static(net, xyz, scales, times, 1.0, 1e-3, torch.zeros(40, dtype=torch.bool),
+                                      torch.zeros(40, 10), freeze=False)
+    assert c["static"] == 0 and not static.any()
+    static, frozen, _ = update_static(net, xyz, scales, times, 1.0, 1e-3, static, frozen)
+    with torch.no_grad():
+        net.speed.fill_(0.3)
+    _, _, c = update_static(net, xyz, scales, times, 1.0, 1e-3, static, frozen, freeze=False)
+    assert c == {"static": 20, "newly": 0, "woken": 20}
+
+
 def test_visible_only_pass_takes_the_rows_of_a_partly_static_deformation():
     from trase.gaussians import GaussianModel
 
@@ -121,6 +142,13 @@ def test_training_with_static_gaussians_saves_reloads_and_resumes(tmp_path):
     g3, d3 = reconstruct(views, pts, None, CFG, tmp_path / "split", progress=False)
     assert g3.num_gaussians == g.num_gaussians and torch.equal(d3.static, d.static)
     assert torch.allclose(g3.means, g.means, atol=1e-4)
+    # freezing held back at every check (a gap no render meets): no static rows; each check logged
+    _, held = reconstruct(views, pts, None, dataclasses.replace(CFG, static_time_gap=1e-9), tmp_path / "held",
+                          progress=False)
+    assert isinstance(held, PartlyStaticDeformation) and not held.static.any()
+    checks = list(csv.DictReader((tmp_path / "held" / "static_checks.csv").open()))
+    assert [int(r["iteration"]) for r in checks] == [15, 25, 35] and all(r["freeze"] == "0" for r in checks)
+    assert all(float(r["time_gap_db"]) > 0 for r in checks)
     # off (the default): no static rows, a plain network
     _, plain = reconstruct(views, pts, None, dataclasses.replace(CFG, static_threshold=0.0), tmp_path / "off",
                            progress=False)
