@@ -17,7 +17,13 @@ from recon_scene import write_scene
 from trase.checkpoint import load_model
 from trase.deformation import DeformMLP, deformed, deformed_visible
 from trase.reconstruct import ReconstructionConfig, evaluate_psnr, reconstruct
-from trase.static_gaussians import PartlyStaticDeformation, check_times, motion, time_gap, update_static
+from trase.static_gaussians import (
+    PartlyStaticDeformation,
+    check_times,
+    motion,
+    time_gap,
+    update_static,
+)
 
 
 class SideWays(torch.nn.Module):
