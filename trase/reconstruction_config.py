@@ -128,8 +128,9 @@ class ReconstructionConfig:
         if self.deform_scale_rule not in ("mirror", "clamp"):
             raise ValueError(f"deform_scale_rule must be mirror or clamp, got {self.deform_scale_rule!r}")
         if self.static_threshold < 0 or self.static_interval < 1 or self.static_from < 0 or self.static_time_gap < 0:
-            raise ValueError("static_threshold must be >= 0, static_interval >= 1 and static_from >= 0, got "
-                             f"{self.static_threshold}, {self.static_interval}, {self.static_from}")
+            raise ValueError("static_threshold, static_from and static_time_gap must be >= 0 and static_interval "
+                             f">= 1, got {self.static_threshold}, {self.static_from}, {self.static_time_gap} and "
+                             f"{self.static_interval}")
         self.stop_rule()  # a bad stopping rule fails here
         if self.stop_interval > 0 and self.stop_holdout_every < 2:
             raise ValueError(f"stop_holdout_every must be >= 2 when stopping is on, got {self.stop_holdout_every}")

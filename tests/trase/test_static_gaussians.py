@@ -97,6 +97,8 @@ def test_time_gap_is_the_worst_times_views_below_the_median_time():
     two = -10 * math.log10((1e-3 + 1e-2) / 2)
     assert time_gap([30.0, 20.0, 30.0, 30.0, 30.0], [0.0, 0.0, 0.5, 1.0, 1.0]) == pytest.approx(30.0 - two)
     assert time_gap([25.0] * 4, [0.0, 0.3, 0.6, 0.9]) == 0.0 and time_gap([], []) == 0.0
+    with pytest.raises(ValueError, match="static_time_gap"):
+        ReconstructionConfig(static_time_gap=-1.0)
 
 
 def test_while_freezing_is_held_back_nothing_new_freezes_but_waking_goes_on():
