@@ -12,7 +12,9 @@ gaussians are measured from iteration 1600 on; a scene whose movers have not lea
 motion by then loses them (docs/skip.md). With ``--scene`` (one per MODEL_DIR, read as
 ``--dataset``): the PSNR of each training view rendered at its time (black background, as the
 cpu preset trains), its median, the worst and the times of the three worst: a motion not yet
-learned shows as a few times much worse than the rest.
+learned shows as a few times much worse than the rest; the time gap is
+``trase.static_gaussians.time_gap`` over all of them (what ``static_time_gap`` compares, there
+over a check's times only).
 """
 
 from __future__ import annotations
@@ -38,10 +40,10 @@ def main(argv: list[str] | None = None) -> int:
         return 2
 
     from trase.checkpoint import available_iterations, load_model
-    from trase.static_gaussians import PartlyStaticDeformation, motion
+    from trase.static_gaussians import PartlyStaticDeformation, motion, time_gap
 
     times = [float(t) for t in np.linspace(0.0, 1.0, args.times)]
-    views_head = " | training views: median PSNR | worst | worst times" if args.scene else ""
+    views_head = " | training views: median PSNR | worst | worst times | time gap" if args.scene else ""
     print("model | iteration | gaussians | max motion | " + " | ".join(f"> {a:g}" for a in args.above) + views_head)
     for i, d in enumerate(args.model_dirs):
         views = training_views(args.dataset, args.scene[i]) if args.scene else None
@@ -62,7 +64,8 @@ def main(argv: list[str] | None = None) -> int:
                 ps, ts = view_psnrs(g, deform, views)
                 worst = np.argsort(ps)[:3]
                 row += (f" | {np.median(ps):.2f} dB | {ps.min():.2f} dB | "
-                        + ", ".join(f"t={ts[k]:.2f}" for k in worst))
+                        + ", ".join(f"t={ts[k]:.2f}" for k in worst)
+                        + f" | {time_gap(ps.tolist(), ts.tolist()):.2f} dB")
             print(row)
     return 0
 
@@ -74,20 +77,13 @@ def training_views(dataset: str, scene_dir: Path) -> list:
 
 
 def view_psnrs(gaussians, deformation, views) -> tuple[np.ndarray, np.ndarray]:
-    """Each training view's PSNR (dB) at its time, and the times -> ([V], [V])."""
+    """Each training view's PSNR (dB) at its time (black background), and the times -> ([V], [V])."""
     import torch
 
-    from trase.losses import psnr
-    from trase.reconstruct import render_view
-    from trase.training_images import load_image
+    from trase.reconstruct import evaluate_images
 
-    black = np.zeros(3, np.float32)
-    ps = []
     with torch.no_grad():
-        for v in views:
-            gt = torch.from_numpy(load_image(v.image_path, v.camera, black)).float()  # [H, W, 3]
-            image = render_view(gaussians, deformation, v.camera, None, "numba")[0].color.clamp(0, 1)
-            ps.append(float(psnr(image, gt)))
+        ps = evaluate_images(gaussians, deformation, views, ssim_too=False)["per_view_psnr"]
     return np.array(ps), np.array([float(v.camera.time) for v in views])
 
 
