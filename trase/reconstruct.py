@@ -425,7 +425,7 @@ def _converged(tr: _Trainer, it: int, cfg: ReconstructionConfig, held: ImageCach
     return tr.plateau.observe(it, value, cap=cfg.iterations)
 
 
-STATIC_CHECKS_FILE = "static_checks.csv"  # iteration, time_gap_db, freeze, static: one row per check
+STATIC_CHECKS_FILE = "static_checks.csv"  # iteration, time_gap_db, freeze (any may), static, held: a row per check
 
 
 def _check_static(tr: _Trainer, it: int, cfg: ReconstructionConfig, data: ImageCache, bg: torch.Tensor,
@@ -437,15 +437,25 @@ def _check_static(tr: _Trainer, it: int, cfg: ReconstructionConfig, data: ImageC
     first = cfg.warm_up + cfg.static_from
     if it < first or (it - first) % cfg.static_interval != 0:
         return
-    from trase.static_gaussians import FROZEN_WIDTH, check_times, update_static
+    from trase.static_gaussians import FROZEN_WIDTH, check_times, lagging_times, time_gap, update_static
 
     g = tr.gaussians
     if tr.static is None:
         tr.static = torch.zeros(g.num_gaussians, dtype=torch.bool, device=g.means.device)
         tr.frozen = torch.zeros(g.num_gaussians, FROZEN_WIDTH, device=g.means.device)
     times = check_times([c.time for c in data.cameras])
-    gap = _time_gap(tr, data, times, bg, backend) if cfg.static_time_gap > 0 else None
-    freeze = gap is None or gap <= cfg.static_time_gap
+    gap, held = None, 0
+    freeze: bool | torch.Tensor = True
+    if cfg.static_time_gap > 0:
+        ps, ts = _views_psnr(tr, data, times, bg, backend)
+        gap = time_gap(ps, ts)
+        if gap > cfg.static_time_gap:
+            if cfg.static_hold_error > 0:  # hold back only what draws the lagging times' bad pixels
+                hold = _hold_region(tr, data, lagging_times(ps, ts, cfg.static_time_gap), bg, backend,
+                                    cfg.static_hold_error)
+                freeze, held = ~hold, int(hold.sum())
+            else:
+                freeze, held = False, g.num_gaussians
     tr.static, tr.frozen, _ = update_static(tr.deform, g.means.detach(), g.scales.detach(), times,
                                             tr.strategy.extent, cfg.static_threshold, tr.static, tr.frozen, freeze)
     if gap is not None:  # what held the freezing back, check by check
@@ -453,15 +463,14 @@ def _check_static(tr: _Trainer, it: int, cfg: ReconstructionConfig, data: ImageC
         new = not path.exists()
         with path.open("a") as f:
             if new:
-                f.write("iteration,time_gap_db,freeze,static\n")
-            f.write(f"{it},{gap:.3f},{int(freeze)},{tr.n_static}\n")
+                f.write("iteration,time_gap_db,freeze,static,held\n")
+            f.write(f"{it},{gap:.3f},{int(held < g.num_gaussians)},{tr.n_static},{held}\n")
 
 
 @torch.no_grad()
-def _time_gap(tr: _Trainer, data: ImageCache, times: list[float], bg: torch.Tensor, backend: str) -> float:
-    """trase.static_gaussians.time_gap over the training views at ``times`` (a static check's)."""
-    from trase.static_gaussians import time_gap
-
+def _views_psnr(tr: _Trainer, data: ImageCache, times: list[float], bg: torch.Tensor, backend: str
+                ) -> tuple[list[float], list[float]]:
+    """PSNR (dB) and time of each training view at ``times`` (a static check's)."""
     keep = {round(float(t), 9) for t in times}
     deformation = tr.deformation()
     ps, ts = [], []
@@ -469,7 +478,38 @@ def _time_gap(tr: _Trainer, data: ImageCache, times: list[float], bg: torch.Tens
         if round(float(cam.time), 9) in keep:
             ps.append(psnr(render_view(tr.gaussians, deformation, cam, bg, backend)[0].color.clamp(0, 1), gt))
             ts.append(cam.time)
-    return time_gap(ps, ts)
+    return ps, ts
+
+
+def _hold_region(tr: _Trainer, data: ImageCache, lagging: set[float], bg: torch.Tensor, backend: str,
+                 error: float) -> torch.Tensor:
+    """[N] bool: the gaussians that draw a pixel of a lagging time's training view whose colour
+    is off by more than ``error`` (mean absolute error over the channels): their opacity's
+    gradient of that region's error is non-zero. Where a motion is not learned, these are the
+    mover (drawn where it is not) and what is drawn where it should be."""
+    from trase.deformation import deformed
+    from trase.render import rasterize
+
+    g = tr.gaussians
+    deformation = tr.deformation()
+    hold = torch.zeros(g.num_gaussians, dtype=torch.bool, device=g.means.device)
+    for cam, gt in zip(data.cameras, data.images):
+        if round(float(cam.time), 9) not in lagging:
+            continue
+        with torch.no_grad():
+            means, quats, scales = deformed(g, deformation, float(cam.time))
+            colors = g.sh_for_render().detach()
+        opacity = g.opacities.detach().clone().requires_grad_(True)  # [N]
+        with torch.enable_grad():
+            out = rasterize(means, quats, scales, opacity, cam, colors=colors, sh_degree=g.active_sh_degree,
+                            background=bg, backend=backend)
+            err = (out.color - gt).abs().mean(dim=-1)  # [H, W]
+            region = (out.color.detach().clamp(0, 1) - gt).abs().mean(dim=-1) > error
+            if not bool(region.any()):
+                continue
+            (err * region).sum().backward()
+        hold |= opacity.grad != 0
+    return hold
 
 
 def _checkpoint(tr: _Trainer, out_dir: Path, it: int, cfg: ReconstructionConfig, t0: float,

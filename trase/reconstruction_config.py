@@ -84,6 +84,10 @@ class ReconstructionConfig:
     # nothing new freezes at a check while the training views of the worst of its times lie
     # more than static_time_gap dB below the median time's (a motion not learned yet; 0 = off)
     static_time_gap: float = 0.0
+    # with static_time_gap, where a check's gap exceeds it: > 0 holds back only the gaussians
+    # that draw pixels of the lagging times' training views off by more than this (mean absolute
+    # colour error, 0..1), the rest of the scene freezes; 0 holds back every gaussian
+    static_hold_error: float = 0.0
     # stop when converged (trase.convergence): every stop_interval iterations (0 = off, the
     # public code's full schedule) the PSNR of the training views held out for it (every
     # stop_holdout_every-th in time order, not trained on) is measured; the run stops once it
@@ -127,10 +131,11 @@ class ReconstructionConfig:
         deform_shape(self.deform_preset)  # a bad name fails here, not after the warm-up
         if self.deform_scale_rule not in ("mirror", "clamp"):
             raise ValueError(f"deform_scale_rule must be mirror or clamp, got {self.deform_scale_rule!r}")
-        if self.static_threshold < 0 or self.static_interval < 1 or self.static_from < 0 or self.static_time_gap < 0:
-            raise ValueError("static_threshold, static_from and static_time_gap must be >= 0 and static_interval "
-                             f">= 1, got {self.static_threshold}, {self.static_from}, {self.static_time_gap} and "
-                             f"{self.static_interval}")
+        if (self.static_threshold < 0 or self.static_interval < 1 or self.static_from < 0 or self.static_time_gap < 0
+                or self.static_hold_error < 0):
+            raise ValueError("static_threshold, static_from, static_time_gap and static_hold_error must be >= 0 and "
+                             f"static_interval >= 1, got {self.static_threshold}, {self.static_from}, "
+                             f"{self.static_time_gap}, {self.static_hold_error} and {self.static_interval}")
         self.stop_rule()  # a bad stopping rule fails here
         if self.stop_interval > 0 and self.stop_holdout_every < 2:
             raise ValueError(f"stop_holdout_every must be >= 2 when stopping is on, got {self.stop_holdout_every}")

@@ -15,7 +15,9 @@ A frozen gaussian's network output is no longer trained, so a motion the network
 learned when the gaussians are measured (an object crossing the scene in a few frames, learned
 late) is frozen out for good. The training views show it: the views of the times it happens are
 far worse than the others. So nothing new freezes while the worst of the measured times' views
-lies more than ``time_gap`` dB below their median (``time_gap``; waking goes on).
+lies more than ``time_gap`` dB below their median (``time_gap``; waking goes on), or, with a hold
+region, nothing new freezes among the gaussians that draw those times' badly rendered pixels
+(``lagging_times``; the trainer finds the gaussians), the rest of the scene freezing as usual.
 
 Shapes: ``static`` [N] bool, ``frozen`` [N, 10] = d_xyz 3 | d_rot 4 | d_scale 3: a static
 row's offsets; a moving row's correction added to the network's (zero unless it was woken).
@@ -111,15 +113,16 @@ def motion(net: nn.Module, xyz: torch.Tensor, scales: torch.Tensor, times: list[
 
 @torch.no_grad()
 def update_static(net: nn.Module, xyz: torch.Tensor, scales: torch.Tensor, times: list[float], extent: float,
-                  threshold: float, static: torch.Tensor, frozen: torch.Tensor, freeze: bool = True
-                  ) -> tuple[torch.Tensor, torch.Tensor, dict]:
+                  threshold: float, static: torch.Tensor, frozen: torch.Tensor,
+                  freeze: bool | torch.Tensor = True) -> tuple[torch.Tensor, torch.Tensor, dict]:
     """Re-measure every gaussian: moving ones below ``threshold`` become static with their mean
     offsets (the network's plus their correction) frozen; static ones whose network motion rose
     above WAKE_FACTOR x ``threshold`` wake up, the network driving them again from their frozen
     offsets (their correction: frozen - the network's mean). A static gaussian that stays static
     keeps its frozen offsets (the network's output for it is no longer trained, so only its
     motion over time is read). ``freeze`` False: only waking (a motion not learned yet: see
-    ``time_gap``). -> (static [N], frozen [N, 10], counts)."""
+    ``time_gap``); or a bool [N]: only the rows where True may freeze (the others are held
+    back). -> (static [N], frozen [N, 10], counts)."""
     mv, mean = motion(net, xyz, scales, times, extent)
     mean = mean.to(frozen.dtype)
     newly = ~static & (mv < threshold) & freeze
@@ -142,6 +145,19 @@ def time_gap(view_psnr: list[float], view_times: list[float]) -> float:
     return float(statistics.median(per_time) - min(per_time))
 
 
+def lagging_times(view_psnr: list[float], view_times: list[float], gap_db: float) -> set[float]:
+    """The times (rounded as ``time_gap`` groups them) whose views lie more than ``gap_db`` dB
+    below the median time's: where a motion has not been learned yet."""
+    by_time: dict[float, list[float]] = {}
+    for p, t in zip(view_psnr, view_times):
+        by_time.setdefault(round(float(t), 9), []).append(10.0 ** (-float(p) / 10.0))
+    per_time = {t: -10.0 * math.log10(max(sum(m) / len(m), 1e-20)) for t, m in by_time.items()}
+    if not per_time:
+        return set()
+    median = statistics.median(per_time.values())
+    return {t for t, p in per_time.items() if p < median - gap_db}
+
+
 def check_times(view_times: list[float], n: int = 16) -> list[float]:
     """Up to ``n`` of the training views' distinct times, evenly spread (the measurement's)."""
     ts = sorted({round(float(t), 9) for t in view_times})
@@ -151,5 +167,5 @@ def check_times(view_times: list[float], n: int = 16) -> list[float]:
     return [ts[i] for i in sorted(set(idx))]
 
 
-__all__ = ["FROZEN_WIDTH", "WAKE_FACTOR", "PartlyStaticDeformation", "check_times", "motion", "offsets_over_time",
-           "split_offsets", "time_gap", "update_static"]
+__all__ = ["FROZEN_WIDTH", "WAKE_FACTOR", "PartlyStaticDeformation", "check_times", "lagging_times", "motion",
+           "offsets_over_time", "split_offsets", "time_gap", "update_static"]

@@ -20,6 +20,7 @@ from trase.reconstruct import ReconstructionConfig, evaluate_psnr, reconstruct
 from trase.static_gaussians import (
     PartlyStaticDeformation,
     check_times,
+    lagging_times,
     motion,
     time_gap,
     update_static,
@@ -113,6 +114,23 @@ def test_while_freezing_is_held_back_nothing_new_freezes_but_waking_goes_on():
     assert c == {"static": 20, "newly": 0, "woken": 20}
 
 
+def test_lagging_times_are_those_more_than_the_gap_below_the_median_time():
+    assert lagging_times([30.0, 30.0, 20.0, 29.0], [0.0, 0.5, 1.0, 0.25], 5.0) == {1.0}
+    assert lagging_times([30.0, 30.0, 20.0, 29.0], [0.0, 0.5, 1.0, 0.25], 20.0) == set()
+    assert lagging_times([], [], 1.0) == set()
+    with pytest.raises(ValueError, match="static_hold_error"):
+        ReconstructionConfig(static_hold_error=-0.1)
+
+
+def test_a_held_back_region_keeps_only_its_rows_from_freezing():
+    net, xyz, scales, times = SideWays(speed=0.0), _xyz(), torch.full((40, 3), 0.05), [0.0, 0.5, 1.0]
+    hold = torch.zeros(40, dtype=torch.bool)
+    hold[:5] = True
+    static, _, c = update_static(net, xyz, scales, times, 1.0, 1e-3, torch.zeros(40, dtype=torch.bool),
+                                 torch.zeros(40, 10), freeze=~hold)
+    assert c["static"] == 35 and not static[:5].any() and static[5:].all()
+
+
 def test_visible_only_pass_takes_the_rows_of_a_partly_static_deformation():
     from trase.gaussians import GaussianModel
 
@@ -156,7 +174,22 @@ def test_training_with_static_gaussians_saves_reloads_and_resumes(tmp_path):
     assert isinstance(held, PartlyStaticDeformation) and not held.static.any()
     checks = list(csv.DictReader((tmp_path / "held" / "static_checks.csv").open()))
     assert [int(r["iteration"]) for r in checks] == [15, 25, 35] and all(r["freeze"] == "0" for r in checks)
+    assert all(int(r["held"]) > 0 for r in checks)
     assert all(float(r["time_gap_db"]) > 0 for r in checks)
+    # held back only where the lagging times' pixels are off: a region no pixel reaches holds
+    # nothing (the run is the unheld one, the checks only render); a region of the pixels off by 0.2 holds
+    # the gaussians those views draw, and the others freeze
+    _, nothing = reconstruct(views, pts, None, dataclasses.replace(CFG, static_time_gap=1e-9, static_hold_error=1.0),
+                             tmp_path / "none-held", progress=False)
+    assert torch.equal(nothing.static, d.static)
+    checks = list(csv.DictReader((tmp_path / "none-held" / "static_checks.csv").open()))
+    assert all(r["held"] == "0" and r["freeze"] == "1" for r in checks)
+    _, part = reconstruct(views, pts, None, dataclasses.replace(CFG, static_time_gap=1e-9, static_hold_error=0.2),
+                          tmp_path / "region", progress=False)
+    checks = list(csv.DictReader((tmp_path / "region" / "static_checks.csv").open()))
+    n = part.num_gaussians
+    assert all(r["freeze"] == "1" for r in checks) and all(0 < int(r["held"]) < n for r in checks)
+    assert 0 < int(part.static.sum()) < int(d.static.sum())
     # off (the default): no static rows, a plain network
     _, plain = reconstruct(views, pts, None, dataclasses.replace(CFG, static_threshold=0.0), tmp_path / "off",
                            progress=False)
