@@ -93,6 +93,7 @@ AS_BEFORE = {
     # stages that stop when converged (trase.convergence): off
     "stop_interval": (0, tuple(dict.fromkeys(_named(ReconstructionConfig, "stop_") + _named(FeatureConfig, "stop_")))),
     "static_threshold": (0.0, _named(ReconstructionConfig, "static_")),  # static gaussians: off
+    "static_hold_error": (0.0, ("static_hold_error",)),  # above the time gap, hold every gaussian back
     "deform_scale_rule": ("clamp", ("deform_scale_rule",)),  # the CPU presets' scale rule, the only one before
 }
 
