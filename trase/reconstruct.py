@@ -374,6 +374,7 @@ def _train(tr: _Trainer, data: ImageCache, bg: torch.Tensor, cfg: Reconstruction
     early (after a checkpoint) once ``max_seconds`` have passed, or once the PSNR of the
     ``held`` views (their images, loaded once) has stopped rising (``tr.plateau``)."""
     log = TrainLog(out_dir / "train_log.csv", start)
+    _restart_static_checks(out_dir, start)
     bar = ProgressBar(progress, cfg.iterations, start)
     t0, c0 = time.perf_counter(), time.process_time()
     try:
@@ -425,13 +426,32 @@ def _converged(tr: _Trainer, it: int, cfg: ReconstructionConfig, held: ImageCach
     return tr.plateau.observe(it, value, cap=cfg.iterations)
 
 
-STATIC_CHECKS_FILE = "static_checks.csv"  # iteration, time_gap_db, freeze (any may), static, held: a row per check
+STATIC_CHECKS_FILE = "static_checks.csv"  # a row per check: see STATIC_CHECKS_HEADER
+# freeze: 1 where any gaussian may freeze at the check; static: the static count after it; held:
+# the moving gaussians held back from freezing (all of them above the gap without a hold region)
+STATIC_CHECKS_HEADER = "iteration,time_gap_db,freeze,static,held\n"
+
+
+def _restart_static_checks(out_dir: Path, start: int) -> None:
+    """static_checks.csv as of iteration ``start``: a fresh run's is removed, a resumed run's
+    keeps the rows up to ``start`` (a file of another header is started over)."""
+    path = out_dir / STATIC_CHECKS_FILE
+    if not path.is_file():
+        return
+    lines = path.read_text().splitlines(keepends=True)
+    if start <= 0 or not lines or lines[0] != STATIC_CHECKS_HEADER:
+        path.unlink()
+        return
+    keep = [ln for ln in lines[1:] if ln.split(",", 1)[0].isdigit() and int(ln.split(",", 1)[0]) <= start]
+    path.write_text(STATIC_CHECKS_HEADER + "".join(keep))
 
 
 def _check_static(tr: _Trainer, it: int, cfg: ReconstructionConfig, data: ImageCache, bg: torch.Tensor,
                   backend: str, out_dir: Path) -> None:
     """On the schedule (``static_*`` settings), re-measure which gaussians move: the still ones
-    skip the network from the next step, the ones that move again are woken up."""
+    skip the network from the next step, the ones that move again are woken up. Above the time
+    gap nothing new freezes, or with ``static_hold_error`` nothing among the gaussians that draw
+    the lagging times' badly rendered pixels (``_hold_region``); each check is logged."""
     if cfg.static_threshold <= 0 or tr.deform is None:
         return
     first = cfg.warm_up + cfg.static_from
@@ -449,13 +469,12 @@ def _check_static(tr: _Trainer, it: int, cfg: ReconstructionConfig, data: ImageC
     if cfg.static_time_gap > 0:
         ps, ts = _views_psnr(tr, data, times, bg, backend)
         gap = time_gap(ps, ts)
-        if gap > cfg.static_time_gap:
-            if cfg.static_hold_error > 0:  # hold back only what draws the lagging times' bad pixels
-                hold = _hold_region(tr, data, lagging_times(ps, ts, cfg.static_time_gap), bg, backend,
-                                    cfg.static_hold_error)
-                freeze, held = ~hold, int(hold.sum())
-            else:
-                freeze, held = False, g.num_gaussians
+        lagging = lagging_times(ps, ts, cfg.static_time_gap)  # not empty exactly when gap > static_time_gap
+        if lagging:
+            # held back: the moving rows that would otherwise be free to freeze
+            hold = (_hold_region(tr, data, lagging, bg, backend, cfg.static_hold_error)
+                    if cfg.static_hold_error > 0 else torch.ones_like(tr.static))
+            freeze, held = ~hold, int((hold & ~tr.static).sum())
     tr.static, tr.frozen, _ = update_static(tr.deform, g.means.detach(), g.scales.detach(), times,
                                             tr.strategy.extent, cfg.static_threshold, tr.static, tr.frozen, freeze)
     if gap is not None:  # what held the freezing back, check by check
@@ -463,8 +482,8 @@ def _check_static(tr: _Trainer, it: int, cfg: ReconstructionConfig, data: ImageC
         new = not path.exists()
         with path.open("a") as f:
             if new:
-                f.write("iteration,time_gap_db,freeze,static,held\n")
-            f.write(f"{it},{gap:.3f},{int(held < g.num_gaussians)},{tr.n_static},{held}\n")
+                f.write(STATIC_CHECKS_HEADER)
+            f.write(f"{it},{gap:.3f},{int(isinstance(freeze, bool) or bool(freeze.any()))},{tr.n_static},{held}\n")
 
 
 @torch.no_grad()
@@ -484,9 +503,11 @@ def _views_psnr(tr: _Trainer, data: ImageCache, times: list[float], bg: torch.Te
 def _hold_region(tr: _Trainer, data: ImageCache, lagging: set[float], bg: torch.Tensor, backend: str,
                  error: float) -> torch.Tensor:
     """[N] bool: the gaussians that draw a pixel of a lagging time's training view whose colour
-    is off by more than ``error`` (mean absolute error over the channels): their opacity's
-    gradient of that region's error is non-zero. Where a motion is not learned, these are the
-    mover (drawn where it is not) and what is drawn where it should be."""
+    is off by more than ``error`` (mean absolute error over the channels): the gradient of that
+    region's error reaches their opacity or their colour (the colour's as well, since the
+    rasterizer caps a pixel's alpha and an opaque gaussian's opacity gets no gradient where it
+    is capped). Where a motion is not learned, these are typically the mover where it is drawn
+    and what is drawn where it should be."""
     from trase.deformation import deformed
     from trase.render import rasterize
 
@@ -498,7 +519,7 @@ def _hold_region(tr: _Trainer, data: ImageCache, lagging: set[float], bg: torch.
             continue
         with torch.no_grad():
             means, quats, scales = deformed(g, deformation, float(cam.time))
-            colors = g.sh_for_render().detach()
+        colors = g.sh_for_render().detach().clone().requires_grad_(True)  # [N, K, 3]
         opacity = g.opacities.detach().clone().requires_grad_(True)  # [N]
         with torch.enable_grad():
             out = rasterize(means, quats, scales, opacity, cam, colors=colors, sh_degree=g.active_sh_degree,
@@ -508,7 +529,7 @@ def _hold_region(tr: _Trainer, data: ImageCache, lagging: set[float], bg: torch.
             if not bool(region.any()):
                 continue
             (err * region).sum().backward()
-        hold |= opacity.grad != 0
+        hold |= (opacity.grad != 0) | (colors.grad != 0).flatten(1).any(dim=1)
     return hold
 
 

@@ -136,6 +136,10 @@ class ReconstructionConfig:
             raise ValueError("static_threshold, static_from, static_time_gap and static_hold_error must be >= 0 and "
                              f"static_interval >= 1, got {self.static_threshold}, {self.static_from}, "
                              f"{self.static_time_gap}, {self.static_hold_error} and {self.static_interval}")
+        if self.static_hold_error >= 1 or (self.static_hold_error > 0 and self.static_time_gap <= 0):
+            raise ValueError("static_hold_error must be below 1 (a colour error no pixel reaches holds nothing) and "
+                             f"needs a static_time_gap > 0 (it acts above the gap), got {self.static_hold_error} with "
+                             f"static_time_gap {self.static_time_gap}")
         self.stop_rule()  # a bad stopping rule fails here
         if self.stop_interval > 0 and self.stop_holdout_every < 2:
             raise ValueError(f"stop_holdout_every must be >= 2 when stopping is on, got {self.stop_holdout_every}")

@@ -132,30 +132,33 @@ def update_static(net: nn.Module, xyz: torch.Tensor, scales: torch.Tensor, times
     return static, frozen, {"static": int(static.sum()), "newly": int(newly.sum()), "woken": int(woken.sum())}
 
 
-def time_gap(view_psnr: list[float], view_times: list[float]) -> float:
-    """dB by which the worst time's training views fall below the median time's (each time's
-    PSNR from the mean squared error of its views, so the cameras of a multi-view rig count as
-    one time). Large where some times show a motion not learned yet."""
-    if not view_psnr:
-        return 0.0
+def per_time_psnr(view_psnr: list[float], view_times: list[float]) -> dict[float, float]:
+    """Each time's PSNR (dB) from the mean squared error of its views, keyed by the time rounded
+    to 9 digits (the cameras of a multi-view rig at one time count as one time)."""
     by_time: dict[float, list[float]] = {}
     for p, t in zip(view_psnr, view_times):
         by_time.setdefault(round(float(t), 9), []).append(10.0 ** (-float(p) / 10.0))  # PSNR -> MSE
-    per_time = [-10.0 * math.log10(max(sum(m) / len(m), 1e-20)) for m in by_time.values()]
-    return float(statistics.median(per_time) - min(per_time))
+    return {t: -10.0 * math.log10(max(sum(m) / len(m), 1e-20)) for t, m in by_time.items()}
+
+
+def time_gap(view_psnr: list[float], view_times: list[float]) -> float:
+    """dB by which the worst time's training views fall below the median time's. Large where
+    some times show a motion not learned yet."""
+    per_time = per_time_psnr(view_psnr, view_times)
+    if not per_time:
+        return 0.0
+    return float(statistics.median(per_time.values()) - min(per_time.values()))
 
 
 def lagging_times(view_psnr: list[float], view_times: list[float], gap_db: float) -> set[float]:
-    """The times (rounded as ``time_gap`` groups them) whose views lie more than ``gap_db`` dB
-    below the median time's: where a motion has not been learned yet."""
-    by_time: dict[float, list[float]] = {}
-    for p, t in zip(view_psnr, view_times):
-        by_time.setdefault(round(float(t), 9), []).append(10.0 ** (-float(p) / 10.0))
-    per_time = {t: -10.0 * math.log10(max(sum(m) / len(m), 1e-20)) for t, m in by_time.items()}
+    """The times (keyed as ``per_time_psnr`` keys them) whose views lie more than ``gap_db`` dB
+    below the median time's: where a motion has not been learned yet. Not empty exactly when
+    ``time_gap`` exceeds ``gap_db`` (the same subtraction)."""
+    per_time = per_time_psnr(view_psnr, view_times)
     if not per_time:
         return set()
     median = statistics.median(per_time.values())
-    return {t for t, p in per_time.items() if p < median - gap_db}
+    return {t for t, p in per_time.items() if median - p > gap_db}
 
 
 def check_times(view_times: list[float], n: int = 16) -> list[float]:
@@ -168,4 +171,4 @@ def check_times(view_times: list[float], n: int = 16) -> list[float]:
 
 
 __all__ = ["FROZEN_WIDTH", "WAKE_FACTOR", "PartlyStaticDeformation", "check_times", "lagging_times", "motion",
-           "offsets_over_time", "split_offsets", "time_gap", "update_static"]
+           "offsets_over_time", "per_time_psnr", "split_offsets", "time_gap", "update_static"]

@@ -118,8 +118,19 @@ def test_lagging_times_are_those_more_than_the_gap_below_the_median_time():
     assert lagging_times([30.0, 30.0, 20.0, 29.0], [0.0, 0.5, 1.0, 0.25], 5.0) == {1.0}
     assert lagging_times([30.0, 30.0, 20.0, 29.0], [0.0, 0.5, 1.0, 0.25], 20.0) == set()
     assert lagging_times([], [], 1.0) == set()
-    with pytest.raises(ValueError, match="static_hold_error"):
-        ReconstructionConfig(static_hold_error=-0.1)
+    # a rig's cameras at one time count as one time, as time_gap counts them
+    assert lagging_times([30.0, 20.0, 30.0, 30.0, 30.0, 30.0], [0.0, 0.0, 0.5, 0.5, 1.0, 1.0], 2.0) == {0.0}
+    # not empty exactly when the gap exceeds it, at the boundary too
+    gen = torch.Generator().manual_seed(0)
+    for _ in range(200):
+        ps = (20 + 10 * torch.rand(7, generator=gen)).tolist()
+        ts = torch.randint(0, 4, (7,), generator=gen).float().tolist()
+        for g in (time_gap(ps, ts), time_gap(ps, ts) - 1e-9, 1.0, 3.0):
+            assert bool(lagging_times(ps, ts, g)) == (time_gap(ps, ts) > g)
+    for bad in (dict(static_hold_error=-0.1), dict(static_hold_error=1.0, static_time_gap=5.0),
+                dict(static_hold_error=0.2)):  # negative; no pixel is off by 1; no gap to act above
+        with pytest.raises(ValueError, match="static_hold_error"):
+            ReconstructionConfig(**bad)
 
 
 def test_a_held_back_region_keeps_only_its_rows_from_freezing():
@@ -176,24 +187,57 @@ def test_training_with_static_gaussians_saves_reloads_and_resumes(tmp_path):
     assert [int(r["iteration"]) for r in checks] == [15, 25, 35] and all(r["freeze"] == "0" for r in checks)
     assert all(int(r["held"]) > 0 for r in checks)
     assert all(float(r["time_gap_db"]) > 0 for r in checks)
-    # held back only where the lagging times' pixels are off: a region no pixel reaches holds
-    # nothing (the run is the unheld one, the checks only render); a region of the pixels off by 0.2 holds
-    # the gaussians those views draw, and the others freeze
-    _, nothing = reconstruct(views, pts, None, dataclasses.replace(CFG, static_time_gap=1e-9, static_hold_error=1.0),
+    # a gap no time reaches: nothing lagging, nothing held, and the run is the unheld one (the
+    # checks only render)
+    _, nothing = reconstruct(views, pts, None, dataclasses.replace(CFG, static_time_gap=1e3, static_hold_error=0.2),
                              tmp_path / "none-held", progress=False)
     assert torch.equal(nothing.static, d.static)
     checks = list(csv.DictReader((tmp_path / "none-held" / "static_checks.csv").open()))
     assert all(r["held"] == "0" and r["freeze"] == "1" for r in checks)
-    _, part = reconstruct(views, pts, None, dataclasses.replace(CFG, static_time_gap=1e-9, static_hold_error=0.2),
-                          tmp_path / "region", progress=False)
-    checks = list(csv.DictReader((tmp_path / "region" / "static_checks.csv").open()))
-    n = part.num_gaussians
-    assert all(r["freeze"] == "1" for r in checks) and all(0 < int(r["held"]) < n for r in checks)
-    assert 0 < int(part.static.sum()) < int(d.static.sum())
     # off (the default): no static rows, a plain network
     _, plain = reconstruct(views, pts, None, dataclasses.replace(CFG, static_threshold=0.0), tmp_path / "off",
                            progress=False)
     assert isinstance(plain, DeformMLP)
+
+
+def test_a_hold_region_keeps_exactly_the_gaussians_drawing_bad_pixels_from_freezing(tmp_path, monkeypatch):
+    import trase.reconstruct as rec
+    import trase.static_gaussians as sg
+
+    views, pts, _, _ = write_scene(tmp_path / "images", num=6, size=24)
+    seen = []  # per check: (hold [N], static before, static after)
+    real_hold, real_update = rec._hold_region, sg.update_static
+
+    def hold_region(*a, **k):
+        h = real_hold(*a, **k)
+        seen.append([h.clone()])
+        return h
+
+    def update_static(net, xyz, scales, times, extent, threshold, static, frozen, freeze=True):
+        out = real_update(net, xyz, scales, times, extent, threshold, static, frozen, freeze)
+        if seen and len(seen[-1]) == 1:
+            assert torch.equal(freeze, ~seen[-1][0])  # the region's rows, and only they, may not freeze
+            seen[-1] += [static.clone(), out[0].clone()]
+        return out
+
+    monkeypatch.setattr(rec, "_hold_region", hold_region)
+    monkeypatch.setattr(sg, "update_static", update_static)
+    out = tmp_path / "region"
+    out.mkdir()
+    (out / "static_checks.csv").write_text("iteration,time_gap_db,freeze,static\n99,1.0,1,3\n")  # an older run's
+    _, part = reconstruct(views, pts, None, dataclasses.replace(CFG, static_time_gap=1e-9, static_hold_error=0.2),
+                          out, progress=False)
+    checks = list(csv.DictReader((out / "static_checks.csv").open()))
+    assert [int(r["iteration"]) for r in checks] == [15, 25, 35] and len(seen) == 3
+    newly_total = 0
+    for (hold, before, after), row in zip(seen, checks):
+        n = hold.shape[0]
+        assert 0 < int(hold.sum()) < n  # some gaussians draw the bad pixels, not all
+        assert not (hold & after & ~before).any()  # none of them froze
+        newly_total += int((after & ~before).sum())
+        assert int(row["held"]) == int((hold & ~before).sum()) and row["freeze"] == "1"
+        assert int(row["static"]) == int(after.sum())
+    assert newly_total > 0 and 0 < int(part.static.sum()) < part.num_gaussians
 
 
 def test_an_edit_of_a_partly_static_model_keeps_its_rows(tmp_path):
@@ -219,3 +263,36 @@ def test_an_edit_of_a_partly_static_model_keeps_its_rows(tmp_path):
     a = deformed(back.gaussians, back.deformation, 0.3)
     b = deformed(part.gaussians, part.deformation, 0.3)
     assert all(torch.allclose(x, y, atol=1e-6) for x, y in zip(a, b))
+
+
+@pytest.mark.parametrize("backend", ["numba", "torch"])
+def test_the_hold_region_is_the_gaussians_that_draw_the_bad_pixels(backend):
+    """Three opaque gaussians: one drawn where the image agrees, one drawn where it does not, one
+    out of view; only the second is held."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from trase.camera import Camera, intrinsics, look_at
+    from trase.gaussians import GaussianModel
+    from trase.reconstruct import _hold_region
+    from trase.render import rasterize
+
+    cam = Camera(K=intrinsics(30, 30, 16, 12), w2c=look_at(np.array([0, -3.0, 0.0]), np.zeros(3)),
+                 width=32, height=24, time=0.5)
+    means = torch.tensor([[-0.8, 0.0, 0.0], [0.8, 0.0, 0.0], [0.0, 0.0, 30.0]])
+    sh = torch.zeros(3, 1, 3)
+    sh[:, 0, 0] = 1.5  # red
+    g = GaussianModel(means, torch.full((3, 3), math.log(0.15)), torch.tensor([[1.0, 0, 0, 0]]).repeat(3, 1),
+                      torch.full((3,), 8.0), sh)  # opacity 0.9997
+    bg = torch.zeros(3)
+    blue = sh.clone()
+    blue[1, 0] = torch.tensor([-1.0, -1.0, 1.5])  # the image shows the second one blue
+    with torch.no_grad():
+        gt = rasterize(g.means, g.rotations, g.scales, g.opacities, cam, colors=blue, sh_degree=0, background=bg,
+                       backend=backend).color
+    tr = SimpleNamespace(gaussians=g, deformation=lambda: None)
+    data = SimpleNamespace(cameras=[cam], images=[gt])
+    hold = _hold_region(tr, data, {0.5}, bg, backend, error=0.2)
+    assert hold.tolist() == [False, True, False]
+    assert not _hold_region(tr, data, {0.25}, bg, backend, error=0.2).any()  # no view at a lagging time

@@ -117,8 +117,11 @@ def test_settings_at_their_as_before_value_are_neither_recorded_nor_keyed():
     assert _settings("geometry.train.static_threshold=0.01", "geometry.train.static_from=2000").group_hash != on.group_hash
     # the hold region, added later: at 0 (hold everything, as before) neither recorded nor keyed
     assert "static_hold_error" not in on.to_dict()["geometry"]["train"] and "static_time_gap" in key_config(on.geometry)["train"]
-    held = _settings("geometry.train.static_threshold=0.01", "geometry.train.static_hold_error=0.2")
-    assert held.to_dict()["geometry"]["train"]["static_hold_error"] == 0.2 and held.group_hash != on.group_hash
+    gap = _settings("geometry.train.static_threshold=0.01", "geometry.train.static_time_gap=5")
+    held = _settings("geometry.train.static_threshold=0.01", "geometry.train.static_time_gap=5",
+                     "geometry.train.static_hold_error=0.2")
+    assert "static_hold_error" not in gap.to_dict()["geometry"]["train"]
+    assert held.to_dict()["geometry"]["train"]["static_hold_error"] == 0.2 and held.group_hash != gap.group_hash
     # only the settings named beside a switch go, never a look-alike of another section
     from benchmark.pipeline.settings import recorded_settings
 
