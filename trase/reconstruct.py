@@ -483,7 +483,8 @@ def _check_static(tr: _Trainer, it: int, cfg: ReconstructionConfig, data: ImageC
         with path.open("a") as f:
             if new:
                 f.write(STATIC_CHECKS_HEADER)
-            f.write(f"{it},{gap:.3f},{int(isinstance(freeze, bool) or bool(freeze.any()))},{tr.n_static},{held}\n")
+            may_freeze = bool(torch.as_tensor(freeze).any())  # a bool, or the rows free to freeze
+            f.write(f"{it},{gap:.3f},{int(may_freeze)},{tr.n_static},{held}\n")
 
 
 @torch.no_grad()
