@@ -260,18 +260,8 @@ def match_segments(iou: np.ndarray, threshold: float) -> dict[int, int]:
     return {int(r): int(c) for r, c in zip(rows, cols) if iou[r, c] > threshold}
 
 
-def agreement(track_maps: list[np.ndarray], truth_maps: list[np.ndarray]) -> dict:
-    """How well track ids agree with true instance ids over a sequence (maps aligned per view):
-
-    - ``masks``: the fraction of tracked masks (a track in one view) whose own majority true id
-      is its track's majority true id over the whole sequence (a track that jumps to another
-      object in some views loses those views);
-    - ``pixels``: the same weighted by pixels (tracked pixels whose true id is their track's);
-    - ``tracks_per_object``: tracks per true object (their majority), 1 where nothing fragments;
-    - ``main_track_pixels``: per object, the share of its tracks' pixels in its largest track,
-      averaged over the objects (1 where nothing fragments; a fragment of a few pixels costs
-      little here and a whole track in ``tracks_per_object``);
-    - ``n_masks``, ``n_tracks``, ``n_objects``."""
+def _track_votes(track_maps: list[np.ndarray], truth_maps: list[np.ndarray]):
+    """({track: {true id: pixels}} over the sequence, the same per view); track 0 ("no track") left out."""
     votes: dict[int, dict[int, int]] = {}
     per_view = []
     for ids, truth in zip(track_maps, truth_maps):
@@ -284,6 +274,29 @@ def agreement(track_maps: list[np.ndarray], truth_maps: list[np.ndarray]) -> dic
             votes.setdefault(k, {})
             votes[k][t] = votes[k].get(t, 0) + c
         per_view.append(view)
+    return votes, per_view
+
+
+def track_objects(track_maps: list[np.ndarray], truth_maps: list[np.ndarray]) -> dict[int, int]:
+    """{track id: its true object}: the true id holding most of the track's pixels over the
+    sequence (ties to the lower id), as ``agreement`` assigns them."""
+    votes, _ = _track_votes(track_maps, truth_maps)
+    return {k: max(v, key=v.get) for k, v in votes.items()}
+
+
+def agreement(track_maps: list[np.ndarray], truth_maps: list[np.ndarray]) -> dict:
+    """How well track ids agree with true instance ids over a sequence (maps aligned per view):
+
+    - ``masks``: the fraction of tracked masks (a track in one view) whose own majority true id
+      is its track's majority true id over the whole sequence (a track that jumps to another
+      object in some views loses those views);
+    - ``pixels``: the same weighted by pixels (tracked pixels whose true id is their track's);
+    - ``tracks_per_object``: tracks per true object (their majority), 1 where nothing fragments;
+    - ``main_track_pixels``: per object, the share of its tracks' pixels in its largest track,
+      averaged over the objects (1 where nothing fragments; a fragment of a few pixels costs
+      little here and a whole track in ``tracks_per_object``);
+    - ``n_masks``, ``n_tracks``, ``n_objects``."""
+    votes, per_view = _track_votes(track_maps, truth_maps)
     major = {k: max(v, key=v.get) for k, v in votes.items()}
     n_masks = sum(len(v) for v in per_view)
     right = sum(max(v, key=v.get) == major[k] for view in per_view for k, v in view.items())
@@ -320,4 +333,5 @@ __all__ = [
     "save_ids",
     "save_tracks_info",
     "segments_from_masks",
+    "track_objects",
 ]

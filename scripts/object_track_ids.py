@@ -3,7 +3,7 @@
 A classifier of identities (Gaussian Grouping, SA4D) learns what the ids say. This prints, for
 every training view in time order, the share of the object's pixels (instance maps) under its two
 most frequent ids of a tracks stage's folder, and each id's object (the object that holds most of
-the track's pixels over the sequence, as ``masks.tracked.agreement`` assigns it): where an
+the track's pixels over the sequence, ``masks.tracked.track_objects``): where an
 object's id is another object's track, a time-dependent identity field learns that object's
 class at those times.
 
@@ -24,15 +24,12 @@ def object_ids(scene, tracks_dir: Path, obj: int) -> list[dict]:
     """One row per training view (time order): the object's top two ids with their shares of its
     pixels, and each id's object over the sequence."""
     from masks.generate import read_instance_map
-    from masks.tracked import ids_path, load_ids
+    from masks.tracked import ids_path, load_ids, track_objects
 
     views = sorted(scene.train, key=lambda v: (float(v.camera.time), v.name))
     maps = [load_ids(ids_path(tracks_dir, v.name)) for v in views]  # [H, W] track ids, 0 = no track
     truths = [read_instance_map(scene.truth.instance_maps[v.name]) for v in views]  # [H, W] instance ids
-    n_ids, n_obj = max(int(m.max()) for m in maps) + 1, max(int(t.max()) for t in truths) + 1
-    votes = np.zeros((n_ids, n_obj), np.int64)  # [track, object] pixels over the sequence
-    for ids, truth in zip(maps, truths):
-        np.add.at(votes, (ids.reshape(-1), truth.reshape(-1)), 1)
+    object_of = track_objects(maps, truths)  # {track id: its object over the sequence}
     rows = []
     for v, ids, truth in zip(views, maps, truths):
         mine = ids[truth == obj]
@@ -42,7 +39,7 @@ def object_ids(scene, tracks_dir: Path, obj: int) -> list[dict]:
             for k in np.argsort(-counts, kind="stable")[:2]:
                 tid = int(values[k])
                 row["ids"].append({"id": tid, "share": round(float(counts[k]) / mine.size, 3),  # 0: no track
-                                   "object_of_track": int(votes[tid].argmax()) if tid else None})
+                                   "object_of_track": object_of.get(tid)})
         rows.append(row)
     return rows
 

@@ -156,6 +156,17 @@ def test_agreement_counts_masks_that_follow_their_tracks_object():
     assert agreement(good, truth)["main_track_pixels"] == 1.0
 
 
+def test_each_track_is_the_object_most_of_its_pixels_show_over_the_sequence():
+    from masks.tracked import track_objects
+
+    truth = [np.array([[1, 1, 2, 2]]), np.array([[1, 1, 2, 2]]), np.array([[1, 1, 2, 2]])]
+    # track 1 takes object 2 in one view (3 pixels of object 1 against 2); track 3 only object 2;
+    # "no track" (0) has no object
+    ids = [np.array([[1, 1, 0, 3]]), np.array([[1, 0, 1, 1]]), np.array([[1, 1, 3, 3]])]
+    assert track_objects(ids, truth) == {1: 1, 3: 2}
+    assert track_objects([np.array([[1, 1]])], [np.array([[2, 1]])]) == {1: 1}  # a tie: the lower id
+
+
 def test_a_segment_inside_one_track_is_a_part_of_it():
     from masks.tracked import overlap_counts, part_of
 

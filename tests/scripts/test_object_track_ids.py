@@ -46,4 +46,3 @@ def test_an_object_under_its_own_track_and_under_another_objects(scene_and_track
     save_ids(ids_path(bad, first.name), ids)
     row = next(r for r in object_ids(scene, bad, obj) if r["view"] == first.name)
     assert row["ids"] == [{"id": other_id, "share": 1.0, "object_of_track": other}]
-
