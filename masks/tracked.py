@@ -16,7 +16,8 @@ Here: the storage (``ids_path``, ``save_ids``, ``load_ids``, ``save_tracks_info`
 ``load_tracks_info``), the id maps of tracking files a user brings (``read_id_image``: DEVA's
 outputs, ``remap_ids``), and the two geometry-free parts of the project's classical tracker
 (``segments_from_masks``: one label per pixel from overlapping masks; ``match_segments``: the
-assignment of a frame's segments to the tracks warped into it). Every problem with a file is a
+assignment of a frame's segments to the tracks warped into it; ``carry_lost``: a track no
+segment continues, kept where the warp puts it). Every problem with a file is a
 ``TrackFileError`` whose one-line message names the file.
 """
 
@@ -246,6 +247,43 @@ def part_of(inter: np.ndarray, known: np.ndarray, area: np.ndarray, min_inside: 
     return out
 
 
+def carry_lost(ids: np.ndarray, segments: np.ndarray, warped: np.ndarray, lost, min_area: int,
+               max_share: float = 0.5, may_give: np.ndarray | None = None) -> tuple[np.ndarray, list[int]]:
+    """(ids [H, W] with lost tracks carried on, the ids carried): a track of the previous view
+    that no segment of this view continues (``lost``) keeps the pixels it warps to (``warped``,
+    -1 where unknown) that no segment holds (its mask was missed or eaten by a larger one) or
+    that make at most ``max_share`` of the segment holding them (a neighbour's mask that merged
+    it: the segment keeps its own track on the rest), as a video tracker's propagation keeps an
+    object through missed detections; with fewer than ``min_area`` such pixels it is not carried.
+    A track that makes more than ``max_share`` of some segment is not carried at all: that
+    segment is the object's own mask, which started a track of its own (matching and the parts
+    rule found it too different), and carrying the old one beside it would keep both.
+    ``may_give`` [S + 1] bool: the segments that may give pixels (default all); the caller keeps
+    a segment that started a new track whole (an object's new mask over its old fragments)."""
+    out = ids.copy()
+    carried = []
+    if not len(lost):
+        return out, carried
+    n_seg = int(segments.max())
+    area = np.bincount(segments.ravel(), minlength=n_seg + 1)
+    for t in lost:
+        px = warped == t
+        if not px.any():
+            continue
+        inside = np.bincount(segments[px], minlength=n_seg + 1)
+        share = np.divide(inside, area, out=np.zeros(n_seg + 1), where=area > 0)
+        if (share[1:] > max_share).any():
+            continue
+        take = px & (out == ids)  # a pixel another lost track took stays its
+        if may_give is not None:
+            take &= np.asarray(may_give, bool)[segments]
+        if int(take.sum()) < max(1, min_area):
+            continue
+        out[take] = t
+        carried.append(int(t))
+    return out, carried
+
+
 def match_segments(iou: np.ndarray, threshold: float) -> dict[int, int]:
     """One-to-one assignment of segments (rows) to tracks (columns) maximising the summed IoU
     (Hungarian; scipy's linear_sum_assignment), keeping pairs with IoU above ``threshold`` ->
@@ -320,6 +358,7 @@ __all__ = [
     "SOURCES",
     "TrackFileError",
     "agreement",
+    "carry_lost",
     "ids_path",
     "iou_of",
     "load_ids",

@@ -2,7 +2,8 @@
 
 For each format: the synthetic scene of the given seed and size (generated under --root if
 absent), its synthetic anything masks (masks.seed 0, the benchmark's default generator on
-synthetic scenes), its ground-truth geometry, then ``track_classical``; prints the agreement
+synthetic scenes), its ground-truth geometry (or a geometry stage's folder, ``--geometry``, for a
+reconstruction), then ``track_classical``; prints the agreement
 with the instance maps (masks.tracked.agreement) and the time taken, one JSON line a format.
 
     python scripts/measure_tracking.py --seed 1 --size small --root /tmp/scenes
@@ -36,7 +37,8 @@ def merge_sweep(scene, masks_dir: Path, votes, n_tracks: int, cosines: list[floa
     return out
 
 
-def measure(dataset: str, seed: int, size: str, root: Path, sweep: tuple = (), **tracker) -> dict:
+def measure(dataset: str, seed: int, size: str, root: Path, sweep: tuple = (), geometry: Path | None = None,
+            **tracker) -> dict:
     import masks as masklib
     from benchmark.datasets import load_scene
     from benchmark.datasets.synthetic import generate
@@ -55,9 +57,10 @@ def measure(dataset: str, seed: int, size: str, root: Path, sweep: tuple = (), *
         out = Path(tmp)
         masklib.generate_scene_masks(scene.train, make_mask_generator(MaskSettings(generator="synthetic")), out,
                                      progress=False, instance_maps=dict(truth.instance_maps))
-        gdir = out / "geometry"
-        gdir.mkdir()
-        (gdir / "geometry.npz").symlink_to(truth.geometry_path)
+        gdir = out / "geometry" if geometry is None else geometry
+        if geometry is None:
+            gdir.mkdir()
+            (gdir / "geometry.npz").symlink_to(truth.geometry_path)
         gaussians, deformation = load_geometry(gdir)
         t0 = time.perf_counter()
         votes = TrackVotes(gaussians.num_gaussians) if sweep else None
@@ -66,7 +69,7 @@ def measure(dataset: str, seed: int, size: str, root: Path, sweep: tuple = (), *
         if sweep:  # the same tracks merged with each pair of settings
             info["merge_sweep"] = merge_sweep(scene, out, votes, info["n_tracks"], *sweep)
     return {"dataset": dataset, "seed": seed, "size": size, "views": len(scene.train), "seconds": round(seconds, 2),
-            **info}
+            "geometry": "ground truth" if geometry is None else str(geometry), **info}
 
 
 def main(argv=None) -> int:
@@ -80,6 +83,9 @@ def main(argv=None) -> int:
     ap.add_argument("--no-same-camera", action="store_true", help="a rig's camera's own latest view is not sought")
     ap.add_argument("--merge-cosine", type=float, default=None, help="merge tracks this similar (default: the stage's)")
     ap.add_argument("--no-merge", action="store_true", help="tracks that are one object in 3D are not merged")
+    ap.add_argument("--no-carry", action="store_true", help="a track no segment continues is not carried on")
+    ap.add_argument("--geometry", type=Path, default=None,
+                    help="a geometry stage's folder (one dataset only; default: the scene's ground truth)")
     ap.add_argument("--merge-sweep", default="", help="with --no-merge: the agreement of the same tracks merged at "
                                                       "each of these cosines (comma-separated)")
     ap.add_argument("--together-sweep", default="0", help="with --merge-sweep: ... and each of these shares of "
@@ -89,13 +95,18 @@ def main(argv=None) -> int:
                **({"part_of_share": None} if args.no_parts else {}),
                **({"same_camera": False} if args.no_same_camera else {}),
                **({"merge_cosine": args.merge_cosine} if args.merge_cosine is not None else {}),
-               **({"merge_cosine": None} if args.no_merge else {})}
+               **({"merge_cosine": None} if args.no_merge else {}),
+               **({"carry": 0} if args.no_carry else {})}
     cosines = [float(c) for c in args.merge_sweep.split(",") if c]
     if cosines and not args.no_merge:
         ap.error("--merge-sweep merges the tracks of one unmerged pass: give --no-merge too")
     sweep = (cosines, [float(m) for m in args.together_sweep.split(",") if m]) if cosines else ()
-    for d in args.datasets.split(","):
-        print(json.dumps(measure(d, args.seed, args.size, args.root, sweep=sweep, **tracker)), flush=True)
+    datasets = args.datasets.split(",")
+    if args.geometry is not None and len(datasets) != 1:
+        ap.error("--geometry is one scene's: give one dataset")
+    for d in datasets:
+        print(json.dumps(measure(d, args.seed, args.size, args.root, sweep=sweep, geometry=args.geometry, **tracker)),
+              flush=True)
     return 0
 
 

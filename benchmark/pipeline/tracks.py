@@ -65,11 +65,22 @@ MERGE_COSINE = 0.5
 # one seen in fewer (an object cut in two by its masks in a few views; two objects seen together
 # share most of theirs); chosen with MERGE_COSINE
 MERGE_MAX_TOGETHER = 0.1
+# a track of the previous view that no segment of this view continues keeps the pixels the warp
+# puts it on where no segment holds them or a neighbour's segment merged it (at most half of that
+# segment), for up to this many views in a row: a video tracker's propagation keeps an object
+# through missed detections (DEVA through 5, MEMORY), so a mask that merged an object with the
+# floor in one view does not hand the object's pixels to the floor's track there; not where a
+# segment of this view is mostly the track (its own mask, which started a new track), not into a
+# segment that starts a new track (an object's new mask over its old fragments), and only tracks
+# that segments held in two views at least (an object, not a one-view fragment); carried pixels
+# are not "shown" for the merge (they are no mask), so fragments still merge; 0: not carried
+CARRY = MEMORY
+CARRY_MAX_SHARE = 0.5
 CLASSICAL = {"iou_threshold": IOU_THRESHOLD, "min_kept": MIN_KEPT, "memory": MEMORY, "part_of": PART_OF,
              "same_camera": SAME_CAMERA, "merge_cosine": MERGE_COSINE, "merge_max_together": MERGE_MAX_TOGETHER,
-             "order": "time, then view name",
+             "carry": CARRY, "carry_max_share": CARRY_MAX_SHARE, "order": "time, then view name",
              "min_area": "the mask generators' minimum area (SAM's 100 px at 536x960, scaled)",
-             "version": 7}
+             "version": 8}
 
 # where a DEVA output folder keeps its per-frame images: Annotations/ (demo_automatic.py and
 # demo_with_text.py), object_mask/ (Gaussian Grouping's copy of it), else the folder itself
@@ -254,7 +265,7 @@ def camera_key(camera) -> bytes:
 def track_classical(views, gaussians, deformation, out: Path, truth=None, memory: int = MEMORY,
                     part_of_share: float | None = PART_OF, same_camera: bool = SAME_CAMERA,
                     merge_cosine: float | None = MERGE_COSINE, merge_max_together: float = MERGE_MAX_TOGETHER,
-                    votes=None, progress: bool = False) -> dict:
+                    carry: int = CARRY, votes=None, progress: bool = False) -> dict:
     """Track ids for the anything masks in ``out`` (one file per view, as the masks stage wrote
     them): per view in time order, segments (``segments_from_masks``), then the previous view's
     ids warped into this one (``trase.warp.backward_warp``), segments matched to the warped
@@ -263,12 +274,14 @@ def track_classical(views, gaussians, deformation, out: Path, truth=None, memory
     rig of fixed cameras), then of up to MEMORY earlier views (most recent first), that no
     segment of this view continues; a segment unmatched after that which lies in one track of
     the previous view (PART_OF of its known pixels) is a part of it and takes its id; any other
-    starts a new track. After the last view, tracks that are one object in 3D are merged
+    starts a new track. A track of the previous view that no segment continues keeps the pixels
+    the warp puts it on where no segment, or a neighbour's that merged it, holds them
+    (``masks.tracked.carry_lost``; CARRY views in a row at most). After the last view, tracks that are one object in 3D are merged
     (``masks.track_merging``: each view's votes for the gaussians it shows, MERGE_COSINE,
     MERGE_MAX_TOGETHER).
     ``truth`` (a synthetic scene's): the agreement with its instance maps is recorded.
     ``memory``, ``part_of_share`` (None: no parts), ``same_camera``, ``merge_cosine`` (None:
-    no merging) and ``merge_max_together`` change those steps for measurements
+    no merging), ``merge_max_together`` and ``carry`` (0: nothing carried) change those steps for measurements
     (scripts/measure_tracking.py), which may pass a ``masks.track_merging.TrackVotes`` as
     ``votes`` to keep the views' votes; the stage uses the constants. ``progress``: a bar over
     the views (a large rig's take minutes)."""
@@ -278,6 +291,7 @@ def track_classical(views, gaussians, deformation, out: Path, truth=None, memory
     from masks.track_merging import TrackVotes, merged_ids, track_similarity
     from masks.tracked import (
         agreement,
+        carry_lost,
         ids_path,
         iou_of,
         match_segments,
@@ -293,7 +307,9 @@ def track_classical(views, gaussians, deformation, out: Path, truth=None, memory
     recent: list[tuple] = []  # (view geometry, ids) of the previous view and up to `memory` before it
     latest_of_camera: dict[bytes, tuple] = {}  # the same, of the latest view of each camera seen again later
     views_left = Counter(camera_key(v.camera) for v in views)  # a moving camera's views: 1 each
-    continued = resumed = joined = started = 0
+    continued = resumed = joined = started = carried = 0
+    carried_for: Counter = Counter()  # track -> views in a row it has been carried
+    segment_views: Counter = Counter()  # track -> views a segment of its own held it in
     maps = {}
     voting = merge_cosine is not None or votes is not None
     votes = TrackVotes(gaussians.num_gaussians) if votes is None else votes
@@ -306,9 +322,11 @@ def track_classical(views, gaussians, deformation, out: Path, truth=None, memory
                                                   f"{v.camera.width}x{v.camera.height} (WxH)")
             seg = segments_from_masks(ms.masks, MIN_KEPT, min_area_for(ms.height, ms.width))
             n_seg = int(seg.max())
+            tracks_before = n_tracks
             geo = view_geometry(gaussians, deformation, v.camera)
             track_of = np.zeros(n_seg + 1, np.int64)
             last = None  # the previous view's overlaps, for the parts
+            warped_last = None  # the previous view's ids warped into this one, for carrying
             key = camera_key(v.camera)
             candidates = list(reversed(recent))
             own = latest_of_camera.get(key) if same_camera else None
@@ -321,7 +339,7 @@ def track_classical(views, gaussians, deformation, out: Path, truth=None, memory
                 warped = backward_warp(gaussians, deformation, prev, geo, prev_ids)
                 counts = overlap_counts(seg, warped, n_seg, n_tracks)
                 if back == 0:
-                    last = counts
+                    last, warped_last = counts, warped
                 iou = iou_of(counts)  # the same counts, not counted again
                 iou[:, track_of[track_of > 0] - 1] = 0.0  # a track continues in one segment only
                 match = match_segments(iou[free], IOU_THRESHOLD)
@@ -345,9 +363,22 @@ def track_classical(views, gaussians, deformation, out: Path, truth=None, memory
                     track_of[s] = n_tracks
                     started += 1
             ids = track_of[seg].astype(np.int32)
+            shown = track_of[1:]
+            segment_views.update(shown.tolist())
+            if carry > 0 and recent:
+                if warped_last is None:  # no segment here, so the loop above warped nothing
+                    warped_last = backward_warp(gaussians, deformation, recent[-1][0], geo, recent[-1][1])
+                before = np.unique(recent[-1][1])
+                lost = [int(t) for t in before[before > 0] if t not in set(shown.tolist())
+                        and carried_for[int(t)] < carry and segment_views[int(t)] >= 2]
+                may_give = np.concatenate([[True], track_of[1:] <= tracks_before])  # not a new track's segment
+                ids, kept = carry_lost(ids, seg, warped_last, lost, min_area_for(ms.height, ms.width),
+                                       CARRY_MAX_SHARE, may_give)
+                carried_for = Counter({t: carried_for[t] + 1 for t in kept})  # continued or dropped: reset
+                carried += len(kept)
             maps[v.name] = ids
             if voting:
-                votes.add(ids, *visible_gaussians(geo), present=track_of[1:])
+                votes.add(ids, *visible_gaussians(geo), present=shown)
             recent = [*recent, (geo, ids)][-(max(memory, 0) + 1):]  # the previous view and `memory` before it
             views_left[key] -= 1
             if views_left[key] > 0:
@@ -366,18 +397,19 @@ def track_classical(views, gaussians, deformation, out: Path, truth=None, memory
     for v in views:
         save_ids(ids_path(out, v.name), maps[v.name])
     constants = {**CLASSICAL, "memory": memory, "part_of": part_of_share, "same_camera": same_camera,
-                 "merge_cosine": merge_cosine, "merge_max_together": merge_max_together}
+                 "merge_cosine": merge_cosine, "merge_max_together": merge_max_together, "carry": carry}
     info = {"source": "classical", "n_tracks": n_tracks, "views": len(views), "constants": constants,
-            "continued": continued, "resumed": resumed, "parts": joined, "started": started, **merged}
+            "continued": continued, "resumed": resumed, "parts": joined, "started": started,
+            "carried": carried, **merged}
     if truth is not None:
         truth_maps = [read_instance_map(truth.instance_maps[v.name]) for v in views]
         info["agreement_with_truth"] = agreement([maps[v.name] for v in views], truth_maps)
     save_tracks_info(out, info)
-    return {k: info[k] for k in ("source", "n_tracks", "continued", "resumed", "parts", "started",
+    return {k: info[k] for k in ("source", "n_tracks", "continued", "resumed", "parts", "started", "carried",
                                  "tracks_before", "merged", "agreement_with_truth")
             if k in info}
 
 
-__all__ = ["CLASSICAL", "IOU_THRESHOLD", "MEMORY", "MERGE_COSINE", "MERGE_MAX_TOGETHER", "MIN_KEPT", "PART_OF",
+__all__ = ["CARRY", "CARRY_MAX_SHARE", "CLASSICAL", "IOU_THRESHOLD", "MEMORY", "MERGE_COSINE", "MERGE_MAX_TOGETHER", "MIN_KEPT", "PART_OF",
            "SAME_CAMERA", "camera_key", "find_track_files",
            "link_masks", "run", "time_order", "track_classical", "write_files", "write_synthetic"]

@@ -178,3 +178,24 @@ def test_a_segment_inside_one_track_is_a_part_of_it():
     unknown = np.array([[-1, -1, 1, 1, -1, -1]])  # segment 1 unseen before: no evidence, no part
     inter, known, _ = overlap_counts(seg, unknown, 3, 2)
     assert part_of(inter, known, area, 0.8) == {1: 0}
+
+
+def test_a_lost_track_is_carried_where_no_mask_or_a_merged_one_holds_it():
+    from masks.tracked import carry_lost
+
+    # one row: a floor segment (1) that merged the blob (warped track 7 at columns 2-3), a missed
+    # mask (0) where track 8 warps, and a segment (2) that is mostly track 9
+    seg = np.array([[1, 1, 1, 1, 1, 1, 1, 1, 0, 0, 2, 2, 2]])
+    ids = np.array([[4, 4, 4, 4, 4, 4, 4, 4, 0, 0, 5, 5, 5]])  # the segments' tracks
+    warped = np.array([[-1, 4, 7, 7, 4, 4, 4, 4, 8, 8, 9, 9, 5]])
+    out, carried = carry_lost(ids, seg, warped, [7, 8, 9], min_area=2)
+    assert carried == [7, 8]
+    assert out.tolist() == [[4, 4, 7, 7, 4, 4, 4, 4, 8, 8, 5, 5, 5]]  # track 9 is 2/3 of segment 2: its own
+    assert ids.tolist()[0][2] == 4  # the input is not changed
+    out, carried = carry_lost(ids, seg, warped, [7, 8], min_area=3)  # too few pixels: not carried
+    assert carried == [] and np.array_equal(out, ids)
+    spread = np.array([[-1, 4, 7, 7, 4, 4, 4, 4, 9, 9, 9, 9, 5]])  # 9 also on missed pixels: not carried at all
+    out, carried = carry_lost(ids, seg, spread, [7, 9], min_area=2)
+    assert carried == [7] and (out != 9).all()
+    out, carried = carry_lost(ids, seg, warped, [], min_area=1)
+    assert carried == [] and np.array_equal(out, ids)

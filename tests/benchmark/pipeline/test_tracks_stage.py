@@ -198,13 +198,59 @@ def test_tracks_restarted_on_the_same_gaussians_are_merged_back(tiny_scene, tmp_
     geo.mkdir()
     shutil.copyfile(tiny_scene.truth.geometry_path, geo / "geometry.npz")
     gaussians, deformation = load_geometry(geo)
-    kept = track_classical(views, gaussians, deformation, tmp_path, memory=0, same_camera=False, merge_cosine=None)
+    kept = track_classical(views, gaussians, deformation, tmp_path, memory=0, same_camera=False, merge_cosine=None,
+                           carry=0)
     a, c = load_ids(ids_path(tmp_path, "a")), load_ids(ids_path(tmp_path, "c"))
     assert a.max() > 0 and not np.isin(np.unique(c[c > 0]), np.unique(a)).any()  # all restarted
-    info = track_classical(views, gaussians, deformation, tmp_path, memory=0, same_camera=False)
+    info = track_classical(views, gaussians, deformation, tmp_path, memory=0, same_camera=False, carry=0)
     a, c = load_ids(ids_path(tmp_path, "a")), load_ids(ids_path(tmp_path, "c"))
     assert info["tracks_before"] == kept["n_tracks"] == 2 * a.max() and info["n_tracks"] == a.max()
     assert np.array_equal(a, c) and load_tracks_info(tmp_path)["n_tracks"] == info["n_tracks"]
+
+
+@pytest.mark.parametrize("carry", [5, 0])
+def test_an_object_merged_into_a_neighbours_mask_keeps_its_track(tiny_scene, tmp_path, carry):
+    """One camera's views a, a2, b in time order; b's masks are a's with one object's mask merged
+    into its neighbour's (one mask of both, as an anything mask sometimes is). The merged
+    segment continues the neighbour's track; carried on (the stage's: the object's own masks held
+    its track in two views), the object keeps its track on its pixels; not carried, they take
+    the neighbour's."""
+    import dataclasses
+
+    import masks as masklib
+    from benchmark.pipeline.context import load_geometry
+    from benchmark.pipeline.tracks import track_classical
+    from masks.generators.synthetic import SyntheticGenerator
+
+    first = tiny_scene.train[0]
+    masklib.generate_scene_masks([first], SyntheticGenerator(seed=0), tmp_path, progress=False,
+                                 instance_maps=dict(tiny_scene.truth.instance_maps))
+    for n in ("a", "a2"):
+        shutil.copyfile(masklib.mask_path(tmp_path, first.name), masklib.mask_path(tmp_path, n))
+    m = masklib.load(masklib.mask_path(tmp_path, "a")).masks  # [N, H, W]
+    area = m.reshape(m.shape[0], -1).sum(1)
+    big = int(area.argmax())
+    small = int(np.argsort(area)[len(area) // 2])  # a middle-sized object, well under the largest
+    assert 0 < area[small] < 0.5 * area[big] and not (m[small] & m[big]).any()
+    merged = np.concatenate([np.delete(m, [small, big], axis=0), (m[small] | m[big])[None]])
+    masklib.save(masklib.mask_path(tmp_path, "b"), masklib.MaskSet.from_masks(merged))
+    t0 = float(first.camera.time)
+    views = [types.SimpleNamespace(name=n, camera=dataclasses.replace(first.camera, time=t0 + dt))
+             for n, dt in (("a", 0.0), ("a2", 1e-6), ("b", 2e-6))]
+    geo = tmp_path / "geometry"
+    geo.mkdir()
+    shutil.copyfile(tiny_scene.truth.geometry_path, geo / "geometry.npz")
+    gaussians, deformation = load_geometry(geo)
+    info = track_classical(views, gaussians, deformation, tmp_path, memory=0, same_camera=False,
+                           merge_cosine=None, carry=carry)
+    a, b = load_ids(ids_path(tmp_path, "a")), load_ids(ids_path(tmp_path, "b"))
+    own, neighbour = np.bincount(a[m[small]]).argmax(), np.bincount(a[m[big]]).argmax()
+    assert own != neighbour and np.bincount(b[m[big]]).argmax() == neighbour
+    on_object = np.bincount(b[m[small]], minlength=a.max() + 1)
+    if carry:
+        assert info["carried"] >= 1 and on_object[own] >= 0.8 * m[small].sum()
+    else:
+        assert info["carried"] == 0 and on_object[neighbour] == m[small].sum()
 
 
 def test_the_gaussians_a_view_shows_lie_on_its_rendered_surface(tiny_scene, tmp_path):
