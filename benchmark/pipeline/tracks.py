@@ -364,13 +364,14 @@ def track_classical(views, gaussians, deformation, out: Path, truth=None, memory
                     started += 1
             ids = track_of[seg].astype(np.int32)
             shown = track_of[1:]
-            segment_views.update(shown.tolist())
+            held = set(shown.tolist())  # a track with several parts here counts once
+            segment_views.update(held)
             if carry > 0 and recent:
                 if warped_last is None:  # no segment here, so the loop above warped nothing
                     warped_last = backward_warp(gaussians, deformation, recent[-1][0], geo, recent[-1][1])
                 before = np.unique(recent[-1][1])
-                lost = [int(t) for t in before[before > 0] if t not in set(shown.tolist())
-                        and carried_for[int(t)] < carry and segment_views[int(t)] >= 2]
+                lost = [int(t) for t in before[before > 0]
+                        if int(t) not in held and carried_for[int(t)] < carry and segment_views[int(t)] >= 2]
                 may_give = np.concatenate([[True], track_of[1:] <= tracks_before])  # not a new track's segment
                 ids, kept = carry_lost(ids, seg, warped_last, lost, min_area_for(ms.height, ms.width),
                                        CARRY_MAX_SHARE, may_give)
