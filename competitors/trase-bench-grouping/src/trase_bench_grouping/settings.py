@@ -107,9 +107,10 @@ SA4D_PRESETS.declare("cpu", base="paper", help="minutes on two cores: a narrower
 SA4D_PRESETS.declare("cpu", {"features.iterations": 500, "features.n_pixels": 2000, "features.field_width": 64,
                              "features.reg3d_interval": 5, "features.field_lr": 0.005,
                              "features.classifier_lr": 0.005})
-# ... but on multi-view rigs, by the same rule over the seed-1 Neu3D- and Immersive-format scenes
-# (reconstructed geometry, the tracker's version 7), 1000 steps 0.558 against 500 steps 0.094
-# (Neu3D 0.910 against 0.105; Immersive 0.205 against 0.084): the steps differ per kind of rig
+# ... but on multi-view rigs, by the same rule over the seed-1 Neu3D-, Immersive- and
+# Technicolor-format scenes (reconstructed geometry, the tracker's version 7), 1000 steps 0.693
+# against 500 steps 0.325 (Neu3D 0.910 / 0.105, Immersive 0.205 / 0.084, Technicolor 0.964 /
+# 0.786): the steps differ per kind of rig
 SA4D_PRESETS.declare("cpu", {"features.iterations": 1000}, when=MULTIVIEW)
 
 __all__ = ["GG_PRESETS", "HULLS", "MONOCULAR", "SA4D_PRESETS", "GroupingSettings", "IdentitySettings",
