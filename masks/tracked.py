@@ -319,6 +319,11 @@ def track_objects(track_maps: list[np.ndarray], truth_maps: list[np.ndarray]) ->
     """{track id: its true object}: the true id holding most of the track's pixels over the
     sequence (ties to the lower id), as ``agreement`` assigns them."""
     votes, _ = _track_votes(track_maps, truth_maps)
+    return _majority(votes)
+
+
+def _majority(votes: dict[int, dict[int, int]]) -> dict[int, int]:
+    """{key: the id with most pixels in its votes} (ties to the id counted first)."""
     return {k: max(v, key=v.get) for k, v in votes.items()}
 
 
@@ -335,9 +340,9 @@ def agreement(track_maps: list[np.ndarray], truth_maps: list[np.ndarray]) -> dic
       little here and a whole track in ``tracks_per_object``);
     - ``n_masks``, ``n_tracks``, ``n_objects``."""
     votes, per_view = _track_votes(track_maps, truth_maps)
-    major = {k: max(v, key=v.get) for k, v in votes.items()}
+    major = _majority(votes)
     n_masks = sum(len(v) for v in per_view)
-    right = sum(max(v, key=v.get) == major[k] for view in per_view for k, v in view.items())
+    right = sum(own == major[k] for view in per_view for k, own in _majority(view).items())
     total_px = sum(sum(v.values()) for v in votes.values())
     right_px = sum(v[major[k]] for k, v in votes.items())
     objects = set(major.values())

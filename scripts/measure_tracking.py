@@ -57,8 +57,9 @@ def measure(dataset: str, seed: int, size: str, root: Path, sweep: tuple = (), g
         out = Path(tmp)
         masklib.generate_scene_masks(scene.train, make_mask_generator(MaskSettings(generator="synthetic")), out,
                                      progress=False, instance_maps=dict(truth.instance_maps))
-        gdir = out / "geometry" if geometry is None else geometry
-        if geometry is None:
+        gdir = geometry
+        if gdir is None:  # the scene's ground truth, as a geometry stage's folder
+            gdir = out / "geometry"
             gdir.mkdir()
             (gdir / "geometry.npz").symlink_to(truth.geometry_path)
         gaussians, deformation = load_geometry(gdir)

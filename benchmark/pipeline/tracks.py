@@ -276,13 +276,13 @@ def track_classical(views, gaussians, deformation, out: Path, truth=None, memory
     the previous view (PART_OF of its known pixels) is a part of it and takes its id; any other
     starts a new track. A track of the previous view that no segment continues keeps the pixels
     the warp puts it on where no segment, or a neighbour's that merged it, holds them
-    (``masks.tracked.carry_lost``; CARRY views in a row at most). After the last view, tracks that are one object in 3D are merged
-    (``masks.track_merging``: each view's votes for the gaussians it shows, MERGE_COSINE,
-    MERGE_MAX_TOGETHER).
+    (``masks.tracked.carry_lost``; CARRY views in a row at most). After the last view, tracks
+    that are one object in 3D are merged (``masks.track_merging``: each view's votes for the
+    gaussians it shows, MERGE_COSINE, MERGE_MAX_TOGETHER).
     ``truth`` (a synthetic scene's): the agreement with its instance maps is recorded.
     ``memory``, ``part_of_share`` (None: no parts), ``same_camera``, ``merge_cosine`` (None:
-    no merging), ``merge_max_together`` and ``carry`` (0: nothing carried) change those steps for measurements
-    (scripts/measure_tracking.py), which may pass a ``masks.track_merging.TrackVotes`` as
+    no merging), ``merge_max_together`` and ``carry`` (0: nothing carried) change those steps
+    for measurements (scripts/measure_tracking.py), which may pass a ``masks.track_merging.TrackVotes`` as
     ``votes`` to keep the views' votes; the stage uses the constants. ``progress``: a bar over
     the views (a large rig's take minutes)."""
     import masks as masklib
@@ -411,6 +411,6 @@ def track_classical(views, gaussians, deformation, out: Path, truth=None, memory
             if k in info}
 
 
-__all__ = ["CARRY", "CARRY_MAX_SHARE", "CLASSICAL", "IOU_THRESHOLD", "MEMORY", "MERGE_COSINE", "MERGE_MAX_TOGETHER", "MIN_KEPT", "PART_OF",
-           "SAME_CAMERA", "camera_key", "find_track_files",
+__all__ = ["CARRY", "CARRY_MAX_SHARE", "CLASSICAL", "IOU_THRESHOLD", "MEMORY", "MERGE_COSINE",
+           "MERGE_MAX_TOGETHER", "MIN_KEPT", "PART_OF", "SAME_CAMERA", "camera_key", "find_track_files",
            "link_masks", "run", "time_order", "track_classical", "write_files", "write_synthetic"]
