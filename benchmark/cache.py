@@ -40,8 +40,9 @@ STAGE_VERSIONS: dict[str, int] = {
     "ceiling": 6,  # 2: object alpha statistics; votes from at most 600 training views; 3: per object (objects); 4: spill; 5: spill of all objects only; 6: movers and mover_frames
     "fit": 2,  # 2: records the clustering sample's size (cluster_sample)
     "prompts": 2,  # 2: a click per object in its first frame, each naming its frame (prompts file v3)
-    # "evaluate" (1): scores, oracle and click sets; bump when scoring or segmentation code changes
-    # what it writes for the same inputs
+    # scores, oracle and click sets; bump when scoring or segmentation code changes what it
+    # writes for the same inputs
+    "evaluate": 2,  # 2: Gaussian Grouping's and SA4D's oracle takes no class 0 ("no track"), as their clicks
 }
 
 

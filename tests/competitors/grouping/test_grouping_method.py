@@ -10,7 +10,7 @@ import torch
 
 pytest.importorskip("trase_bench_grouping")
 
-from trase_bench_grouping.method import SA4D, GaussianGrouping, inside_hull
+from trase_bench_grouping.method import NO_TRACK, SA4D, GaussianGrouping, inside_hull
 from masks.tracked import ids_path, save_ids
 
 from benchmark.methods import FittedModel, check_method_class
@@ -92,6 +92,20 @@ def test_fit_click_and_oracle_on_two_blobs(cls, tiny, tmp_path):
     fitted.save(tmp_path / "out")  # the benchmark reloads it: the weights travel in fitted.json
     back = FittedModel.load(tmp_path / "out", gm, deform, method.settings_class())
     assert method.click_clusters(back, scene, prompts) == fitted.stats["click_clusters"]
+
+
+def test_the_oracle_takes_no_class_a_click_cannot_choose(tiny, tmp_path):
+    # a click on class 0 ("no track") selects nothing, so the oracle, a bound on what clicks can
+    # select, never takes it, even where its gaussians lie inside the ground truth
+    gm, deform, ids, views, _ = tiny
+    method = GaussianGrouping()
+    scene, fitted = _fit(method, tiny, tmp_path, iterations=20)
+    gts = [exact_masks(gm, deform, ids, v).masks[0] for v in views]  # blob 0's masks
+    _, classes = method.segment_oracle(fitted, scene, gts)
+    assert classes and NO_TRACK not in classes
+    fitted.labels = np.where(ids == 0, NO_TRACK, fitted.labels)  # blob 0's gaussians read as "no track"
+    _, classes = method.segment_oracle(fitted, scene, gts)
+    assert classes == []
 
 
 def test_a_click_on_nothing_chooses_nothing(tiny, tmp_path):

@@ -23,6 +23,8 @@ import numpy as np
 from benchmark.methods import FittedModel, Method, MethodError, click_view
 from trase_bench_grouping.settings import GG_PRESETS, HULLS, SA4D_PRESETS, GroupingSettings
 
+NO_TRACK = 0  # the tracked ids' class of pixels no track holds: a click on it selects nothing
+
 
 class GaussianGrouping(Method):
     """Gaussian Grouping: per-gaussian identity encodings classified into tracked-mask ids."""
@@ -172,7 +174,7 @@ class GaussianGrouping(Method):
             with torch.no_grad():
                 votes = classifier(r.features[rs, cs].reshape(-1, enc.shape[1])[ok].float()).argmax(dim=1)
             k = int(torch.mode(votes).values) if votes.numel() > 1 else int(votes[0])
-            out.append(k if k > 0 else -1)
+            out.append(k if k != NO_TRACK else -1)
         return out
 
     def selected_gaussians(self, fitted: FittedModel, classes: list[int], t: float) -> np.ndarray:
@@ -222,11 +224,13 @@ class GaussianGrouping(Method):
 
     def segment_oracle(self, fitted: FittedModel, scene, gts: list[np.ndarray]):
         """The classes mostly inside the ground truth (each gaussian by its argmax class),
-        rendered as segment() renders them: a bound beside the score, never the score."""
+        rendered as segment() renders them: a bound beside the score, never the score. Only
+        classes a click can choose: not NO_TRACK, which a click turns into nothing."""
         from benchmark.protocol.oracle import oracle_clusters
 
         cams = [v.camera for v in scene.test]
-        classes = oracle_clusters(fitted.gaussians, fitted.deformation, cams, gts, fitted.labels)
+        classes = [k for k in oracle_clusters(fitted.gaussians, fitted.deformation, cams, gts, fitted.labels)
+                   if k != NO_TRACK]
         return self.render_selection(fitted, scene, list(classes)), list(classes)
 
 
@@ -255,4 +259,4 @@ def inside_hull(points: np.ndarray, chosen: np.ndarray, outlier_factor: float) -
         return np.zeros(len(points), bool)
 
 
-__all__ = ["SA4D", "GaussianGrouping", "inside_hull"]
+__all__ = ["NO_TRACK", "SA4D", "GaussianGrouping", "inside_hull"]
