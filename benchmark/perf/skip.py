@@ -12,7 +12,8 @@ it (half size, the test split held out, black background): test PSNR / SSIM, val
 the foreground IoU of one click on the object against the held-out views' alpha stand where a
 synthetic scene has its ceiling and mIoU (real data: a table of their own). One run per variant:
 no spread; the ratios are of runs made one after the other on this machine, so its load is in
-them.
+them. The whole suite takes hours on 2 cores: each finished run prints a line and is appended to
+``<out-dir>/skip-runs.jsonl`` (RUNS_FILE), so an interrupted suite keeps what it measured.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ STATIC_THRESHOLD = 0.01  # chosen on the seed-1 selection scene of the HyperNeRF
 STATIC_TIME_GAP = 5.0  # dB; chosen on the seed-2 and seed-3 selection scenes of that format (docs/skip.md)
 STATIC_HOLD_ERROR = 0.2  # above the gap, hold back only what draws pixels off by this; chosen on the same scenes
 STOP_INTERVAL = 250  # steps between the stopping checks (the quick suite's tiny schedule: QUICK_STOP_INTERVAL)
+RUNS_FILE = "skip-runs.jsonl"  # in the out-dir: a line per finished run or fit, written as each ends
 
 
 def converged(interval: int) -> list[str]:
@@ -111,6 +113,10 @@ def run(quick: bool = False, echo: Callable[[str], None] = print, dataset: str |
     described = ", ".join(f"{k} [{' '.join(v) or 'as the preset'}]" for k, v in vs.items())
     echo(f"skips on and off, {', '.join(datasets)} ({cfg['sequence']}), trase, settings {' '.join(extra) or '(defaults)'}; "
          f"variants: {described}")
+    out_dir = Path(out_dir) if out_dir is not None else Path("perf-out")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / RUNS_FILE).unlink(missing_ok=True)  # this suite's runs only
+    done = _Progress(out_dir / RUNS_FILE, len(datasets) * len(vs) + len(scenes or []) * len(vs), echo)
     runs, rows = [], []
     with tempfile.TemporaryDirectory(prefix="trase-perf-skip-") as tmp:
         for ds in datasets:
@@ -122,11 +128,11 @@ def run(quick: bool = False, echo: Callable[[str], None] = print, dataset: str |
                     rec = run_pipeline(ds, cfg["sequence"], entry["overrides"], Path(tmp) / f"out-{ds}-{name}", cache)
                 except Exception as exc:  # noqa: BLE001 - reported per run, not hidden
                     entry |= {"error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc(limit=3)}
-                    runs.append(entry)
+                    runs.append(done(entry))
                     rows.append([ds, name, "FAILED"] + [""] * (len(HEADER) - 3))
                     continue
                 entry |= _figures(rec) | {"wall_seconds": time.perf_counter() - t0}
-                runs.append(entry)
+                runs.append(done(entry))
                 s = entry["seconds"]
                 f4 = lambda x: "-" if x is None else f"{x:.4f}"
                 rows.append([ds, name, f"{s.get('geometry', 0):.0f}", f"{s.get('features', 0):.0f}",
@@ -137,9 +143,8 @@ def run(quick: bool = False, echo: Callable[[str], None] = print, dataset: str |
                              _ratio(runs, ds, name, "features")])
     if rows:
         echo(table(rows, HEADER))
-    out_dir = Path(out_dir) if out_dir is not None else Path("perf-out")
     scene_runs = run_scenes([Path(d) for d in scenes or []], vs, [*(QUICK_SCENE if quick else []), *(overrides or [])],
-                            quick, out_dir, echo)
+                            quick, out_dir, echo, done)
     for r in runs + scene_runs:
         if "error" in r:
             echo(f"FAILED {r['dataset']} {r['variant']}: {r['error']}")
@@ -154,10 +159,11 @@ def run(quick: bool = False, echo: Callable[[str], None] = print, dataset: str |
 
 
 def run_scenes(scenes: list[Path], vs: dict[str, list[str]], extra: list[str], quick: bool, out_dir: Path,
-               echo: Callable[[str], None]) -> list[dict]:
+               echo: Callable[[str], None], done: Callable[[dict], dict] = lambda e: e) -> list[dict]:
     """Each variant a ``trase-bench fit`` of each D-NeRF scene as ``perf dnerf`` makes it, one
     fresh stage cache per scene (its variants share its masks, nothing from earlier runs); the
-    table printed. ``extra`` reaches the scenes' fits (the built-in runs get it less ``capture.*``)."""
+    table printed. ``extra`` reaches the scenes' fits (the built-in runs get it less ``capture.*``);
+    ``done`` is told of each finished fit."""
     from benchmark.captures.fit import FitOptions, fit_capture
     from benchmark.perf.dnerf import QUICK_SET, foreground_iou
 
@@ -178,11 +184,11 @@ def run_scenes(scenes: list[Path], vs: dict[str, list[str]], extra: list[str], q
                     entry |= _fit_figures(json.loads(fit_json.read_text()), foreground_iou(fit_json.parent, echo))
                 except Exception as exc:  # noqa: BLE001 - reported per run, not hidden
                     entry |= {"error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc(limit=3)}
-                    runs.append(entry)
+                    runs.append(done(entry))
                     rows.append([name, variant, "FAILED"] + [""] * (len(SCENE_HEADER) - 3))
                     continue
                 entry["wall_seconds"] = time.perf_counter() - t0
-                runs.append(entry)
+                runs.append(done(entry))
                 s, m = entry["seconds"], entry["measures"]
                 f = lambda x, p: "-" if x is None else f"{x:.{p}f}"
                 rows.append([name, variant, f"{s.get('geometry', 0):.0f}", f"{s.get('features', 0):.0f}",
@@ -194,6 +200,28 @@ def run_scenes(scenes: list[Path], vs: dict[str, list[str]], extra: list[str], q
     if rows:
         echo(table(rows, SCENE_HEADER))
     return runs
+
+
+class _Progress:
+    """Told of each finished run or fit: a line for the user and a line in the runs file."""
+
+    def __init__(self, path: Path, total: int, echo: Callable[[str], None]) -> None:
+        self.path, self.total, self.echo, self.n = path, total, echo, 0
+
+    def __call__(self, entry: dict) -> dict:
+        self.n += 1
+        with self.path.open("a") as f:
+            f.write(json.dumps(entry, default=str) + "\n")
+        what = f"{entry['dataset']} {entry['variant']}"
+        if "error" in entry:
+            self.echo(f"[{self.n}/{self.total}] {what}: FAILED ({entry['error']})")
+        else:
+            s = entry["seconds"]
+            score = (f"mIoU {entry['miou']:.4f}" if "miou" in entry
+                     else f"foreground IoU {entry['foreground_iou']:.4f}")
+            self.echo(f"[{self.n}/{self.total}] {what}: {entry['wall_seconds']:.0f} s (geometry "
+                      f"{s.get('geometry', 0):.0f} s, features {s.get('features', 0):.0f} s), {score}")
+        return entry
 
 
 def _fit_figures(rec: dict, fg: dict) -> dict:

@@ -71,6 +71,10 @@ def test_all_suites_quick(tmp_path, monkeypatch, capsys):
     for r in (full, static):  # the ceiling split into the frames with motion and the others
         assert 0 <= r["ceiling_moving_frames"] <= 1 and 0 <= r["ceiling_other_frames"] <= 1
     assert full["seconds"]["geometry"] > 0 and static["seconds"]["geometry"] > 0 and "geometry s vs full" in text
+    # each run was told as it ended: a line printed and a line in the runs file (an interrupted suite keeps them)
+    told = [json.loads(line) for line in (tmp_path / "skip-runs.jsonl").read_text().splitlines()]
+    assert [r["variant"] for r in told] == ["full", "static", "converged"] and told[0]["miou"] == full["miou"]
+    assert "[1/3] neu3d full: " in text and "[3/3] neu3d converged: " in text
 
     pa = s["pareto"]
     assert not pa["failed"] and len(pa["runs"]) == 2 and pa["pareto_front"]
