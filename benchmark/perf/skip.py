@@ -117,7 +117,7 @@ def run(quick: bool = False, echo: Callable[[str], None] = print, dataset: str |
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / RUNS_FILE).unlink(missing_ok=True)  # this suite's runs only
     done = _Progress(out_dir / RUNS_FILE, len(datasets) * len(vs) + len(scenes or []) * len(vs), echo)
-    runs, rows = [], []
+    runs = []
     with tempfile.TemporaryDirectory(prefix="trase-perf-skip-") as tmp:
         for ds in datasets:
             cache = Path(tmp) / f"cache-{ds}"  # the variants share the scene's masks
@@ -129,20 +129,11 @@ def run(quick: bool = False, echo: Callable[[str], None] = print, dataset: str |
                 except Exception as exc:  # noqa: BLE001 - reported per run, not hidden
                     entry |= {"error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc(limit=3)}
                     runs.append(done(entry))
-                    rows.append([ds, name, "FAILED"] + [""] * (len(HEADER) - 3))
                     continue
                 entry |= _figures(rec) | {"wall_seconds": time.perf_counter() - t0}
                 runs.append(done(entry))
-                s = entry["seconds"]
-                f4 = lambda x: "-" if x is None else f"{x:.4f}"
-                rows.append([ds, name, f"{s.get('geometry', 0):.0f}", f"{s.get('features', 0):.0f}",
-                             f"{entry['test_psnr']:.2f}" if entry["test_psnr"] is not None else "-",
-                             f"{entry['static_gaussians'] / max(entry['gaussians'], 1):.0%}",
-                             f4(entry["ceiling"]), f4(entry["ceiling_moving_frames"]), f4(entry["ceiling_other_frames"]),
-                             f"{entry['miou']:.4f}", _stopped(entry), _ratio(runs, ds, name, "geometry"),
-                             _ratio(runs, ds, name, "features")])
-    if rows:
-        echo(table(rows, HEADER))
+    if runs:
+        echo(tables(runs))
     scene_runs = run_scenes([Path(d) for d in scenes or []], vs, [*(QUICK_SCENE if quick else []), *(overrides or [])],
                             quick, out_dir, echo, done)
     for r in runs + scene_runs:
@@ -167,7 +158,7 @@ def run_scenes(scenes: list[Path], vs: dict[str, list[str]], extra: list[str], q
     from benchmark.captures.fit import FitOptions, fit_capture
     from benchmark.perf.dnerf import QUICK_SET, foreground_iou
 
-    runs, rows = [], []
+    runs = []
     for scene in scenes:
         name = f"dnerf/{scene.name}"
         # a fresh stage cache per scene, shared by its variants only: a stage taken from an
@@ -185,21 +176,48 @@ def run_scenes(scenes: list[Path], vs: dict[str, list[str]], extra: list[str], q
                 except Exception as exc:  # noqa: BLE001 - reported per run, not hidden
                     entry |= {"error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc(limit=3)}
                     runs.append(done(entry))
-                    rows.append([name, variant, "FAILED"] + [""] * (len(SCENE_HEADER) - 3))
                     continue
                 entry["wall_seconds"] = time.perf_counter() - t0
                 runs.append(done(entry))
-                s, m = entry["seconds"], entry["measures"]
-                f = lambda x, p: "-" if x is None else f"{x:.{p}f}"
-                rows.append([name, variant, f"{s.get('geometry', 0):.0f}", f"{s.get('features', 0):.0f}",
-                             f(m.get("test_psnr"), 2), f(m.get("test_ssim"), 4), f(m.get("validation_psnr"), 2),
-                             f"{entry['static_gaussians'] / max(entry['gaussians'], 1):.0%}",
-                             f(entry["foreground_iou"], 4), f(entry["foreground_worst"], 4),
-                             f(entry["foreground_mask_iou"], 4), f(entry["foreground_mask_worst"], 4), _stopped(entry),
-                             _ratio(runs, name, variant, "geometry"), _ratio(runs, name, variant, "features")])
-    if rows:
-        echo(table(rows, SCENE_HEADER))
+    if runs:
+        echo(tables(runs))
     return runs
+
+
+def _num(x, places: int) -> str:
+    return "-" if x is None else f"{x:.{places}f}"
+
+
+def _format_row(e: dict, runs: list[dict]) -> list[str]:
+    """A built-in format's run as a row of HEADER."""
+    ds, name, s = e["dataset"], e["variant"], e["seconds"]
+    return [ds, name, f"{s.get('geometry', 0):.0f}", f"{s.get('features', 0):.0f}", _num(e["test_psnr"], 2),
+            f"{e['static_gaussians'] / max(e['gaussians'], 1):.0%}", _num(e["ceiling"], 4),
+            _num(e["ceiling_moving_frames"], 4), _num(e["ceiling_other_frames"], 4), f"{e['miou']:.4f}", _stopped(e),
+            _ratio(runs, ds, name, "geometry"), _ratio(runs, ds, name, "features")]
+
+
+def _scene_row(e: dict, runs: list[dict]) -> list[str]:
+    """A D-NeRF scene's fit as a row of SCENE_HEADER."""
+    name, variant, s, m = e["dataset"], e["variant"], e["seconds"], e["measures"]
+    return [name, variant, f"{s.get('geometry', 0):.0f}", f"{s.get('features', 0):.0f}", _num(m.get("test_psnr"), 2),
+            _num(m.get("test_ssim"), 4), _num(m.get("validation_psnr"), 2),
+            f"{e['static_gaussians'] / max(e['gaussians'], 1):.0%}", _num(e["foreground_iou"], 4),
+            _num(e["foreground_worst"], 4), _num(e["foreground_mask_iou"], 4), _num(e["foreground_mask_worst"], 4),
+            _stopped(e), _ratio(runs, name, variant, "geometry"), _ratio(runs, name, variant, "features")]
+
+
+def tables(runs: list[dict]) -> str:
+    """The built-in formats' table and the D-NeRF scenes' (each where it has runs), from the
+    suite's entries (its JSON's ``runs``, or the lines of RUNS_FILE)."""
+    out = []
+    for header, row, mine in ((HEADER, _format_row, lambda r: not r["dataset"].startswith("dnerf/")),
+                              (SCENE_HEADER, _scene_row, lambda r: r["dataset"].startswith("dnerf/"))):
+        rows = [[r["dataset"], r["variant"], "FAILED"] + [""] * (len(header) - 3) if "error" in r else row(r, runs)
+                for r in runs if mine(r)]
+        if rows:
+            out.append(table(rows, header))
+    return "\n\n".join(out)
 
 
 class _Progress:
@@ -269,3 +287,29 @@ def _ratio(runs: list[dict], ds: str, name: str, stage: str) -> str:
         return "-"
     full = by["full"]["seconds"].get(stage, 0.0)
     return f"{by[name]['seconds'].get(stage, 0.0) / full:.2f}" if full > 0 else "-"
+
+
+def read_runs(path: Path) -> list[dict]:
+    """The entries of RUNS_FILE (a JSON line each), or of a ``perf --json`` file's skip suite."""
+    text = Path(path).read_text()
+    try:
+        whole = json.loads(text)
+    except json.JSONDecodeError:
+        return [json.loads(line) for line in text.splitlines() if line.strip()]
+    return whole["suites"]["skip"]["runs"] if isinstance(whole, dict) and "suites" in whole else [whole]
+
+
+if __name__ == "__main__":  # the tables of an interrupted suite: python -m benchmark.perf.skip perf-out/skip-runs.jsonl
+    import sys
+
+    if len(sys.argv) != 2:
+        sys.exit("usage: python -m benchmark.perf.skip FILE (a perf skip run's skip-runs.jsonl, or its --json file)")
+    path = Path(sys.argv[1])
+    try:
+        entries = read_runs(path)
+    except (OSError, json.JSONDecodeError, KeyError) as exc:
+        sys.exit(f"{path}: {exc}")
+    try:
+        print(tables(entries))
+    except (KeyError, TypeError) as exc:
+        sys.exit(f"{path}: not the runs of perf skip (an entry without {exc})")

@@ -75,6 +75,9 @@ def test_all_suites_quick(tmp_path, monkeypatch, capsys):
     told = [json.loads(line) for line in (tmp_path / "skip-runs.jsonl").read_text().splitlines()]
     assert [r["variant"] for r in told] == ["full", "static", "converged"] and told[0]["miou"] == full["miou"]
     assert "[1/3] neu3d full: " in text and "[3/3] neu3d converged: " in text
+    from benchmark.perf.skip import tables
+
+    assert tables(told) in text  # the runs file gives back the table the suite printed
 
     pa = s["pareto"]
     assert not pa["failed"] and len(pa["runs"]) == 2 and pa["pareto_front"]
