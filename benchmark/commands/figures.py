@@ -28,8 +28,12 @@ from benchmark.commands import old_spelling
 @click.option("--method", "methods", multiple=True,
               help="Methods to measure (repeatable; default trase). Several methods make the methods table: "
                    "write it with --data docs/methods-figures.json --write-page docs/competitors.md.")
+@click.option("--update", is_flag=True,
+              help="Replace only the rows this call summarises in the existing --data file (a re-measurement of "
+                   "some methods, formats or geometries) and keep the others; cells whose runs came from another "
+                   "instruction set than most are marked on the page.")
 @click.option("--quiet", is_flag=True, help="No progress output.")
-def figures(runs_dir, seeds, formats, geometries, collect_only, data_path, page, methods, quiet) -> None:
+def figures(runs_dir, seeds, formats, geometries, collect_only, data_path, page, methods, update, quiet) -> None:
     """Run trase (or each --method) on the five built-in formats (reconstructed and ground-truth
     geometry, each for --seeds run seeds), summarise mean ± std over seeds into --data with the
     commit and machine, print the table, and with --write-page put it into the page's block
@@ -40,11 +44,14 @@ def figures(runs_dir, seeds, formats, geometries, collect_only, data_path, page,
     measurement resumes.
     """
     from benchmark.config import parse_seeds
+    from benchmark.errors import UserError
     from benchmark.results.figures import (
         FORMATS,
         GEOMETRIES,
         collect,
+        merge,
         page_markers,
+        read_figures,
         render_block,
         render_methods_block,
         replace_block,
@@ -59,8 +66,13 @@ def figures(runs_dir, seeds, formats, geometries, collect_only, data_path, page,
 
         run_all(Path(runs_dir), parse_seeds(seeds), formats, geometries, progress=not quiet, methods=methods)
     data = collect(Path(runs_dir), formats, geometries, methods)
+    if update:
+        if not Path(data_path).is_file():
+            raise UserError(f"--update: {data_path} does not exist (nothing to update; leave --update out)")
+        data = merge(read_figures(Path(data_path)), data)
     write_json(Path(data_path), data)
-    click.echo(render_methods_block(data) if len(methods) > 1 else render_block(data))
+    several = len({r.get("method", "trase") for r in data["rows"]}) > 1
+    click.echo(render_methods_block(data) if several else render_block(data))
     click.echo(f"wrote {data_path}")
     if page:
         from benchmark.io import atomic_write_text

@@ -78,17 +78,52 @@ def collect(out_dir: Path, formats=FORMATS, geometries=GEOMETRIES, methods=("tra
                      "features_seconds": [float(f["seconds"]) for f in feats if "seconds" in f],
                      "features_per_step": [float(t["features_per_step"]) for t in timings if "features_per_step" in t],
                      "scene": sibs[0].get("synthetic_scene"), "config_group": sibs[0]["run"]["group"],
-                     "preset": sibs[0]["config"]["geometry"]["preset"]})
+                     "preset": sibs[0]["config"]["geometry"]["preset"],
+                     "instruction_sets": run_instruction_sets(sibs), "run_commits": _run_commits(sibs),
+                     "date": datetime.date.today().isoformat()})
     if not rows:
         raise UserError(f"{out_dir}: no runs of {', '.join(methods)} on the synthetic formats; "
                         "run `trase-bench figures` first")
     machine = {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
                "cpus": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
                "instruction_sets": run_instruction_sets(used)}
-    run_commits = sorted({(r.get("versions") or {}).get("trase-bench commit", "unrecorded") for r in used})
     return {"schema": SCHEMA, "commit": code_commit(),
             "date": datetime.date.today().isoformat(), "machine": machine, "rows": rows,
-            "run_commits": run_commits}
+            "run_commits": _run_commits(used)}
+
+
+def _run_commits(records: list[dict]) -> list[str]:
+    return sorted({(r.get("versions") or {}).get("trase-bench commit", "unrecorded") for r in records})
+
+
+def _row_key(row: dict) -> tuple[str, str, str]:
+    return row.get("method", "trase"), row["format"], row["geometry"]
+
+
+def merge(old: dict, new: dict) -> dict:
+    """``old``'s data with ``new``'s rows in place of the same (method, format, geometry): a
+    re-measurement of some cells (say one method's ground-truth row after a fix) keeps the rest.
+    Each row keeps its own runs' instruction sets and commits (rows of files written before
+    rows recorded them inherit their file's), so the page can say which cells came from where."""
+    _check_schema(old)
+    _check_schema(new)
+    fresh = {_row_key(r): r for r in new["rows"]}
+    old_isa = old.get("machine", {}).get("instruction_sets")
+    rows = []
+    for r in old["rows"]:
+        if _row_key(r) in fresh:
+            rows.append(fresh.pop(_row_key(r)))
+            continue
+        r = dict(r)
+        if "instruction_sets" not in r and old_isa:
+            r["instruction_sets"] = list(old_isa)
+        if "run_commits" not in r:
+            r["run_commits"] = list(old.get("run_commits") or ["unrecorded"])
+        rows.append(r)
+    rows += fresh.values()
+    isa = sorted({i for r in rows for i in r.get("instruction_sets") or []})
+    return dict(new, rows=rows, machine=dict(new["machine"], instruction_sets=isa),
+                run_commits=sorted({c for r in rows for c in r.get("run_commits") or []}))
 
 
 def run_instruction_sets(records: list[dict]) -> list[str]:
@@ -198,6 +233,7 @@ def render_methods_block(data: dict) -> str:
                 + (" and runs that do not record it (made before results recorded their commit)"
                    if "unrecorded" in code else "")) if any(c != "unrecorded" for c in code) else (
             " from runs that do not record their code's commit (made before results recorded it)")
+    marks = _isa_marks(rows, data)
     lines = [(f"Summarised at commit `{data['commit']}` on {data['date']} ({_where(data)}){made}, `trase-bench figures "
              "--method ...` on the built-in synthetic scenes (each method's main protocol and defaults, "
              "official metric): mIoU, mean ± standard deviation over the run seeds; (n): the number of seeds "
@@ -216,9 +252,10 @@ def render_methods_block(data: dict) -> str:
                     cells.append("—")
                     continue
                 s, n = r["summary"], len(r["summary"]["seeds"])
-                cells.append(_ms(s["miou"]) + (f" ({n})" if n < 3 else ""))
+                cells.append(_ms(s["miou"]) + (f" ({n})" if n < 3 else "") + marks.get(_row_isa(r, data), ""))
             lines.append(f"| {m} | " + " | ".join(cells) + " |")
         lines.append("")
+    lines += _isa_note(rows, data, marks)
     pub = published_averages()
     pub_methods = list(dict.fromkeys([m for m in methods if any((m, f) in pub for f in formats)]
                                      + sorted({m for m, _ in pub})))  # measured ones first
@@ -235,14 +272,52 @@ def render_methods_block(data: dict) -> str:
             orders.append(_order(sc) if len(sc) > 1 else "—")
         pb = {m: pub[(m, f)] for m in methods if (m, f) in pub}
         lines.append(f"| {NAMES[f]} | {orders[0]} | {orders[1]} | {_order(pb) if len(pb) > 1 else '—'} |")
-    lines += _feature_time_lines(by, methods)
+    lines += _feature_time_lines(by, methods, lambda r: marks.get(_row_isa(r, data), ""))
     return "\n".join(lines) + "\n"
+
+
+MARKS = ("†", "‡", "§", "¶")
+
+
+def _row_isa(row: dict, data: dict) -> tuple[str, ...]:
+    """The instruction sets of a row's runs (its file's for rows written before rows kept them)."""
+    return tuple(row.get("instruction_sets") or data["machine"].get("instruction_sets") or ())
+
+
+def _isa_marks(rows: list[dict], data: dict) -> dict[tuple[str, ...], str]:
+    """A mark per instruction set other than the one most cells were computed with: cells of
+    merged re-measurements (``figures --update``) say that their runs came from another machine."""
+    from collections import Counter
+
+    counts = Counter(_row_isa(r, data) for r in rows)
+    if len(counts) < 2:
+        return {}
+    others = [isa for isa, _ in counts.most_common()][1:]
+    return {isa: MARKS[i % len(MARKS)] * (1 + i // len(MARKS)) for i, isa in enumerate(others)}
+
+
+def _isa_note(rows: list[dict], data: dict, marks: dict) -> list[str]:
+    if not marks:
+        return []
+    from collections import Counter
+
+    name = lambda isa: " / ".join(isa) or "unrecorded"
+    main = Counter(_row_isa(r, data) for r in rows).most_common(1)[0][0]
+    out = []
+    for isa, mark in marks.items():
+        mine = [r for r in rows if _row_isa(r, data) == isa]
+        commits = sorted({c for r in mine for c in r.get("run_commits") or []} - {"unrecorded"})
+        dates = sorted({r["date"] for r in mine if r.get("date")})
+        out.append(f"{mark} runs computed with {name(isa)}"
+                   + (f", the code of commit {', '.join(f'`{c}`' for c in commits)}" if commits else "")
+                   + (f", on {', '.join(dates)}" if dates else "") + f"; the unmarked cells' with {name(main)}.")
+    return out + [""]
 
 
 DEFAULT_FORMAT = "hypernerf"  # the default scene (`make demo`)
 
 
-def _feature_time_lines(by: dict, methods: list[str]) -> list[str]:
+def _feature_time_lines(by: dict, methods: list[str], mark=lambda row: "") -> list[str]:
     """Each method's feature stage on the default scene: median seconds and ms per step over
     its seeds, per geometry (measured inside the runs above: the machine's load at the time is
     in them; `trase-bench perf methods` measures them side by side)."""
@@ -260,7 +335,7 @@ def _feature_time_lines(by: dict, methods: list[str]) -> list[str]:
         for geo in GEOMETRIES:
             r = by.get((m, DEFAULT_FORMAT, geo)) or {}
             sec, step = r.get("features_seconds") or [], r.get("features_per_step") or []
-            cells += [f"{np.median(sec):.0f}" if sec else "—", f"{np.median(step) * 1e3:.0f}" if step else "—"]
+            cells += [f"{np.median(sec):.0f}{mark(r)}" if sec else "—", f"{np.median(step) * 1e3:.0f}" if step else "—"]
         lines.append(f"| {m} | " + " | ".join(cells) + " |")
     return lines
 

@@ -149,3 +149,64 @@ def test_a_results_record_names_its_code_commit():
         pytest.skip("not a git checkout: the commit is 'unknown' here")
     assert package_versions()["trase-bench commit"] == code_commit()
     assert code_commit().split("+")[0] == head.stdout.strip()
+
+
+def _remeasured(data):
+    """A re-measurement of cgc on HyperNeRF and of opengaussian (new) from another machine."""
+    new = _methods_data()
+    avx2 = ["torch AVX2, numba znver3"]
+    rows = []
+    for r in new["rows"]:
+        if r["method"] == "cgc" and r["format"] == "hypernerf" and r["geometry"] == "reconstruct":
+            rows.append(dict(r, summary=dict(r["summary"], miou={"mean": 0.5, "std": 0.02, "n": 3},
+                                             seeds=[0, 1, 2]),
+                             instruction_sets=avx2, run_commits=["def5678"], date="2026-11-28"))
+    rows.append(dict(rows[0], method="opengaussian"))
+    return dict(new, commit="def5678", date="2026-11-28", rows=rows,
+                machine={"cpus": 2, "processor": "x86_64", "instruction_sets": avx2}, run_commits=["def5678"])
+
+
+def test_an_update_replaces_only_its_cells_and_marks_those_from_another_machine():
+    from benchmark.results.figures import merge, render_methods_block
+
+    old = _methods_data()
+    old["machine"]["instruction_sets"] = ["torch AVX512, numba znver5"]
+    old["run_commits"] = ["abc1234"]
+    data = merge(old, _remeasured(old))
+    keys = [(r["method"], r["format"], r["geometry"]) for r in data["rows"]]
+    assert len(keys) == len(set(keys)) == len(old["rows"]) + 1  # one replaced in place, one added
+    assert keys.index(("cgc", "hypernerf", "reconstruct")) == 2
+    assert data["run_commits"] == ["abc1234", "def5678"]
+    assert data["machine"]["instruction_sets"] == ["torch AVX2, numba znver3", "torch AVX512, numba znver5"]
+    block = render_methods_block(data)
+    assert "| cgc | 0.500 ± 0.020† | 0.700 (1) |" in block  # the re-measured cell, marked
+    assert "| opengaussian | 0.500 ± 0.020† | — |" in block
+    assert "| trase | 0.900 ± 0.010 | 0.900 ± 0.010 |" in block  # kept, unmarked
+    assert ("† runs computed with torch AVX2, numba znver3, the code of commit `def5678`, on 2026-11-28; "
+            "the unmarked cells' with torch AVX512, numba znver5.") in block
+    assert "runs from 2 instruction sets" in block.splitlines()[0]
+    # one machine: no marks, as before
+    same = _remeasured(old)
+    for r in same["rows"]:
+        r["instruction_sets"] = ["torch AVX512, numba znver5"]
+    assert "†" not in render_methods_block(merge(old, same))
+
+
+def test_figures_update_merges_into_its_data_file_and_needs_one(tmp_path, monkeypatch, capsys):
+    import json
+
+    import benchmark.results.figures as figures
+    from benchmark.cli import main
+
+    old = _methods_data()
+    old["machine"]["instruction_sets"] = ["torch AVX512, numba znver5"]
+    monkeypatch.setattr(figures, "collect", lambda *a, **k: _remeasured(old))
+    path = tmp_path / "methods-figures.json"
+    args = ["figures", "--collect-only", "--runs", str(tmp_path), "--method", "cgc", "--method", "opengaussian",
+            "--data", str(path), "--update"]
+    assert main(args) != 0
+    assert "does not exist" in capsys.readouterr().err and not path.exists()
+    path.write_text(json.dumps(old))
+    assert main(args) == 0
+    data = read_figures(path)
+    assert len(data["rows"]) == len(old["rows"]) + 1 and "0.500 ± 0.020†" in capsys.readouterr().out
