@@ -20,7 +20,7 @@ from benchmark.perf import SUITES, get_suite, machine_info
               help="Where suites write files (pareto.png). Default: the --json file's folder, else ./perf-out.")
 @click.option("--dataset", default=None,
               help="The built-in scene's format for suites that take one (reconstruct, captures; "
-                   "default: each suite's own, hypernerf).")
+                   "default: each suite's own, hypernerf); `none` with --scene: only the scenes (skip).")
 @click.option("--scene", "scenes", multiple=True, type=click.Path(file_okay=False, exists=True),
               help="Scene folders for suites that take them (dnerf, skip: D-NeRF scenes as published; repeatable).")
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
@@ -38,6 +38,13 @@ def perf(suites: tuple[str, ...], quick: bool, json_out: str | None, out_dir: st
          methods: tuple[str, ...], threads: int | None) -> None:
     """Run performance SUITES (default: all that this machine can run) and print their figures."""
     names = suites or tuple(SUITES.names())
+    no_dataset = dataset == "none"
+    if no_dataset:
+        takes = [n for n in names if "datasets" in inspect.signature(get_suite(n)).parameters]
+        if not scenes or takes != list(names):
+            raise click.UsageError("--dataset none measures only the --scene folders: give --scene, and only "
+                                   "suites that measure scenes beside the formats (skip)")
+        dataset = None
     if dataset is not None:
         from benchmark.datasets import get_dataset
 
@@ -69,6 +76,8 @@ def perf(suites: tuple[str, ...], quick: bool, json_out: str | None, out_dir: st
             extra["out_dir"] = Path(out_dir) if out_dir else (Path(json_out).parent if json_out else Path("perf-out"))
         if dataset is not None and "dataset" in inspect.signature(fn).parameters:
             extra["dataset"] = dataset
+        if no_dataset:
+            extra["datasets"] = []
         if scenes and "scenes" in inspect.signature(fn).parameters:
             extra["scenes"] = list(scenes)
         if overrides and "overrides" in inspect.signature(fn).parameters:

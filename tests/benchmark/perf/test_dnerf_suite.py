@@ -85,3 +85,21 @@ def test_capture_settings_reach_the_scenes_only():
 
     assert for_runs(["capture.image_scale=2", "geometry.train.iterations=60", " capture.max_side=400"]) == [
         "geometry.train.iterations=60"]
+
+
+def test_perf_dataset_none_measures_only_the_scenes(tmp_path, monkeypatch, capsys):
+    """`perf skip --scene DIR --dataset none`: the skip suite without the built-in formats."""
+    import benchmark.commands.perf as perf_command
+    from benchmark.cli import main
+
+    seen = {}
+
+    def fake_skip(quick, echo, datasets=None, scenes=None, out_dir=None):
+        seen.update(datasets=datasets, scenes=scenes)
+        return {}
+
+    monkeypatch.setattr(perf_command, "get_suite", lambda name: fake_skip)
+    assert main(["perf", "skip", "--scene", str(HOOK), "--dataset", "none", "--out-dir", str(tmp_path)]) == 0
+    assert seen == {"datasets": [], "scenes": [str(HOOK)]}
+    assert main(["perf", "skip", "--dataset", "none"]) != 0  # no scene: nothing to measure
+    assert "--dataset none measures only the --scene folders" in capsys.readouterr().err
