@@ -172,18 +172,19 @@ def render_block(data: dict) -> str:
          "| clusters agree (pixel ARI) | seeds |"),
         "|---|---|---|---|---|---|---|---|---|",
     ]
-    for row in data["rows"]:
-        if row.get("method", "trase") != "trase":
-            continue
+    mine = [r for r in data["rows"] if r.get("method", "trase") == "trase"]
+    marks = _isa_marks(mine, data)
+    for row in mine:
         s = row["summary"]
         geo = "reconstructed" if row["geometry"] == "reconstruct" else "ground truth"
         ag = (s.get("agreement") or {}).get("pixel_ari")
         psnr = _mean_std(row["test_psnr"]) if row["geometry"] == "reconstruct" else "—"
         lines.append(
             f"| {names.get(row['format'], row['format'])} | {geo} | {psnr} | {_ms(s['ceiling'])} | "
-            f"{_ms(s['oracle'])} | **{_ms(s['miou'])}** | {_ms(s['click_sets_median'])} / "
+            f"{_ms(s['oracle'])} | **{_ms(s['miou'])}**{marks.get(_row_isa(row, data), '')} | {_ms(s['click_sets_median'])} / "
             f"{_ms(s['click_sets_worst'])} | {'—' if ag is None else f'{ag:.3f}'} | {len(s['seeds'])} |")
-    return "\n".join(lines) + "\n"
+    note = _isa_note(mine, data, marks)
+    return "\n".join(lines + ([""] + note[:-1] if note else [])) + "\n"
 
 
 def _check_schema(data: dict) -> None:

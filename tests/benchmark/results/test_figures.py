@@ -210,3 +210,17 @@ def test_figures_update_merges_into_its_data_file_and_needs_one(tmp_path, monkey
     assert main(args) == 0
     data = read_figures(path)
     assert len(data["rows"]) == len(old["rows"]) + 1 and "0.500 ± 0.020†" in capsys.readouterr().out
+
+
+def test_trases_figures_block_marks_its_cells_from_another_machine_too():
+    from benchmark.results.figures import merge
+
+    old = _data()
+    old["machine"]["instruction_sets"] = ["torch AVX512, numba znver5"]
+    old["rows"] += [dict(old["rows"][0], format="neu3d"), dict(old["rows"][0], format="technicolor")]
+    new = _data()
+    new["rows"][0].update(instruction_sets=["torch AVX2, numba znver3"], run_commits=["def5678"], date="2026-11-28")
+    block = render_block(merge(old, new))
+    assert "| HyperNeRF | reconstructed | 27.00 ± 0.20 | 0.920 ± 0.000 | 0.910 ± 0.010 | **0.900 ± 0.010**† |" in block
+    assert "| Neu3D | reconstructed | 27.00 ± 0.20 | 0.920 ± 0.000 | 0.910 ± 0.010 | **0.900 ± 0.010** |" in block
+    assert block.endswith("the unmarked cells' with torch AVX512, numba znver5.\n")
