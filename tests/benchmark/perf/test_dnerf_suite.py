@@ -74,6 +74,7 @@ def test_perf_skip_measures_each_skip_on_a_dnerf_scene(tmp_path, monkeypatch):
             for v in ("full", "static", "converged")}
     assert len(set(keys.values())) == 3, keys
     text = "\n".join(lines)
+    assert text.startswith("skips on and off, dnerf/hook, trase, settings")  # the scene only, no format
     assert "foreground IoU, mask prompt" in text and "dnerf/hook" in text and "geometry s vs full" in text
     assert (tmp_path / "out" / "skip-dnerf-hook.png").stat().st_size > 1000
     told = (tmp_path / "out" / "skip-runs.jsonl").read_text().splitlines()  # a line per fit, as each ended
