@@ -112,8 +112,9 @@ def run(quick: bool = False, echo: Callable[[str], None] = print, dataset: str |
     vs = variants(STATIC_THRESHOLD, quick)
     described = ", ".join(f"{k} [{' '.join(v) or 'as the preset'}]" for k, v in vs.items())
     what = [f"{', '.join(datasets)} ({cfg['sequence']})"] if datasets else []
-    what += [", ".join(f"dnerf/{Path(d).name}" for d in scenes or [])]
-    echo(f"skips on and off, {' and '.join(w for w in what if w)}, trase, settings {' '.join(extra) or '(defaults)'}; "
+    if scenes:
+        what.append(", ".join(f"dnerf/{Path(d).name}" for d in scenes))
+    echo(f"skips on and off, {' and '.join(what)}, trase, settings {' '.join(extra) or '(defaults)'}; "
          f"variants: {described}")
     out_dir = Path(out_dir) if out_dir is not None else Path("perf-out")
     out_dir.mkdir(parents=True, exist_ok=True)

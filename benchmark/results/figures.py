@@ -184,7 +184,7 @@ def render_block(data: dict) -> str:
             f"{_ms(s['oracle'])} | **{_ms(s['miou'])}**{marks.get(_row_isa(row, data), '')} | {_ms(s['click_sets_median'])} / "
             f"{_ms(s['click_sets_worst'])} | {'—' if ag is None else f'{ag:.3f}'} | {len(s['seeds'])} |")
     note = _isa_note(mine, data, marks)
-    return "\n".join(lines + ([""] + note[:-1] if note else [])) + "\n"
+    return "\n".join(lines + ([""] + note if note else [])) + "\n"
 
 
 def _check_schema(data: dict) -> None:
@@ -256,7 +256,8 @@ def render_methods_block(data: dict) -> str:
                 cells.append(_ms(s["miou"]) + (f" ({n})" if n < 3 else "") + marks.get(_row_isa(r, data), ""))
             lines.append(f"| {m} | " + " | ".join(cells) + " |")
         lines.append("")
-    lines += _isa_note(rows, data, marks)
+    note = _isa_note(rows, data, marks)
+    lines += note + [""] if note else []
     pub = published_averages()
     pub_methods = list(dict.fromkeys([m for m in methods if any((m, f) in pub for f in formats)]
                                      + sorted({m for m, _ in pub})))  # measured ones first
@@ -285,25 +286,30 @@ def _row_isa(row: dict, data: dict) -> tuple[str, ...]:
     return tuple(row.get("instruction_sets") or data["machine"].get("instruction_sets") or ())
 
 
-def _isa_marks(rows: list[dict], data: dict) -> dict[tuple[str, ...], str]:
-    """A mark per instruction set other than the one most cells were computed with: cells of
-    merged re-measurements (``figures --update``) say that their runs came from another machine."""
-    from collections import Counter
+def _isas_by_share(rows: list[dict], data: dict) -> list[tuple[str, ...]]:
+    """The rows' instruction sets, most cells first; on a tie the earlier measured first (rows
+    without a date are the oldest), so a re-measurement never unmarks what it is merged into."""
+    first = {}
+    for r in rows:
+        isa = _row_isa(r, data)
+        first[isa] = min(first.get(isa, r.get("date") or ""), r.get("date") or "")
+    count = lambda isa: sum(_row_isa(r, data) == isa for r in rows)
+    return sorted(first, key=lambda isa: (-count(isa), first[isa]))
 
-    counts = Counter(_row_isa(r, data) for r in rows)
-    if len(counts) < 2:
-        return {}
-    others = [isa for isa, _ in counts.most_common()][1:]
+
+def _isa_marks(rows: list[dict], data: dict) -> dict[tuple[str, ...], str]:
+    """A mark per instruction set other than the main one (``_isas_by_share``): cells of merged
+    re-measurements (``figures --update``) say that their runs came from another machine."""
+    others = _isas_by_share(rows, data)[1:]
     return {isa: MARKS[i % len(MARKS)] * (1 + i // len(MARKS)) for i, isa in enumerate(others)}
 
 
 def _isa_note(rows: list[dict], data: dict, marks: dict) -> list[str]:
+    """A line per mark: the instruction set, commits and dates of the marked cells' runs."""
     if not marks:
         return []
-    from collections import Counter
-
     name = lambda isa: " / ".join(isa) or "unrecorded"
-    main = Counter(_row_isa(r, data) for r in rows).most_common(1)[0][0]
+    main = _isas_by_share(rows, data)[0]
     out = []
     for isa, mark in marks.items():
         mine = [r for r in rows if _row_isa(r, data) == isa]
@@ -312,7 +318,7 @@ def _isa_note(rows: list[dict], data: dict, marks: dict) -> list[str]:
         out.append(f"{mark} runs computed with {name(isa)}"
                    + (f", the code of commit {', '.join(f'`{c}`' for c in commits)}" if commits else "")
                    + (f", on {', '.join(dates)}" if dates else "") + f"; the unmarked cells' with {name(main)}.")
-    return out + [""]
+    return out
 
 
 DEFAULT_FORMAT = "hypernerf"  # the default scene (`make demo`)

@@ -224,3 +224,6 @@ def test_trases_figures_block_marks_its_cells_from_another_machine_too():
     assert "| HyperNeRF | reconstructed | 27.00 ± 0.20 | 0.920 ± 0.000 | 0.910 ± 0.010 | **0.900 ± 0.010**† |" in block
     assert "| Neu3D | reconstructed | 27.00 ± 0.20 | 0.920 ± 0.000 | 0.910 ± 0.010 | **0.900 ± 0.010** |" in block
     assert block.endswith("the unmarked cells' with torch AVX512, numba znver5.\n")
+    # a tie (one cell of each): the earlier measurement stays unmarked, the re-measured cell is marked
+    tie = merge(dict(old, rows=old["rows"][:1] + [dict(old["rows"][0], format="neu3d")]), new)
+    assert "| HyperNeRF | reconstructed | 27.00 ± 0.20 | 0.920 ± 0.000 | 0.910 ± 0.010 | **0.900 ± 0.010**† |" in render_block(tie)
