@@ -5,8 +5,8 @@
   gaussian at that time (KD-tree), return its cluster. A click on a pixel with rendered alpha
   below ``min_alpha`` hits nothing (-1): there is no surface to lift it to. The "weight" rule
   instead takes the cluster rendered most under the cursor (a 3x3 window), the "feature" rule
-  the cluster whose mean feature is nearest the feature rendered there; see
-  ``click_to_cluster``.
+  the cluster whose mean feature is nearest the feature rendered there, the "front" rule the
+  nearest to the camera of the clusters holding a share of that weight; see ``click_to_cluster``.
 * 2D mask prompt (the public code's text-prompt path: a Grounded-SAM mask): pixels with a rendered
   surface are lifted the same way. Rule ``cover`` (default): a cluster is chosen when at least
   ``min_cover`` of its own lifted pixels in the view lie inside the mask, the intersection over
@@ -34,7 +34,8 @@ from trase.clustering import _centres, normalise
 from trase.deformation import deformed
 from trase.render import pixel_weights, rasterize
 
-CLICK_RULES = ("depth", "weight", "feature")
+CLICK_RULES = ("depth", "weight", "feature", "front")
+FRONT_SHARE = 0.25  # the "front" rule's least share of the window's weight (benchmark chooses its own)
 MASK_RULES = ("cover", "share")
 MASK_MIN_COVER = 0.7  # Gaussian Grouping's intersection-over-area threshold of its mask prompt
 
@@ -97,7 +98,7 @@ def lift_pixels(
 
 def click_to_cluster(gaussians, deformation, camera: Camera, click: Click, labels: np.ndarray,
                      min_alpha: float = 0.5, rule: str = "depth", radius: int = 1,
-                     features: np.ndarray | None = None) -> int:
+                     features: np.ndarray | None = None, front_share: float = FRONT_SHARE) -> int:
     """One click -> cluster id (-1 when the click hits no surface).
 
     ``rule="depth"`` (the paper's): rendered depth -> 3D point -> nearest deformed gaussian.
@@ -112,7 +113,12 @@ def click_to_cluster(gaussians, deformation, camera: Camera, click: Click, label
     the 2D masks) is compared by cosine with each cluster's mean feature; the nearest cluster
     wins. Why: where an object's gaussians are semi-transparent the weight under the cursor
     can be mostly the background's, while the rendered feature is the object's
-    (docs/cpu-constants.md, "The click rule", has the measurements)."""
+    (docs/cpu-constants.md, "The click rule", has the measurements).
+    ``rule="front"``: of the clusters holding at least ``front_share`` of the window's weight,
+    the one nearest the camera (the weight-averaged depth of its gaussians there). Why: a
+    person clicks what is in front; where a semi-transparent object blends with the wall
+    behind it, the wall can hold more of the weight and of the rendered feature than the
+    object (docs/cpu-constants.md, "The click rule")."""
     if rule not in CLICK_RULES:
         raise PromptError(f"unknown click rule {rule!r}; choose one of {', '.join(CLICK_RULES)}")
     if rule == "feature" and features is None:
@@ -120,13 +126,19 @@ def click_to_cluster(gaussians, deformation, camera: Camera, click: Click, label
             raise PromptError("click rule 'feature' needs the gaussians' features")
         features = gaussians.features.detach().cpu().numpy()  # the editor's models carry them
     cam = camera if click.time is None else camera.with_time(click.time)
-    if rule in ("weight", "feature"):
+    if rule == "front" and not 0.0 < front_share <= 1.0:
+        raise PromptError(f"front_share must be in (0, 1], got {front_share}")
+    if rule in ("weight", "feature", "front"):
         window = window_weights(gaussians, deformation, cam, click.u, click.v, min_alpha, radius)
         if window is None:
             return -1
         idx, w = window
         if rule == "weight":
             return _heaviest_cluster(idx, w, labels)
+        if rule == "front":
+            means = geometry_at(gaussians, deformation, cam.time)[0].cpu().numpy().astype(np.float64)
+            depth = cam.world_to_camera(means[idx])[:, 2]  # [K] camera z of each pair's gaussian
+            return _front_cluster(idx, w, depth, labels, front_share)
         return _nearest_cluster_feature(idx, w, labels, features)
     gid = int(lift_pixels(gaussians, deformation, cam, np.array([[click.u, click.v]]), min_alpha)[0])
     return -1 if gid < 0 else int(labels[gid])
@@ -165,6 +177,24 @@ def _heaviest_cluster(idx: np.ndarray, w: np.ndarray, labels: np.ndarray) -> int
     if not ok.any():
         return -1
     return int(np.argmax(np.bincount(lab[ok], weights=w[ok])))
+
+
+def _front_cluster(idx: np.ndarray, w: np.ndarray, depth: np.ndarray, labels: np.ndarray, share: float) -> int:
+    """Of the clusters holding >= ``share`` of the window's weight on clusters, the one with the
+    smallest weight-averaged depth (-1 when no weight is on a cluster). Ties: the lowest id."""
+    lab = np.asarray(labels, dtype=np.int64)[idx]
+    ok = lab >= 0
+    if not ok.any():
+        return -1
+    weight = np.bincount(lab[ok], weights=w[ok])  # [C]
+    total = weight.sum()
+    if not np.isfinite(total) or total <= 0.0:
+        return -1
+    mean_depth = np.bincount(lab[ok], weights=w[ok] * depth[ok], minlength=weight.size) / np.maximum(weight, 1e-300)
+    eligible = np.flatnonzero(weight >= share * total)
+    if eligible.size == 0:  # the weight spread over many clusters, none holding the share: the heaviest
+        eligible = np.array([int(np.argmax(weight))])
+    return int(eligible[np.argmin(mean_depth[eligible])])
 
 
 def _nearest_cluster_feature(idx: np.ndarray, w: np.ndarray, labels: np.ndarray, features: np.ndarray) -> int:

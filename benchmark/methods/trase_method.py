@@ -125,7 +125,8 @@ class TraseMethod(Method):
         for c in prompts.clicks:
             view = click_view(scene, prompts, c)
             out.append(int(click_to_cluster(fitted.gaussians, fitted.deformation, view.camera, c, fitted.labels,
-                                            min_alpha, rule, radius, features=fitted.features)))
+                                            min_alpha, rule, radius, features=fitted.features,
+                                            front_share=float(clicks.front_share))))
         return out
 
     def select(self, fitted: FittedModel, scene, prompts) -> list[int]:

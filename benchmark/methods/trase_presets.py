@@ -17,6 +17,7 @@ import dataclasses
 from benchmark.methods import MethodError
 from lazyspecs.presets import MONOCULAR, MULTIVIEW, OWN_CAPTURE, Context, PresetTable, dataset
 from trase.feature_config import CPU_MAX_PIXELS, FEATURE_PRESETS, FeatureConfig
+from trase.prompts import FRONT_SHARE
 from trase.reconstruction_presets import CPU_MAX_GAUSSIANS
 
 # The benchmark's click rule under every preset (trase.prompts.CLICK_RULES). "feature" asks
@@ -60,6 +61,9 @@ class ClickSettings:
     # "feature" 0.898). CLICK_RULE says how it was chosen.
     click_rule: str = CLICK_RULE
     click_radius: int = 1
+    # "front" only: the least share of the window's weight a cluster must hold to be chosen
+    # for being nearest the camera (trase.prompts.FRONT_SHARE)
+    front_share: float = FRONT_SHARE
 
 
 @dataclasses.dataclass

@@ -106,6 +106,8 @@ def protocol(record: dict) -> dict:
     geo, mcfg = cfg.get("geometry", {}), cfg.get("method", {})
     src = geo.get("source", "?")
     clicks = (mcfg.get("prompts") or {}).get("click_rule")
+    if clicks == "front":  # the rule is defined by its share
+        clicks += f" {(mcfg.get('prompts') or {}).get('front_share', '?')}"
     prompts = (cfg.get("prompts") or {}).get("rule", "?") + (f", click {clicks}" if clicks else "")
     if "cgc" in mcfg:
         prompts += ", cgc patch query"

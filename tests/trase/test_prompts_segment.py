@@ -11,7 +11,7 @@ from benchmark.protocol.prompts import (
     make_benchmark_prompts,
 )
 from tests.trase.helpers import exact_masks, object_alpha, tiny_scene
-from trase.prompts import Click, PromptError, click_to_cluster, lift_pixels, mask_to_clusters
+from trase.prompts import Click, PromptError, click_to_cluster, lift_pixels, mask_to_clusters, window_weights
 from trase.segment import render_masks, select_gaussians
 
 
@@ -181,6 +181,39 @@ def test_render_rule_visible_drops_occluded_parts():
     assert not render_masks(gm, deform, select_gaussians(ids, []), [cam], rule="visible")[0].any()
     with pytest.raises(SegmentError, match="unknown segmentation rule 'x'"):
         render_masks(gm, deform, sel, [cam], rule="x")
+
+
+def test_front_click_picks_the_nearest_cluster_holding_a_share_of_the_weight():
+    """A semi-transparent front sheet holding a third of the weight under the cursor, the wall
+    behind it the rest, the features following the wall: "weight" and "feature" choose the
+    wall, "front" the sheet; a faint floater in front holding less than the share is passed
+    over, and at a share above the sheet's the wall is chosen again."""
+    import torch
+
+    gm, labels, cam = _semi_transparent_front()
+    n_front = int((labels == 0).sum())
+    with torch.no_grad():
+        gm.opacity_logits[:n_front] = -2.0  # opacity ~0.12 per gaussian: the sheet holds ~0.42
+    click = Click(16.0, 12.0)
+    idx, w = window_weights(gm, None, cam, click.u, click.v, 0.5, 1)
+    share = np.bincount(labels[idx], weights=w) / w.sum()
+    assert 0.25 < share[0] < 0.5  # the sheet: a share, not the most
+    feats = np.zeros((len(labels), 4), np.float32)
+    feats[labels == 0, 0] = 1.0
+    feats[labels == 1, 1] = 1.0
+    assert click_to_cluster(gm, None, cam, click, labels, rule="weight") == 1
+    assert click_to_cluster(gm, None, cam, click, labels, rule="feature", features=feats) == 1
+    assert click_to_cluster(gm, None, cam, click, labels, rule="front", front_share=0.25) == 0
+    assert click_to_cluster(gm, None, cam, click, labels, rule="front", front_share=share[0] + 0.01) == 1
+    # the floater (cluster 2 here) is in front of everything but holds almost none of the weight
+    floater = labels.copy()
+    floater[-1] = 2
+    assert click_to_cluster(gm, None, cam, click, floater, rule="front", front_share=0.25) == 0
+    # off the image, nothing clustered, a bad share: nothing or a clear error
+    assert click_to_cluster(gm, None, cam, Click(-1.0, 3.0), labels, rule="front") == -1
+    assert click_to_cluster(gm, None, cam, click, np.full_like(labels, -1), rule="front") == -1
+    with pytest.raises(PromptError, match="front_share must be in"):
+        click_to_cluster(gm, None, cam, click, labels, rule="front", front_share=0.0)
 
 
 def _semi_transparent_front():
