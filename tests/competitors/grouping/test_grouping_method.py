@@ -162,3 +162,21 @@ def test_hull_union_fills_and_filter_drops_outliers():
     chosen[200] = True  # an outlier the IQR rule drops
     inside = inside_hull(pts, chosen, 1.0)
     assert inside[201] and not inside[200]  # the centre is inside, the outlier is not
+
+
+def test_hull_by_facet_planes_matches_the_delaunay_reference():
+    """The plane test against the public code's Delaunay.find_simplex: the same points inside,
+    the chosen (hull) points among them; a flat or too small choice has no inside."""
+    from scipy.spatial import Delaunay
+
+    rng = np.random.default_rng(1)
+    for shape in ("ball", "slab", "elongated"):
+        pts = rng.normal(size=(3000, 3)) * {"ball": [1, 1, 1], "slab": [3, 3, 0.05], "elongated": [10, 0.5, 0.5]}[shape]
+        chosen = np.linalg.norm(pts / pts.std(axis=0), axis=1) < 1.0  # a blob in the middle
+        inside = inside_hull(pts, chosen, 1e9)  # no outliers dropped: the hull of every chosen point
+        reference = Delaunay(pts[chosen]).find_simplex(pts) >= 0
+        assert inside[chosen].all()
+        assert (inside == reference).mean() > 0.999, shape  # at most points on a facet differ
+    flat = np.c_[rng.normal(size=(50, 2)), np.zeros(50)]
+    assert not inside_hull(flat, np.ones(50, bool), 1.0).any()
+    assert not inside_hull(pts, np.arange(len(pts)) < 4, 1.0).any()
