@@ -131,15 +131,17 @@ def click_to_cluster(gaussians, deformation, camera: Camera, click: Click, label
     if rule == "front" and not 0.0 < front_share <= 1.0:
         raise PromptError(f"front_share must be in (0, 1], got {front_share}")
     if rule in ("weight", "feature", "front"):
-        window = window_weights(gaussians, deformation, cam, click.u, click.v, min_alpha, radius)
+        # front also needs the gaussians' depths: their deformed geometry, computed once
+        geometry = geometry_at(gaussians, deformation, cam.time) if rule == "front" and gaussians.num_gaussians else None
+        window = window_weights(gaussians, deformation, cam, click.u, click.v, min_alpha, radius, geometry)
         if window is None:
             return -1
         idx, w = window
         if rule == "weight":
             return _heaviest_cluster(idx, w, labels)
         if rule == "front":
-            means = geometry_at(gaussians, deformation, cam.time)[0].cpu().numpy().astype(np.float64)
-            depth = cam.world_to_camera(means[idx])[:, 2]  # [K] camera z of each pair's gaussian
+            means = geometry[0][torch.from_numpy(idx)].cpu().numpy().astype(np.float64)  # [K, 3]
+            depth = cam.world_to_camera(means)[:, 2]  # [K] camera z of each pair's gaussian
             return _front_cluster(idx, w, depth, labels, front_share)
         return _nearest_cluster_feature(idx, w, labels, features)
     gid = int(lift_pixels(gaussians, deformation, cam, np.array([[click.u, click.v]]), min_alpha)[0])
@@ -148,10 +150,11 @@ def click_to_cluster(gaussians, deformation, camera: Camera, click: Click, label
 
 @torch.no_grad()
 def window_weights(gaussians, deformation, camera: Camera, u: float, v: float, min_alpha: float,
-                    radius: int) -> tuple[np.ndarray, np.ndarray] | None:
+                    radius: int, geometry: tuple | None = None) -> tuple[np.ndarray, np.ndarray] | None:
     """(gaussian ids [K], compositing weights [K] float64) of every (gaussian, pixel) pair in
     the (2 radius + 1)^2 window of pixels around (u, v); None off the image, on an empty
-    scene, or where the click pixel's alpha is below min_alpha."""
+    scene, or where the click pixel's alpha is below min_alpha. ``geometry``: the deformed
+    (means, quats, scales, opacities) at camera.time where the caller has them already."""
     if radius < 0:
         raise PromptError(f"click window radius must be >= 0, got {radius}")
     W, H = camera.width, camera.height
@@ -162,7 +165,7 @@ def window_weights(gaussians, deformation, camera: Camera, u: float, v: float, m
     cols = np.arange(max(col - radius, 0), min(col + radius, W - 1) + 1)
     window = (rows[:, None] * W + cols[None, :]).reshape(-1)
     centre = int(np.flatnonzero(window == row * W + col)[0])
-    m, q, s, o = geometry_at(gaussians, deformation, camera.time)
+    m, q, s, o = geometry if geometry is not None else geometry_at(gaussians, deformation, camera.time)
     pw = pixel_weights(m, q, s, o, camera, torch.from_numpy(window))
     indptr = pw.indptr.cpu().numpy()
     w = pw.weights.cpu().numpy().astype(np.float64)

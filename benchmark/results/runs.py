@@ -105,9 +105,10 @@ def protocol(record: dict) -> dict:
     cfg = record.get("config") or {}
     geo, mcfg = cfg.get("geometry", {}), cfg.get("method", {})
     src = geo.get("source", "?")
-    clicks = (mcfg.get("prompts") or {}).get("click_rule")
+    click_settings = mcfg.get("prompts") or {}
+    clicks = click_settings.get("click_rule")
     if clicks == "front":  # the rule is defined by its share
-        clicks += f" {(mcfg.get('prompts') or {}).get('front_share', '?')}"
+        clicks += f" {click_settings.get('front_share', '?')}"
     prompts = (cfg.get("prompts") or {}).get("rule", "?") + (f", click {clicks}" if clicks else "")
     if "cgc" in mcfg:
         prompts += ", cgc patch query"

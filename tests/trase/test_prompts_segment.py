@@ -184,10 +184,11 @@ def test_render_rule_visible_drops_occluded_parts():
 
 
 def test_front_click_picks_the_nearest_cluster_holding_a_share_of_the_weight():
-    """A semi-transparent front sheet holding a third of the weight under the cursor, the wall
+    """A semi-transparent front sheet holding ~0.42 of the weight under the cursor, the wall
     behind it the rest, the features following the wall: "weight" and "feature" choose the
-    wall, "front" the sheet; a faint floater in front holding less than the share is passed
-    over, and at a share above the sheet's the wall is chosen again."""
+    wall, "front" the sheet; a faint floater before the sheet holding less than the share is
+    passed over (chosen only at a share below its own), and at a share above the sheet's the
+    wall is chosen again."""
     import torch
 
     gm, labels, cam = _semi_transparent_front()
@@ -205,10 +206,16 @@ def test_front_click_picks_the_nearest_cluster_holding_a_share_of_the_weight():
     assert click_to_cluster(gm, None, cam, click, labels, rule="feature", features=feats) == 1
     assert click_to_cluster(gm, None, cam, click, labels, rule="front", front_share=0.25) == 0
     assert click_to_cluster(gm, None, cam, click, labels, rule="front", front_share=share[0] + 0.01) == 1
-    # the floater (cluster 2 here) is in front of everything but holds almost none of the weight
+    # the floater (cluster 2 here), moved before the sheet on the axis: nearest, almost no weight
     floater = labels.copy()
     floater[-1] = 2
+    with torch.no_grad():
+        gm.means[-1] = torch.tensor([0.0, -3.0, 0.0])  # depth 1, the sheet's 2; opacity 0.02
+    idx, w = window_weights(gm, None, cam, click.u, click.v, 0.5, 1)
+    floater_share = w[floater[idx] == 2].sum() / w.sum()
+    assert 0 < floater_share < 0.05
     assert click_to_cluster(gm, None, cam, click, floater, rule="front", front_share=0.25) == 0
+    assert click_to_cluster(gm, None, cam, click, floater, rule="front", front_share=floater_share / 2) == 2
     # off the image, nothing clustered, a bad share: nothing or a clear error
     assert click_to_cluster(gm, None, cam, Click(-1.0, 3.0), labels, rule="front") == -1
     assert click_to_cluster(gm, None, cam, click, np.full_like(labels, -1), rule="front") == -1

@@ -200,3 +200,11 @@ def test_a_gpu_run_names_its_device_in_the_protocol(tmp_path):
     write(tmp_path, record("trase", "hypernerf", "synthetic", 0.8, 0.9, cfg=gpu))
     md = render(build_tables(_main_runs(tmp_path), "synthetic")[0], "markdown")
     assert "(paper preset, on cuda)" in md
+
+
+def test_a_front_click_rule_names_its_share_in_the_protocol():
+    from benchmark.results.runs import protocol, protocol_label
+
+    assert "click weight;" in protocol_label(protocol({"config": config()}))
+    front = config(prompts={"click_rule": "front", "front_share": 0.4})
+    assert "click front 0.4;" in protocol_label(protocol({"config": front}))

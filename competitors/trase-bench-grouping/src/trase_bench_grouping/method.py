@@ -241,6 +241,9 @@ class SA4D(GaussianGrouping):
     temporal = True
 
 
+HULL_TOLERANCE = 1e-9  # relative to the coordinates' size: the hull's own vertices count as inside
+
+
 def inside_hull(points: np.ndarray, chosen: np.ndarray, outlier_factor: float) -> np.ndarray:
     """[N] bool: points inside the convex hull of the chosen points, after dropping chosen
     points outside [Q1 - f IQR, Q3 + f IQR] on any axis (the public code's outlier rule).
@@ -265,8 +268,6 @@ def inside_hull(points: np.ndarray, chosen: np.ndarray, outlier_factor: float) -
     scale = float(np.abs(pts).max()) or 1.0
     return np.all(points @ eq[:, :3].T + eq[:, 3] <= HULL_TOLERANCE * scale, axis=1)
 
-
-HULL_TOLERANCE = 1e-9  # relative to the coordinates' size: the hull's own vertices count as inside
 
 
 __all__ = ["NO_TRACK", "SA4D", "GaussianGrouping", "inside_hull"]
