@@ -56,6 +56,7 @@ from trase.gaussians import GaussianModel
 from trase.io import read_torch
 from trase.losses import l1_loss, mean_squared_error, opacity_entropy, psnr, psnr_of_mse, ssim
 from trase.reconstruction_config import ReconstructionConfig, expon_lr, time_noise_scale
+from trase.render.rasterize import NEAR_PLANE as RENDER_NEAR
 from trase.training_images import ImageCache, load_image
 from trase.training_log import ProgressBar, TrainLog
 
@@ -66,8 +67,9 @@ if TYPE_CHECKING:
 # -- rendering ------------------------------------------------------------------------------
 def render_view(gaussians: GaussianModel, deformation, camera: Camera, background=None,
                 backend: str = "auto", time_offset: float = 0.0, with_deform: bool = True,
-                visible_only: bool = False):
+                visible_only: bool = False, near: float = RENDER_NEAR):
     """Render gaussians deformed to camera.time. Returns (RenderOutput, deformed means [N,3]).
+    ``near``: the rasterizer's near plane (``ReconstructionConfig.near_plane`` while training).
 
     ``visible_only``: the deformation's gradients are computed for the gaussians the camera
     can see only (``deformation.deformed_visible``; same image and gradients up to rounding).
@@ -83,27 +85,30 @@ def render_view(gaussians: GaussianModel, deformation, camera: Camera, backgroun
     out = rasterize(
         means, quats, scales, gaussians.opacities, camera,
         colors=gaussians.sh_for_render(), sh_degree=gaussians.active_sh_degree,
-        background=background, backend=backend,
+        background=background, backend=backend, near=near,
     )
     return out, means
 
 
 @torch.no_grad()
 def evaluate_psnr(gaussians: GaussianModel, deformation, views: Sequence, background=None,
-                  backend: str = "auto", downscale: float = 1.0) -> float:
+                  backend: str = "auto", downscale: float = 1.0, near: float = RENDER_NEAR) -> float:
     """Mean over views of the PSNR (dB) of the clamped render against the view's image."""
     if not views:
         raise ValueError("evaluate_psnr: no views")
-    return evaluate_images(gaussians, deformation, views, background, backend, downscale, ssim_too=False)["psnr"]
+    return evaluate_images(gaussians, deformation, views, background, backend, downscale, ssim_too=False,
+                           near=near)["psnr"]
 
 
 @torch.no_grad()
 def evaluate_images(gaussians: GaussianModel, deformation, views: Sequence, background=None,
-                    backend: str = "auto", downscale: float = 1.0, ssim_too: bool = True, lpips=None) -> dict:
+                    backend: str = "auto", downscale: float = 1.0, ssim_too: bool = True, lpips=None,
+                    near: float = RENDER_NEAR) -> dict:
     """The field's image measures of the clamped renders against the views' images (alpha
     composited over ``background``, black by default, as in training): mean PSNR (dB) and mean
     SSIM (3DGS's 11x11 gaussian window, ``losses.ssim``) over the views, the views' PSNRs, and
-    with ``lpips`` (a ``trase.lpips.LPIPS``) the mean LPIPS."""
+    with ``lpips`` (a ``trase.lpips.LPIPS``) the mean LPIPS. ``near``: the near plane the
+    geometry was trained with (``ReconstructionConfig.near_plane``)."""
     if not views:
         raise ValueError("evaluate_images: no views")
     bg = torch.zeros(3) if background is None else torch.as_tensor(background, dtype=torch.float32).cpu()
@@ -112,7 +117,7 @@ def evaluate_images(gaussians: GaussianModel, deformation, views: Sequence, back
     for v in views:
         cam = v.camera if downscale == 1 else v.camera.scaled(downscale)
         gt = torch.from_numpy(load_image(Path(v.image_path), cam, bg.numpy())).to(dev)
-        out, _ = render_view(gaussians, deformation, cam, bg.to(dev), backend)
+        out, _ = render_view(gaussians, deformation, cam, bg.to(dev), backend, near=near)
         img = out.color.clamp(0, 1)
         psnrs.append(psnr(img, gt))
         if ssim_too:
@@ -175,6 +180,7 @@ class _Trainer:
     static: torch.Tensor | None = None
     frozen: torch.Tensor | None = None
     plateau: Plateau | None = None  # the stopping checks (stop_interval > 0)
+    near: float = RENDER_NEAR  # the rasterizer's near plane for every render of the run (cfg.near_plane)
 
     def deformation(self):
         """What renders this step: the network, or the network for the moving gaussians only."""
@@ -239,7 +245,7 @@ def _new_trainer(points, point_colors, cfg: ReconstructionConfig, dev, strategy:
     opt_g, opt_d = _make_optimizers(gaussians, deform, cfg)
     strategy.initialize_state(gaussians.num_gaussians, dev)
     plateau = Plateau(cfg.stop_rule()) if cfg.stop_interval > 0 else None
-    return _Trainer(gaussians, deform, opt_g, opt_d, strategy, gen, [], plateau=plateau)
+    return _Trainer(gaussians, deform, opt_g, opt_d, strategy, gen, [], plateau=plateau, near=cfg.near_plane)
 
 
 def _resumed_trainer(out_dir: Path, start: int, cfg: ReconstructionConfig, dev,
@@ -279,7 +285,7 @@ def _resumed_trainer(out_dir: Path, start: int, cfg: ReconstructionConfig, dev,
         opt_d.load_state_dict(state["opt_d"])
     gen.set_state(state["rng"])
     tr = _Trainer(gaussians, deform, opt_g, opt_d, strategy, gen, [int(i) for i in state["view_stack"]],
-                  float(state["ema_loss"]), float(state["ema_psnr"]))
+                  float(state["ema_loss"]), float(state["ema_psnr"]), near=cfg.near_plane)
     if "static" in state:
         tr.static, tr.frozen = state["static"].to(dev), state["frozen"].to(dev)
     if cfg.stop_interval > 0:
@@ -421,7 +427,8 @@ def _converged(tr: _Trainer, it: int, cfg: ReconstructionConfig, held: ImageCach
     if tr.plateau is None or held is None or it < cfg.warm_up or not tr.plateau.due(it):
         return False
     deformation = tr.deformation()
-    value = float(np.mean([psnr(render_view(tr.gaussians, deformation, cam, bg, backend)[0].color.clamp(0, 1), gt)
+    value = float(np.mean([psnr(render_view(tr.gaussians, deformation, cam, bg, backend, near=tr.near)[0]
+                                .color.clamp(0, 1), gt)
                            for cam, gt in zip(held.cameras, held.images)]))
     return tr.plateau.observe(it, value, cap=cfg.iterations)
 
@@ -496,7 +503,8 @@ def _views_psnr(tr: _Trainer, data: ImageCache, times: list[float], bg: torch.Te
     ps, ts = [], []
     for cam, gt in zip(data.cameras, data.images):
         if round(float(cam.time), 9) in keep:
-            ps.append(psnr(render_view(tr.gaussians, deformation, cam, bg, backend)[0].color.clamp(0, 1), gt))
+            ps.append(psnr(render_view(tr.gaussians, deformation, cam, bg, backend, near=tr.near)[0].color.clamp(0, 1),
+                           gt))
             ts.append(cam.time)
     return ps, ts
 
@@ -524,7 +532,7 @@ def _hold_region(tr: _Trainer, data: ImageCache, lagging: set[float], bg: torch.
         opacity = g.opacities.detach().clone().requires_grad_(True)  # [N]
         with torch.enable_grad():
             out = rasterize(means, quats, scales, opacity, cam, colors=colors, sh_degree=g.active_sh_degree,
-                            background=bg, backend=backend)
+                            background=bg, backend=backend, near=tr.near)
             err = (out.color - gt).abs().mean(dim=-1)  # [H, W]
             region = (out.color.detach().clamp(0, 1) - gt).abs().mean(dim=-1) > error
             if not bool(region.any()):
@@ -594,7 +602,7 @@ def _forward_backward(tr: _Trainer, it: int, data: ImageCache, bg: torch.Tensor,
         noise = float(torch.randn(1, generator=tr.gen))
         offset = noise * time_noise_scale(it, cfg) / n_views
     out, means_t = render_view(tr.gaussians, tr.deformation(), cam, bg, backend, offset, use_deform,
-                               visible_only=cfg.deform_visible_only)
+                               visible_only=cfg.deform_visible_only, near=tr.near)
     tr.strategy.step_pre_backward(out, means_t)
     image = out.color  # [H, W, 3]
     loss = (1.0 - cfg.lambda_dssim) * l1_loss(image, gt) + cfg.lambda_dssim * (1.0 - ssim(image, gt))

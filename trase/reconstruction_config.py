@@ -68,6 +68,12 @@ class ReconstructionConfig:
     # code's (its rasterizer squares the scale); "clamp" floors s + d, the rule the cpu presets
     # were tuned with
     deform_scale_rule: str = "mirror"
+    # the rasterizer's near plane while training (view-space depth, scene units): gaussians
+    # closer to the camera are not drawn and get no gradient. 0.2 is the public code's (3DGS's
+    # rasterizer culls p_view.z <= 0.2); the cpu presets keep the 0.01 they were measured with.
+    # Close to the plane a gaussian's screen position moves as 1 / z^2 with its depth: what the
+    # network's offsets receive from one drawn there is hundreds of times larger at 0.01
+    near_plane: float = 0.2
     # the network's gradients only for gaussians in view (deformation.deformed_visible): the
     # same images and gradients up to rounding; no effect on a GPU. Off by default: it pays
     # only when a camera sees a small part of the scene. Measured on the synthetic HyperNeRF
@@ -129,6 +135,8 @@ class ReconstructionConfig:
 
     def __post_init__(self) -> None:
         deform_shape(self.deform_preset)  # a bad name fails here, not after the warm-up
+        if not (math.isfinite(self.near_plane) and self.near_plane > 0):
+            raise ValueError(f"near_plane must be a positive number of scene units, got {self.near_plane!r}")
         if self.deform_scale_rule not in ("mirror", "clamp"):
             raise ValueError(f"deform_scale_rule must be mirror or clamp, got {self.deform_scale_rule!r}")
         if (self.static_threshold < 0 or self.static_interval < 1 or self.static_from < 0 or self.static_time_gap < 0

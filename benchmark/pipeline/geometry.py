@@ -53,7 +53,7 @@ def run(ctx: SequenceRun) -> list[StageRecord]:
             info["static_gaussians"] = int(static.sum())
         for split, views in (("test", scene.test), ("validation", scene.validation)):
             if views:
-                m = evaluate_images(gaussians, deformation, views, bg)
+                m = evaluate_images(gaussians, deformation, views, bg, near=geometry.train.near_plane)
                 info.update({f"{split}_psnr": round(m["psnr"], 3), f"{split}_ssim": round(m["ssim"], 4)})
         peak = peak_memory_mib(device)
         return {**info, **({"peak_gpu_mib": peak} if peak is not None else {})}

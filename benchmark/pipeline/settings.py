@@ -95,6 +95,7 @@ AS_BEFORE = {
     "static_threshold": (0.0, _named(ReconstructionConfig, "static_")),  # static gaussians: off
     "static_hold_error": (0.0, ("static_hold_error",)),  # above the time gap, hold every gaussian back
     "deform_scale_rule": ("clamp", ("deform_scale_rule",)),  # the CPU presets' scale rule, the only one before
+    "near_plane": (0.01, ("near_plane",)),  # the rasterizer's near plane, the only one before
 }
 
 

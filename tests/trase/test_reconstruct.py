@@ -148,6 +148,29 @@ def test_visible_only_deformation_gives_the_same_image_and_gradients():
     assert any(float(a.abs().max()) > 0 for a in gp_a)  # the network does get gradients
 
 
+def test_the_near_plane_leaves_gaussians_nearer_than_it_undrawn_and_without_gradient():
+    from trase.camera import Camera
+    from trase.reconstruct import render_view
+
+    # two gaussians on the optical axis: one 0.1 in front of the camera, one 2 units away
+    g = GaussianModel.from_points(np.array([[0.0, 0.0, 0.1], [0.3, 0.0, 2.0]]), None, sh_degree=0)
+    with torch.no_grad():
+        g.log_scales.fill_(np.log(0.05))
+        g.opacity_logits.fill_(4.0)
+    g.means.requires_grad_(True)
+    K = np.array([[30.0, 0, 16], [0, 30.0, 16], [0, 0, 1]])
+    cam = Camera(K=K, w2c=np.eye(4), width=32, height=32, time=0.0, name="c")
+    drawn = {}
+    for near in (0.01, 0.2):
+        g.means.grad = None
+        out, _ = render_view(g, None, cam, near=near, backend="numba")
+        out.color.sum().backward()
+        drawn[near] = (float(out.alpha.detach().sum()), g.means.grad.abs().sum(dim=1))
+    assert drawn[0.01][0] > drawn[0.2][0] > 0  # the near one covers the view at 0.01
+    assert drawn[0.01][1][0] > 0 and drawn[0.2][1][0] == 0  # and learns nothing behind the plane at 0.2
+    assert drawn[0.2][1][1] > 0  # the far one is drawn and learns either way
+
+
 def test_opacity_entropy_setting_makes_opacities_more_binary(scene, tmp_path):
     views, pts = scene
     from trase.losses import opacity_entropy

@@ -59,6 +59,15 @@ def test_presets_name_their_densification_statistic():
     assert preset("cpu-v2").densify_statistic == "lstsq"
 
 
+def test_presets_name_their_near_plane():
+    assert ReconstructionConfig.paper().near_plane == 0.2  # the public rasterizer culls p_view.z <= 0.2
+    for name in ("cpu", "cpu-v1", "cpu-v2", "cpu-v4"):
+        assert preset(name).near_plane == 0.01  # what the cpu presets were measured with
+    for bad in (0.0, -0.2, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="near_plane"):
+            ReconstructionConfig(near_plane=bad)
+
+
 def test_the_paper_preset_is_the_configs_defaults_and_cpu_presets_are_in_the_cpu_tier():
     assert preset("paper") == ReconstructionConfig()
     assert [RECONSTRUCTION_PRESETS.preset(n).tier for n in RECONSTRUCTION_PRESETS.names()] == ["paper"] + ["cpu"] * 5

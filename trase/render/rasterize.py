@@ -21,6 +21,9 @@ from trase.render.projection import project_gaussians
 from trase.render.types import PixelWeights, RenderError, RenderOutput
 
 BACKENDS = ("torch", "numba", "gsplat", "auto")
+# the near plane (view-space depth, scene units) when a caller names none: nearer gaussians are
+# not drawn. The public 3DGS rasterizer's is 0.2 (ReconstructionConfig.near_plane trains with it)
+NEAR_PLANE = 0.01
 
 
 def _check_inputs(means, quats, scales, opacities, camera, colors, sh_degree, features, background):
@@ -88,7 +91,7 @@ def rasterize(
     features: torch.Tensor | None = None,  # [N, D]
     background: torch.Tensor | None = None,  # [3], colour only
     backend: str = "auto",
-    near: float = 0.01,
+    near: float = NEAR_PLANE,
     tile_size: int = 16,
 ) -> RenderOutput:
     """Render one view; differentiable w.r.t. every tensor argument (torch and numba). The
@@ -154,7 +157,7 @@ def pixel_weights(
     camera: Camera,
     pixels: torch.Tensor | None = None,  # [P] int64 linear ids row * W + col; None = all
     min_weight: float = 0.0,
-    near: float = 0.01,
+    near: float = NEAR_PLANE,
     tile_size: int = 16,
 ) -> PixelWeights:
     """Each pixel's contributing gaussians (front to back) and weights w = alpha * T, from the
