@@ -140,7 +140,7 @@ DIAG_VARIANTS = ("default", "torch-sh", "tf32", "cap", "lstsq")
 
 
 def diagnose(seconds: float, variant: str, every: int = 100, until: int = 0,
-             window: tuple[int, int] = (0, 0)) -> dict:
+             window: tuple[int, int] = (0, 0), near: float | None = None) -> dict:
     """The geometry stage of ``trase-bench run --method trase --dataset hypernerf`` (its
     resolved settings, on this machine's default device) for ``seconds``, with the model's
     state every ``every`` iterations: what grows or diverges, and when. Variants: ``torch-sh``
@@ -148,7 +148,11 @@ def diagnose(seconds: float, variant: str, every: int = 100, until: int = 0,
     products in TF32, ``cap`` caps the gaussians at two per pixel of a training image, ``lstsq``
     densifies by the statistic the cpu presets use. ``until``: stop after this iteration (the
     schedule is otherwise the run's); inside ``window`` (first, last iteration) every 10th
-    iteration is recorded, and every iteration's loss."""
+    iteration is recorded, and every iteration's loss. ``near``: the rasterizer's near plane while
+    training (the run's ``geometry.train.near_plane`` when None). Each record also counts, over
+    every training camera at its own time, the gaussians in its frustum nearer than 0.2 (the
+    public rasterizer's cull), where a screen position moves as 1 / z^2 with depth; at the end
+    the test PSNR and the geometry's label ceiling (the benchmark's ``ceiling`` stage, on the CPU)."""
     import dataclasses
     import tempfile
 
@@ -172,6 +176,38 @@ def diagnose(seconds: float, variant: str, every: int = 100, until: int = 0,
         cfg = dataclasses.replace(cfg, densify_statistic="lstsq")
     if until:
         cfg = dataclasses.replace(cfg, iterations=until)
+    if near is not None:
+        cfg = dataclasses.replace(cfg, near_plane=near)
+    from trase.deformation import deformed
+
+    views = [(torch.as_tensor(c.w2c, dtype=torch.float32), 1.3 * c.width / (2 * c.fx), 1.3 * c.height / (2 * c.fy),
+              float(c.time)) for c in (v.camera for v in scene.train)]
+
+    def near_visible(step) -> int:
+        """Gaussians this step drew (radius > 0) nearer than 0.2 to its camera."""
+        w = torch.as_tensor(step.camera.w2c, dtype=step.means.dtype, device=step.means.device)
+        z = step.means.detach() @ w[2, :3] + w[2, 3]
+        return int(((step.out.radii > 0) & (z < 0.2)).sum())
+
+    def near_zone(tr) -> dict:
+        """Over every training camera at its time: the most gaussians in its frustum nearer than
+        0.2 (and of those, the most the run's plane still draws), the nearest in-frustum depth,
+        and the time of the camera with the most."""
+        worst = {"near_zone_max": 0, "near_zone_time": None, "near_drawn_max": 0, "z_min": float("inf")}
+        for w2c, tx, ty, t in views:
+            m = deformed(tr.gaussians, tr.deformation(), t)[0]
+            w = w2c.to(m.device)
+            x = m @ w[:3, :3].T + w[:3, 3]
+            z = x[:, 2]
+            inside = (z > 1e-6) & (x[:, 0].abs() < tx * z) & (x[:, 1].abs() < ty * z)
+            zone = int((inside & (z < 0.2)).sum())
+            if zone > worst["near_zone_max"]:
+                worst.update(near_zone_max=zone, near_zone_time=round(t, 4))
+            worst["near_drawn_max"] = max(worst["near_drawn_max"], int((inside & (z < 0.2) & (z > cfg.near_plane)).sum()))
+            if bool(inside.any()):
+                worst["z_min"] = min(worst["z_min"], float(z[inside].min()))
+        worst["z_min"] = round(worst["z_min"], 4)
+        return worst
     torch.backends.cuda.matmul.allow_tf32 = variant == "tf32"
     if variant == "torch-sh":
         import trase.render.gsplat_backend as gb
@@ -228,15 +264,30 @@ def diagnose(seconds: float, variant: str, every: int = 100, until: int = 0,
                 "psnr_canonical": round(psnr_of_mse(float(((rec.render_view(
                     g, None, step.camera, step.out.color.new_zeros(3), "auto", with_deform=False)[0].color.clamp(0, 1)
                     - step.gt) ** 2).mean())), 2),
+                "screen_grad_max": None if step.out.means2d.grad is None else float(
+                    step.out.means2d.grad.norm(dim=-1).max()),
+                **(near_zone(tr) if it >= cfg.warm_up else {}),
+                "near_visible": near_visible(step),
             })
 
     rec._record = watched
     with tempfile.TemporaryDirectory(prefix="gpu-diag-") as tmp:
         gaussians, deform = rec.reconstruct(scene.train, scene.points, scene.point_colors, cfg, Path(tmp) / "model",
                                             resume=False, progress=False, max_seconds=seconds)
-        test_psnr = rec.evaluate_psnr(gaussians, deform, scene.test) if scene.test else None
-    return {"variant": variant, "config": dataclasses.asdict(cfg), "seconds": seconds, "test_psnr": test_psnr,
-            "rows": rows, "window_losses": losses}
+        trained = round(time.perf_counter() - t0, 1)
+        test_psnr = rec.evaluate_psnr(gaussians, deform, scene.test, near=cfg.near_plane) if scene.test else None
+        ceiling = None
+        if scene.truth is not None:
+            from benchmark.pipeline.context import load_geometry
+            from benchmark.protocol.ceiling import label_ceiling
+            from benchmark.scoring import read_mask
+
+            g_cpu, d_cpu = load_geometry(Path(tmp))  # the saved model, on the CPU, as the ceiling stage loads it
+            score, _ = label_ceiling(g_cpu, d_cpu, scene, [read_mask(p) for p in scene.gt_masks])
+            ceiling = round(float(score.miou), 4)
+    return {"variant": variant, "near_plane": cfg.near_plane, "config": dataclasses.asdict(cfg), "seconds": seconds,
+            "trained_s": trained, "n_gaussians": int(gaussians.num_gaussians), "test_psnr": test_psnr,
+            "ceiling": ceiling, "rows": rows, "window_losses": losses}
 
 
 # -- the orchestrator ----------------------------------------------------------------------
@@ -413,10 +464,73 @@ def diagnose_all(args) -> int:
     return 0
 
 
+def watch_all(args) -> int:
+    """The check for one short lease: gsplat built (beside the scene and the numba kernels), each
+    watched variant of the default run's reconstruction one after the other, alone on the GPU
+    (``diagnose``: the model's state every ``--every`` iterations, the test PSNR and label
+    ceiling where it stops), sharing what the budget leaves after the time kept for the CUDA
+    tests (unless skipped) and, last, a reconstruction iteration timed and profiled
+    (``profile``) at both sizes. Variants are ``NAME[@NEAR]`` (NEAR: the near plane)."""
+    out = Path(args.out).resolve()
+    if out.exists():
+        shutil.rmtree(out)
+    out.mkdir(parents=True)
+    chk = Check(out, args.budget)
+    chk.result["machine"] = machine()
+    chk.save()
+    cuda = chk.result["machine"]["gpu"] is not None
+    background = [subprocess.Popen(cmd, cwd=REPO, env={**os.environ, **_py()}, stdout=open(chk.logs / f"{name}.log", "w"),
+                                   stderr=subprocess.STDOUT)
+                  for name, cmd in (("scene", [sys.executable, "-c", "from benchmark.datasets.synthetic.cache import "
+                                               "ensure_synthetic; print(ensure_synthetic('hypernerf'))"]),
+                                    ("precompile", [sys.executable, "-m", "trase.precompile"]))]
+    if cuda:
+        chk.sh("build_gsplat", [sys.executable, "-c", "import torch, gsplat.cuda._backend as b; print(b._C)"],
+               min(240, chk.left()), _gsplat_build_env())
+    for p in background:
+        p.wait(timeout=max(chk.left() - 30, 1))
+    chk.result["steps"]["scene_and_kernels_s"] = round(time.monotonic() - chk.t0, 1)
+    specs = [s.partition("@") for s in args.variants.split(",")]
+    tests = cuda and not args.skip_tests
+    perf_reserve = (args.profile_seconds + (args.tests_limit if tests else 0)) if cuda else 0
+    for i, (variant, _, near) in enumerate(specs):
+        label = variant + (f"_near{near}" if near else "")  # file names: letters, digits, . _ -
+        # each variant's training time: an equal share of what is left, less its start and its end
+        # (imports, the scene, test PSNR, the ceiling on the CPU): ~``args.overhead`` seconds
+        share = (chk.left() - perf_reserve) / (len(specs) - i) - args.overhead
+        if share < 20:
+            chk.result["steps"][f"diag_{label}"] = {"rc": "skipped: no time left"}
+            continue
+        js = out / f"diag_{label}.json"
+        cmd = [sys.executable, str(REPO / "scripts" / "gpu_check.py"), "diagnose", "--seconds", f"{share:.0f}",
+               "--variant", variant, "--json", str(js), "--until", str(args.until), "--every", str(args.every),
+               *(["--near", near] if near else [])]
+        print(f"[{time.monotonic() - chk.t0:6.1f} s] diag {label}: {share:.0f} s of training", flush=True)
+        log = open(chk.logs / f"diag_{label}.log", "w")
+        p = subprocess.Popen(cmd, cwd=REPO, env={**os.environ, **_py()}, stdout=log, stderr=subprocess.STDOUT)
+        _collect_diag(chk, out, label, p, share + args.overhead - 5 if cuda else share + 120)
+    if tests:  # after the watched runs, in the time kept for them
+        chk.sh("cuda_tests", [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-rs", *CUDA_TESTS],
+               min(args.tests_limit, chk.left() - 10), _py())
+    if cuda and chk.left() > 25:  # where a reconstruction iteration's time goes, launch-bound and at 100k
+        js = out / "logs" / "profile.json"
+        rec = chk.sh("profile", [sys.executable, str(REPO / "scripts" / "gpu_check.py"), "profile", "--sizes",
+                                 ",".join(f"{n}x{w}x{h}" for n, w, h in SIZES), "--device", "cuda", "--json", str(js)],
+                     chk.left() - 5, _py())
+        if js.is_file():
+            rec["profile"] = json.loads(js.read_text())
+            chk.save()
+    with tarfile.open(out / "logs.tar.gz", "w:gz") as tar:  # the whole logs in one file that travels
+        tar.add(chk.logs, arcname="logs")
+    shutil.rmtree(chk.logs)
+    print(json.dumps({k: v.get("rc") if isinstance(v, dict) else v for k, v in chk.result["steps"].items()}), flush=True)
+    return 0
+
+
 def _collect_diag(chk, out: Path, v: str, p, seconds: float) -> None:
     """Wait for variant ``v``'s worker and put its figures into the check's JSON."""
     try:
-        rc = p.wait(timeout=seconds + 90)
+        rc = p.wait(timeout=max(seconds + 90, 1))
     except subprocess.TimeoutExpired:
         p.kill()
         rc = "timeout"
@@ -474,12 +588,21 @@ def main(argv=None) -> int:
     d.add_argument("--seconds", type=float, required=True)
     d.add_argument("--variant", choices=DIAG_VARIANTS, default="default")
     d.add_argument("--json", required=True)
+    d.add_argument("--near", type=float, default=None, help="the near plane while training (default: the run's)")
+    w = sub.add_parser("watch", help="CUDA tests and watched variants one after the other, for one short lease")
+    w.add_argument("--out", required=True)
+    w.add_argument("--budget", type=float, default=540.0, help="seconds for everything")
+    w.add_argument("--variants", default="cap@0.01,cap@0.2", help="NAME[@NEAR],...")
+    w.add_argument("--overhead", type=float, default=35.0, help="seconds a variant spends outside training")
+    w.add_argument("--tests-limit", type=float, default=90.0, help="seconds kept for the CUDA tests")
+    w.add_argument("--skip-tests", action="store_true")
+    w.add_argument("--profile-seconds", type=float, default=40.0, help="kept for the profile at the end")
     dg = sub.add_parser("diagnose-all", help="diagnose's variants side by side on one GPU")
     dg.add_argument("--out", required=True)
     dg.add_argument("--seconds", type=float, default=150.0, help="seconds per variant")
     dg.add_argument("--variants", default="default,torch-sh,cap")
     dg.add_argument("--sequential", action="store_true", help="one variant after the other, each alone on the GPU")
-    for q in (d, dg):
+    for q in (d, dg, w):
         q.add_argument("--until", type=int, default=0, help="stop after this iteration")
         q.add_argument("--window", default="0,0", help="FIRST,LAST: iterations watched every 10, every loss kept")
         q.add_argument("--every", type=int, default=100)
@@ -488,11 +611,13 @@ def main(argv=None) -> int:
         return run_all(args)
     if args.cmd == "diagnose":
         window = tuple(int(x) for x in args.window.split(","))
-        Path(args.json).write_text(json.dumps(diagnose(args.seconds, args.variant, args.every, args.until, window),
-                                              indent=1))
+        Path(args.json).write_text(json.dumps(diagnose(args.seconds, args.variant, args.every, args.until, window,
+                                                       args.near), indent=1))
         return 0
     if args.cmd == "diagnose-all":
         return diagnose_all(args)
+    if args.cmd == "watch":
+        return watch_all(args)
     sizes = [tuple(int(x) for x in s.split("x")) for s in args.sizes.split(",")]
     Path(args.json).write_text(json.dumps(profile(sizes, args.device, args.repeats, args.tf32), indent=1))
     return 0
