@@ -283,8 +283,9 @@ def diagnose(seconds: float, variant: str, every: int = 100, until: int = 0,
             from benchmark.scoring import read_mask
 
             g_cpu, d_cpu = load_geometry(Path(tmp))  # the saved model, on the CPU, as the ceiling stage loads it
-            score, _ = label_ceiling(g_cpu, d_cpu, scene, [read_mask(p) for p in scene.gt_masks])
-            ceiling = round(float(score.miou), 4)
+            score, info = label_ceiling(g_cpu, d_cpu, scene, [read_mask(p) for p in scene.gt_masks])
+            ceiling = {"miou": round(float(score.miou), 4), "object_alpha": info["object_alpha"],
+                       "objects": info["objects"]}
     return {"variant": variant, "near_plane": cfg.near_plane, "config": dataclasses.asdict(cfg), "seconds": seconds,
             "trained_s": trained, "n_gaussians": int(gaussians.num_gaussians), "test_psnr": test_psnr,
             "ceiling": ceiling, "rows": rows, "window_losses": losses}
@@ -490,9 +491,18 @@ def watch_all(args) -> int:
     for p in background:
         p.wait(timeout=max(chk.left() - 30, 1))
     chk.result["steps"]["scene_and_kernels_s"] = round(time.monotonic() - chk.t0, 1)
-    specs = [s.partition("@") for s in args.variants.split(",")]
+    specs = [s.partition("@") for s in args.variants.split(",") if s]
     tests = cuda and not args.skip_tests
-    perf_reserve = (args.profile_seconds + (args.tests_limit if tests else 0)) if cuda else 0
+    if cuda and args.profile_first:  # the iteration's time first, in FP32 and in TF32
+        for label, flags in (("profile", []), ("profile_tf32", ["--tf32"])):
+            js = out / "logs" / f"{label}.json"
+            rec = chk.sh(label, [sys.executable, str(REPO / "scripts" / "gpu_check.py"), "profile", "--sizes",
+                                 ",".join(f"{n}x{w}x{h}" for n, w, h in SIZES), "--device", "cuda", "--json", str(js),
+                                 *flags], min(60, chk.left() - 10), _py())
+            if js.is_file():
+                rec["profile"] = json.loads(js.read_text())
+                chk.save()
+    perf_reserve = ((0 if args.profile_first else args.profile_seconds) + (args.tests_limit if tests else 0)) if cuda else 0
     for i, (variant, _, near) in enumerate(specs):
         label = variant + (f"_near{near}" if near else "")  # file names: letters, digits, . _ -
         # each variant's training time: an equal share of what is left, less its start and its end
@@ -512,7 +522,7 @@ def watch_all(args) -> int:
     if tests:  # after the watched runs, in the time kept for them
         chk.sh("cuda_tests", [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-rs", *CUDA_TESTS],
                min(args.tests_limit, chk.left() - 10), _py())
-    if cuda and chk.left() > 25:  # where a reconstruction iteration's time goes, launch-bound and at 100k
+    if cuda and not args.profile_first and chk.left() > 25:  # where an iteration's time goes, launch-bound and at 100k
         js = out / "logs" / "profile.json"
         rec = chk.sh("profile", [sys.executable, str(REPO / "scripts" / "gpu_check.py"), "profile", "--sizes",
                                  ",".join(f"{n}x{w}x{h}" for n, w, h in SIZES), "--device", "cuda", "--json", str(js)],
@@ -597,6 +607,7 @@ def main(argv=None) -> int:
     w.add_argument("--tests-limit", type=float, default=90.0, help="seconds kept for the CUDA tests")
     w.add_argument("--skip-tests", action="store_true")
     w.add_argument("--profile-seconds", type=float, default=40.0, help="kept for the profile at the end")
+    w.add_argument("--profile-first", action="store_true", help="profile first, in FP32 and TF32, then the variants")
     dg = sub.add_parser("diagnose-all", help="diagnose's variants side by side on one GPU")
     dg.add_argument("--out", required=True)
     dg.add_argument("--seconds", type=float, default=150.0, help="seconds per variant")
