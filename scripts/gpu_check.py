@@ -349,6 +349,41 @@ def _gsplat_build_env() -> dict:
     return env
 
 
+EXTENSIONS_DIR = "/tmp/trase-torch-extensions"  # torch's JIT builds (gsplat's), at a path the check knows
+
+
+def build_gsplat(chk, reuse: str | None = None, save: str | None = None) -> dict:
+    """gsplat's CUDA extension, ready in this process's environment. ``reuse``: a tar.gz of an
+    earlier lease's build folder (same image, GPU and gsplat), unpacked first with its files'
+    times, and gsplat's sources dated back so that ninja finds every object newer than its
+    inputs and compiles nothing (~90 s of a lease otherwise); where anything differs ninja
+    compiles as before, so a stale archive costs the build's time, not a wrong extension.
+    ``save``: where to write this lease's build folder as such an archive."""
+    import importlib.util
+
+    env = {**_gsplat_build_env(), "TORCH_EXTENSIONS_DIR": EXTENSIONS_DIR}
+    os.environ.update(env)
+    reused = False
+    if reuse and Path(reuse).is_file():
+        Path(EXTENSIONS_DIR).mkdir(parents=True, exist_ok=True)
+        with tarfile.open(reuse) as tar:
+            tar.extractall(EXTENSIONS_DIR, filter="tar")
+        spec = importlib.util.find_spec("gsplat")
+        old = time.mktime((2001, 1, 1, 0, 0, 0, 0, 0, -1))
+        for p in (Path(spec.origin).parent.rglob("*") if spec is not None and spec.origin else ()):
+            os.utime(p, (old, old))
+        reused = True
+    rec = chk.sh("build_gsplat", [sys.executable, "-c", "import torch, gsplat.cuda._backend as b; print(b._C)"],
+                 min(240, chk.left()), env)
+    rec["reused_archive"] = reused
+    if save and rec["rc"] == 0:
+        with tarfile.open(save, "w:gz") as tar:
+            tar.add(EXTENSIONS_DIR, arcname=".")
+        rec["saved_archive_mib"] = round(Path(save).stat().st_size / 2**20, 1)
+    chk.save()
+    return rec
+
+
 def machine() -> dict:
     import torch
 
@@ -381,9 +416,7 @@ def run_all(args) -> int:
                                                "ensure_synthetic; print(ensure_synthetic('hypernerf'))"]),
                                     ("precompile", [sys.executable, "-m", "trase.precompile"]))]
     if cuda:
-        env = _gsplat_build_env()
-        chk.sh("build_gsplat", [sys.executable, "-c", "import torch, gsplat.cuda._backend as b; print(b._C)"],
-               min(240, chk.left()), env)
+        build_gsplat(chk)
     for p in background:
         p.wait(timeout=max(chk.left() - 30, 1))
     chk.result["steps"]["scene_and_kernels_s"] = round(time.monotonic() - chk.t0, 1)
@@ -446,8 +479,7 @@ def diagnose_all(args) -> int:
                               "print(ensure_synthetic('hypernerf'))"], cwd=REPO, env={**os.environ, **_py()})
     pre = subprocess.Popen([sys.executable, "-m", "trase.precompile"], cwd=REPO, env={**os.environ, **_py()})
     if chk.result["machine"]["gpu"]:
-        chk.sh("build_gsplat", [sys.executable, "-c", "import torch, gsplat.cuda._backend as b; print(b._C)"], 240,
-               _gsplat_build_env())
+        build_gsplat(chk)
     scene.wait()
     pre.wait()
     procs = {}
@@ -486,8 +518,7 @@ def watch_all(args) -> int:
                                                "ensure_synthetic; print(ensure_synthetic('hypernerf'))"]),
                                     ("precompile", [sys.executable, "-m", "trase.precompile"]))]
     if cuda:
-        chk.sh("build_gsplat", [sys.executable, "-c", "import torch, gsplat.cuda._backend as b; print(b._C)"],
-               min(240, chk.left()), _gsplat_build_env())
+        build_gsplat(chk, args.reuse_build, args.save_build)
     for p in background:
         p.wait(timeout=max(chk.left() - 30, 1))
     chk.result["steps"]["scene_and_kernels_s"] = round(time.monotonic() - chk.t0, 1)
@@ -608,6 +639,8 @@ def main(argv=None) -> int:
     w.add_argument("--skip-tests", action="store_true")
     w.add_argument("--profile-seconds", type=float, default=40.0, help="kept for the profile at the end")
     w.add_argument("--profile-first", action="store_true", help="profile first, in FP32 and TF32, then the variants")
+    w.add_argument("--reuse-build", default=None, help="a tar.gz of an earlier lease's gsplat build (--save-build)")
+    w.add_argument("--save-build", default=None, help="write this lease's gsplat build here as a tar.gz")
     dg = sub.add_parser("diagnose-all", help="diagnose's variants side by side on one GPU")
     dg.add_argument("--out", required=True)
     dg.add_argument("--seconds", type=float, default=150.0, help="seconds per variant")

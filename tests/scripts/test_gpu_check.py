@@ -1,0 +1,66 @@
+import importlib.util
+import os
+import tarfile
+import types
+from pathlib import Path
+
+_spec = importlib.util.spec_from_file_location("gpu_check", Path(__file__).parents[2] / "scripts" / "gpu_check.py")
+gpu_check = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(gpu_check)
+
+
+class _Check:
+    """The orchestrator's check, recording the commands it would run."""
+
+    def __init__(self):
+        self.ran = []
+
+    def left(self):
+        return 100.0
+
+    def sh(self, name, cmd, timeout, env=None):
+        self.ran.append((name, env))
+        return {"rc": 0}
+
+    def save(self):
+        pass
+
+
+def test_a_saved_build_is_unpacked_with_its_times_and_the_sources_dated_before_it(tmp_path, monkeypatch):
+    """The reuse path of a gsplat build: the archive's files come back with their own times, and
+    every file of the gsplat package is dated back so that ninja finds each object newer than its
+    inputs; the build step then runs with TORCH_EXTENSIONS_DIR at the unpacked folder."""
+    built = tmp_path / "built" / "gsplat_cuda"
+    built.mkdir(parents=True)
+    (built / "gsplat_cuda.so").write_bytes(b"so")
+    os.utime(built / "gsplat_cuda.so", (1.9e9, 1.9e9))
+    archive = tmp_path / "build.tar.gz"
+    with tarfile.open(archive, "w:gz") as tar:
+        tar.add(tmp_path / "built", arcname=".")
+    package = tmp_path / "site" / "gsplat"
+    (package / "cuda" / "csrc").mkdir(parents=True)
+    (package / "__init__.py").write_text("")
+    (package / "cuda" / "csrc" / "Adam.cu").write_text("")
+    monkeypatch.setattr(gpu_check, "EXTENSIONS_DIR", str(tmp_path / "ext"))
+    monkeypatch.setattr(gpu_check, "_gsplat_build_env", lambda: {"TORCH_CUDA_ARCH_LIST": "9.0"})
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name: types.SimpleNamespace(origin=str(package / "__init__.py")))
+    monkeypatch.setattr(os, "environ", dict(os.environ))
+    chk = _Check()
+    saved = tmp_path / "again.tar.gz"
+    rec = gpu_check.build_gsplat(chk, reuse=str(archive), save=str(saved))
+    so = tmp_path / "ext" / "gsplat_cuda" / "gsplat_cuda.so"
+    assert so.read_bytes() == b"so" and so.stat().st_mtime == 1.9e9
+    assert (package / "cuda" / "csrc" / "Adam.cu").stat().st_mtime < so.stat().st_mtime
+    assert rec["reused_archive"] and chk.ran[0][0] == "build_gsplat"
+    assert chk.ran[0][1]["TORCH_EXTENSIONS_DIR"] == str(tmp_path / "ext")
+    with tarfile.open(saved) as tar:  # what the next lease would unpack
+        assert "./gsplat_cuda/gsplat_cuda.so" in tar.getnames()
+
+
+def test_without_an_archive_the_build_compiles_as_before(tmp_path, monkeypatch):
+    monkeypatch.setattr(gpu_check, "EXTENSIONS_DIR", str(tmp_path / "ext"))
+    monkeypatch.setattr(gpu_check, "_gsplat_build_env", lambda: {"TORCH_CUDA_ARCH_LIST": "9.0"})
+    monkeypatch.setattr(os, "environ", dict(os.environ))
+    rec = gpu_check.build_gsplat(_Check(), reuse=str(tmp_path / "missing.tar.gz"))
+    assert rec["reused_archive"] is False
