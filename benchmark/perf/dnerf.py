@@ -110,13 +110,16 @@ def test_lpips(fit_dir: Path, scene_dir: Path, sets: list[str], lpips) -> float:
     from benchmark.config import merge, parse_overrides, typed
     from trase.checkpoint import load_model
     from trase.reconstruct import evaluate_images
+    from trase.render import NEAR_PLANE
 
     rec = json.loads((fit_dir / "fit.json").read_text())
     capture = merge(CaptureOptions(holdout="layout").to_dict(), parse_overrides(sets).get("capture", {}), "capture.")
     scene = load_capture(scene_dir, typed(CaptureOptions, capture, "capture"))
     g, d = load_model(fit_dir / "model")
-    bg = (1.0, 1.0, 1.0) if rec["config"]["geometry"]["train"]["white_background"] else None
-    return evaluate_images(g, d, scene.test, bg, ssim_too=False, lpips=lpips)["lpips"]
+    train = rec["config"]["geometry"]["train"]
+    bg = (1.0, 1.0, 1.0) if train["white_background"] else None
+    near = train.get("near_plane", NEAR_PLANE)  # a run records it only where it is not the cpu presets' plane
+    return evaluate_images(g, d, scene.test, bg, ssim_too=False, lpips=lpips, near=near)["lpips"]
 
 
 def run(quick: bool = False, echo=print, out_dir: Path | None = None, scenes: list | None = None,
