@@ -397,7 +397,8 @@ def machine() -> dict:
     return info
 
 
-def run_all(args) -> int:
+def _start(args):
+    """(DIR emptied, its Check, whether torch sees a GPU) for an orchestrator writing to ``args.out``."""
     out = Path(args.out).resolve()
     if out.exists():
         shutil.rmtree(out)
@@ -405,21 +406,30 @@ def run_all(args) -> int:
     chk = Check(out, args.budget)
     chk.result["machine"] = machine()
     chk.save()
-    cuda = chk.result["machine"]["gpu"] is not None
-    sizes = TINY_SIZES if args.tiny else SIZES
-    size_arg = ",".join(f"{n}x{w}x{h}" for n, w, h in sizes)
+    return out, chk, chk.result["machine"]["gpu"] is not None
 
-    # 1. the scene and the numba kernels on the CPU, beside gsplat's build
+
+def _scene_kernels_and_gsplat(chk, cuda: bool, reuse: str | None = None, save: str | None = None) -> None:
+    """The built-in scene made and the numba kernels compiled on the CPU, beside gsplat's build."""
     background = [subprocess.Popen(cmd, cwd=REPO, env={**os.environ, **_py()}, stdout=open(chk.logs / f"{name}.log", "w"),
                                    stderr=subprocess.STDOUT)
                   for name, cmd in (("scene", [sys.executable, "-c", "from benchmark.datasets.synthetic.cache import "
                                                "ensure_synthetic; print(ensure_synthetic('hypernerf'))"]),
                                     ("precompile", [sys.executable, "-m", "trase.precompile"]))]
     if cuda:
-        build_gsplat(chk)
+        build_gsplat(chk, reuse, save)
     for p in background:
         p.wait(timeout=max(chk.left() - 30, 1))
     chk.result["steps"]["scene_and_kernels_s"] = round(time.monotonic() - chk.t0, 1)
+
+
+def run_all(args) -> int:
+    out, chk, cuda = _start(args)
+    sizes = TINY_SIZES if args.tiny else SIZES
+    size_arg = ",".join(f"{n}x{w}x{h}" for n, w, h in sizes)
+
+    # 1. the scene and the numba kernels on the CPU, beside gsplat's build
+    _scene_kernels_and_gsplat(chk, cuda)
 
     # 2. the CUDA tests
     chk.sh("cuda_tests", [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-rs", *CUDA_TESTS],
@@ -504,24 +514,8 @@ def watch_all(args) -> int:
     ceiling where it stops), sharing what the budget leaves after the time kept for the CUDA
     tests (unless skipped) and, last, a reconstruction iteration timed and profiled
     (``profile``) at both sizes. Variants are ``NAME[@NEAR]`` (NEAR: the near plane)."""
-    out = Path(args.out).resolve()
-    if out.exists():
-        shutil.rmtree(out)
-    out.mkdir(parents=True)
-    chk = Check(out, args.budget)
-    chk.result["machine"] = machine()
-    chk.save()
-    cuda = chk.result["machine"]["gpu"] is not None
-    background = [subprocess.Popen(cmd, cwd=REPO, env={**os.environ, **_py()}, stdout=open(chk.logs / f"{name}.log", "w"),
-                                   stderr=subprocess.STDOUT)
-                  for name, cmd in (("scene", [sys.executable, "-c", "from benchmark.datasets.synthetic.cache import "
-                                               "ensure_synthetic; print(ensure_synthetic('hypernerf'))"]),
-                                    ("precompile", [sys.executable, "-m", "trase.precompile"]))]
-    if cuda:
-        build_gsplat(chk, args.reuse_build, args.save_build)
-    for p in background:
-        p.wait(timeout=max(chk.left() - 30, 1))
-    chk.result["steps"]["scene_and_kernels_s"] = round(time.monotonic() - chk.t0, 1)
+    out, chk, cuda = _start(args)
+    _scene_kernels_and_gsplat(chk, cuda, args.reuse_build, args.save_build)
     specs = [s.partition("@") for s in args.variants.split(",") if s]
     tests = cuda and not args.skip_tests
     if cuda and args.profile_first:  # the iteration's time first, in FP32 and in TF32
