@@ -519,14 +519,8 @@ def watch_all(args) -> int:
     specs = [s.partition("@") for s in args.variants.split(",") if s]
     tests = cuda and not args.skip_tests
     if cuda and args.profile_first:  # the iteration's time first, in FP32 and in TF32
-        for label, flags in (("profile", []), ("profile_tf32", ["--tf32"])):
-            js = out / "logs" / f"{label}.json"
-            rec = chk.sh(label, [sys.executable, str(REPO / "scripts" / "gpu_check.py"), "profile", "--sizes",
-                                 ",".join(f"{n}x{w}x{h}" for n, w, h in SIZES), "--device", "cuda", "--json", str(js),
-                                 *flags], min(60, chk.left() - 10), _py())
-            if js.is_file():
-                rec["profile"] = json.loads(js.read_text())
-                chk.save()
+        _profile(chk, out, "profile", [], min(60, chk.left() - 10))
+        _profile(chk, out, "profile_tf32", ["--tf32"], min(60, chk.left() - 10))
     perf_reserve = ((0 if args.profile_first else args.profile_seconds) + (args.tests_limit if tests else 0)) if cuda else 0
     for i, (variant, _, near) in enumerate(specs):
         label = variant + (f"_near{near}" if near else "")  # file names: letters, digits, . _ -
@@ -548,18 +542,23 @@ def watch_all(args) -> int:
         chk.sh("cuda_tests", [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-rs", *CUDA_TESTS],
                min(args.tests_limit, chk.left() - 10), _py())
     if cuda and not args.profile_first and chk.left() > 25:  # where an iteration's time goes, launch-bound and at 100k
-        js = out / "logs" / "profile.json"
-        rec = chk.sh("profile", [sys.executable, str(REPO / "scripts" / "gpu_check.py"), "profile", "--sizes",
-                                 ",".join(f"{n}x{w}x{h}" for n, w, h in SIZES), "--device", "cuda", "--json", str(js)],
-                     chk.left() - 5, _py())
-        if js.is_file():
-            rec["profile"] = json.loads(js.read_text())
-            chk.save()
+        _profile(chk, out, "profile", [], chk.left() - 5)
     with tarfile.open(out / "logs.tar.gz", "w:gz") as tar:  # the whole logs in one file that travels
         tar.add(chk.logs, arcname="logs")
     shutil.rmtree(chk.logs)
     print(json.dumps({k: v.get("rc") if isinstance(v, dict) else v for k, v in chk.result["steps"].items()}), flush=True)
     return 0
+
+
+def _profile(chk, out: Path, label: str, flags: list[str], limit: float) -> None:
+    """The ``profile`` worker at both sizes on the GPU, its figures into the check's JSON."""
+    js = out / "logs" / f"{label}.json"
+    rec = chk.sh(label, [sys.executable, str(REPO / "scripts" / "gpu_check.py"), "profile", "--sizes",
+                         ",".join(f"{n}x{w}x{h}" for n, w, h in SIZES), "--device", "cuda", "--json", str(js), *flags],
+                 limit, _py())
+    if js.is_file():
+        rec["profile"] = json.loads(js.read_text())
+        chk.save()
 
 
 def _collect_diag(chk, out: Path, v: str, p, seconds: float) -> None:
