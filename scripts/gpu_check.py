@@ -336,19 +336,6 @@ def _cli(*args: str) -> list[str]:
     return [sys.executable, "-m", "benchmark.cli", *args]
 
 
-def _gsplat_build_env() -> dict:
-    """gsplat compiled for this GPU only, on every core. Set in this process's environment too:
-    every child that imports gsplat must see the same flags, or torch's JIT loader takes the
-    build as stale and compiles it again, for every architecture (the likely cause of the ~110 s
-    three diagnose processes spent before their first iteration in one check)."""
-    import torch
-
-    major, minor = torch.cuda.get_device_capability()
-    env = {"TORCH_CUDA_ARCH_LIST": f"{major}.{minor}", "MAX_JOBS": str(os.cpu_count() or 8)}
-    os.environ.update(env)
-    return env
-
-
 EXTENSIONS_DIR = "/tmp/trase-torch-extensions"  # torch's JIT builds (gsplat's), at a path the check knows
 
 
@@ -361,7 +348,15 @@ def build_gsplat(chk, reuse: str | None = None, save: str | None = None) -> dict
     ``save``: where to write this lease's build folder as such an archive."""
     import importlib.util
 
-    env = {**_gsplat_build_env(), "TORCH_EXTENSIONS_DIR": EXTENSIONS_DIR}
+    import torch
+
+    # for this GPU only, on every core; set in this process's environment too: every child that
+    # imports gsplat must see the same flags, or torch's JIT loader takes the build as stale and
+    # compiles it again, for every architecture (the likely cause of the ~110 s three diagnose
+    # processes spent before their first iteration in one check)
+    major, minor = torch.cuda.get_device_capability()
+    env = {"TORCH_CUDA_ARCH_LIST": f"{major}.{minor}", "MAX_JOBS": str(os.cpu_count() or 8),
+           "TORCH_EXTENSIONS_DIR": EXTENSIONS_DIR}
     os.environ.update(env)
     reused = False
     if reuse and Path(reuse).is_file():

@@ -180,7 +180,6 @@ class _Trainer:
     static: torch.Tensor | None = None
     frozen: torch.Tensor | None = None
     plateau: Plateau | None = None  # the stopping checks (stop_interval > 0)
-    near: float = RENDER_NEAR  # the rasterizer's near plane for every render of the run (cfg.near_plane)
 
     def deformation(self):
         """What renders this step: the network, or the network for the moving gaussians only."""
@@ -245,7 +244,7 @@ def _new_trainer(points, point_colors, cfg: ReconstructionConfig, dev, strategy:
     opt_g, opt_d = _make_optimizers(gaussians, deform, cfg)
     strategy.initialize_state(gaussians.num_gaussians, dev)
     plateau = Plateau(cfg.stop_rule()) if cfg.stop_interval > 0 else None
-    return _Trainer(gaussians, deform, opt_g, opt_d, strategy, gen, [], plateau=plateau, near=cfg.near_plane)
+    return _Trainer(gaussians, deform, opt_g, opt_d, strategy, gen, [], plateau=plateau)
 
 
 def _resumed_trainer(out_dir: Path, start: int, cfg: ReconstructionConfig, dev,
@@ -285,7 +284,7 @@ def _resumed_trainer(out_dir: Path, start: int, cfg: ReconstructionConfig, dev,
         opt_d.load_state_dict(state["opt_d"])
     gen.set_state(state["rng"])
     tr = _Trainer(gaussians, deform, opt_g, opt_d, strategy, gen, [int(i) for i in state["view_stack"]],
-                  float(state["ema_loss"]), float(state["ema_psnr"]), near=cfg.near_plane)
+                  float(state["ema_loss"]), float(state["ema_psnr"]))
     if "static" in state:
         tr.static, tr.frozen = state["static"].to(dev), state["frozen"].to(dev)
     if cfg.stop_interval > 0:
@@ -427,7 +426,7 @@ def _converged(tr: _Trainer, it: int, cfg: ReconstructionConfig, held: ImageCach
     if tr.plateau is None or held is None or it < cfg.warm_up or not tr.plateau.due(it):
         return False
     deformation = tr.deformation()
-    value = float(np.mean([psnr(render_view(tr.gaussians, deformation, cam, bg, backend, near=tr.near)[0]
+    value = float(np.mean([psnr(render_view(tr.gaussians, deformation, cam, bg, backend, near=cfg.near_plane)[0]
                                 .color.clamp(0, 1), gt)
                            for cam, gt in zip(held.cameras, held.images)]))
     return tr.plateau.observe(it, value, cap=cfg.iterations)
@@ -474,12 +473,12 @@ def _check_static(tr: _Trainer, it: int, cfg: ReconstructionConfig, data: ImageC
     gap, held = None, 0
     freeze: bool | torch.Tensor = True
     if cfg.static_time_gap > 0:
-        ps, ts = _views_psnr(tr, data, times, bg, backend)
+        ps, ts = _views_psnr(tr, data, times, bg, backend, cfg.near_plane)
         gap = time_gap(ps, ts)
         lagging = lagging_times(ps, ts, cfg.static_time_gap)  # not empty exactly when gap > static_time_gap
         if lagging:
             # held back: the moving rows that would otherwise be free to freeze
-            hold = (_hold_region(tr, data, lagging, bg, backend, cfg.static_hold_error)
+            hold = (_hold_region(tr, data, lagging, bg, backend, cfg.static_hold_error, cfg.near_plane)
                     if cfg.static_hold_error > 0 else torch.ones_like(tr.static))
             freeze, held = ~hold, int((hold & ~tr.static).sum())
     tr.static, tr.frozen, _ = update_static(tr.deform, g.means.detach(), g.scales.detach(), times,
@@ -495,22 +494,21 @@ def _check_static(tr: _Trainer, it: int, cfg: ReconstructionConfig, data: ImageC
 
 
 @torch.no_grad()
-def _views_psnr(tr: _Trainer, data: ImageCache, times: list[float], bg: torch.Tensor, backend: str
-                ) -> tuple[list[float], list[float]]:
+def _views_psnr(tr: _Trainer, data: ImageCache, times: list[float], bg: torch.Tensor, backend: str,
+                near: float = RENDER_NEAR) -> tuple[list[float], list[float]]:
     """PSNR (dB) and time of each training view at ``times`` (a static check's)."""
     keep = {round(float(t), 9) for t in times}
     deformation = tr.deformation()
     ps, ts = [], []
     for cam, gt in zip(data.cameras, data.images):
         if round(float(cam.time), 9) in keep:
-            ps.append(psnr(render_view(tr.gaussians, deformation, cam, bg, backend, near=tr.near)[0].color.clamp(0, 1),
-                           gt))
+            ps.append(psnr(render_view(tr.gaussians, deformation, cam, bg, backend, near=near)[0].color.clamp(0, 1), gt))
             ts.append(cam.time)
     return ps, ts
 
 
 def _hold_region(tr: _Trainer, data: ImageCache, lagging: set[float], bg: torch.Tensor, backend: str,
-                 error: float) -> torch.Tensor:
+                 error: float, near: float = RENDER_NEAR) -> torch.Tensor:
     """[N] bool: the gaussians that draw a pixel of a lagging time's training view whose colour
     is off by more than ``error`` (mean absolute error over the channels): the gradient of that
     region's error reaches their opacity or their colour (the colour's as well, since the
@@ -532,7 +530,7 @@ def _hold_region(tr: _Trainer, data: ImageCache, lagging: set[float], bg: torch.
         opacity = g.opacities.detach().clone().requires_grad_(True)  # [N]
         with torch.enable_grad():
             out = rasterize(means, quats, scales, opacity, cam, colors=colors, sh_degree=g.active_sh_degree,
-                            background=bg, backend=backend, near=tr.near)
+                            background=bg, backend=backend, near=near)
             err = (out.color - gt).abs().mean(dim=-1)  # [H, W]
             region = (out.color.detach().clamp(0, 1) - gt).abs().mean(dim=-1) > error
             if not bool(region.any()):
@@ -602,7 +600,7 @@ def _forward_backward(tr: _Trainer, it: int, data: ImageCache, bg: torch.Tensor,
         noise = float(torch.randn(1, generator=tr.gen))
         offset = noise * time_noise_scale(it, cfg) / n_views
     out, means_t = render_view(tr.gaussians, tr.deformation(), cam, bg, backend, offset, use_deform,
-                               visible_only=cfg.deform_visible_only, near=tr.near)
+                               visible_only=cfg.deform_visible_only, near=cfg.near_plane)
     tr.strategy.step_pre_backward(out, means_t)
     image = out.color  # [H, W, 3]
     loss = (1.0 - cfg.lambda_dssim) * l1_loss(image, gt) + cfg.lambda_dssim * (1.0 - ssim(image, gt))

@@ -4,6 +4,8 @@ import tarfile
 import types
 from pathlib import Path
 
+import torch
+
 _spec = importlib.util.spec_from_file_location("gpu_check", Path(__file__).parents[2] / "scripts" / "gpu_check.py")
 gpu_check = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(gpu_check)
@@ -42,7 +44,7 @@ def test_a_saved_build_is_unpacked_with_its_times_and_the_sources_dated_before_i
     (package / "__init__.py").write_text("")
     (package / "cuda" / "csrc" / "Adam.cu").write_text("")
     monkeypatch.setattr(gpu_check, "EXTENSIONS_DIR", str(tmp_path / "ext"))
-    monkeypatch.setattr(gpu_check, "_gsplat_build_env", lambda: {"TORCH_CUDA_ARCH_LIST": "9.0"})
+    monkeypatch.setattr(torch.cuda, "get_device_capability", lambda: (9, 0))  # an H100/H200
     monkeypatch.setattr(importlib.util, "find_spec",
                         lambda name: types.SimpleNamespace(origin=str(package / "__init__.py")))
     monkeypatch.setattr(os, "environ", dict(os.environ))
@@ -54,13 +56,14 @@ def test_a_saved_build_is_unpacked_with_its_times_and_the_sources_dated_before_i
     assert (package / "cuda" / "csrc" / "Adam.cu").stat().st_mtime < so.stat().st_mtime
     assert rec["reused_archive"] and chk.ran[0][0] == "build_gsplat"
     assert chk.ran[0][1]["TORCH_EXTENSIONS_DIR"] == str(tmp_path / "ext")
+    assert chk.ran[0][1]["TORCH_CUDA_ARCH_LIST"] == "9.0"  # built for this GPU only
     with tarfile.open(saved) as tar:  # what the next lease would unpack
         assert "./gsplat_cuda/gsplat_cuda.so" in tar.getnames()
 
 
 def test_without_an_archive_the_build_compiles_as_before(tmp_path, monkeypatch):
     monkeypatch.setattr(gpu_check, "EXTENSIONS_DIR", str(tmp_path / "ext"))
-    monkeypatch.setattr(gpu_check, "_gsplat_build_env", lambda: {"TORCH_CUDA_ARCH_LIST": "9.0"})
+    monkeypatch.setattr(torch.cuda, "get_device_capability", lambda: (9, 0))  # an H100/H200
     monkeypatch.setattr(os, "environ", dict(os.environ))
     rec = gpu_check.build_gsplat(_Check(), reuse=str(tmp_path / "missing.tar.gz"))
     assert rec["reused_archive"] is False

@@ -291,7 +291,7 @@ def test_the_hold_region_is_the_gaussians_that_draw_the_bad_pixels(backend):
     with torch.no_grad():
         gt = rasterize(g.means, g.rotations, g.scales, g.opacities, cam, colors=blue, sh_degree=0, background=bg,
                        backend=backend).color
-    tr = SimpleNamespace(gaussians=g, deformation=lambda: None, near=0.01)  # the cpu presets' near plane
+    tr = SimpleNamespace(gaussians=g, deformation=lambda: None)
     data = SimpleNamespace(cameras=[cam], images=[gt])
     hold = _hold_region(tr, data, {0.5}, bg, backend, error=0.2)
     assert hold.tolist() == [False, True, False]

@@ -269,5 +269,4 @@ def inside_hull(points: np.ndarray, chosen: np.ndarray, outlier_factor: float) -
     return np.all(points @ eq[:, :3].T + eq[:, 3] <= HULL_TOLERANCE * scale, axis=1)
 
 
-
 __all__ = ["NO_TRACK", "SA4D", "GaussianGrouping", "inside_hull"]
