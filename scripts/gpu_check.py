@@ -545,6 +545,48 @@ def watch_all(args) -> int:
     return 0
 
 
+def paper_run(args) -> int:
+    """``trase-bench run --method trase --dataset hypernerf`` (the paper preset on a GPU) over as
+    many calls as it needs: each call builds what is missing (gsplat, the scene, the numba
+    kernels: seconds once built), then continues the run in ``--runs`` (a folder kept between
+    calls: the stage cache resumes a cut stage from its last checkpoint) until the budget, and
+    writes what the run has so far: its results where it finished, else how far each stage got."""
+    out, chk, cuda = _start(args)
+    runs = Path(args.runs).resolve()
+    chk.result["runs"] = str(runs)
+    chk.result["resumed"] = runs.is_dir()
+    _scene_kernels_and_gsplat(chk, cuda)
+    extra = TINY_RUN if args.tiny else []
+    sets = [x for kv in args.set for x in ("--set", kv)]
+    rec = chk.sh("run_hypernerf", _cli("run", "--method", "trase", "--dataset", "hypernerf", "--runs", str(runs),
+                                       *extra, *sets), chk.left() - 10, _py())
+    rec["progress"] = run_progress(runs)
+    rec["results"] = _run_figures(runs)
+    chk.save()
+    for p in sorted(runs.glob(".cache/geometry/*/model/train_log.csv")) + sorted(
+            runs.glob(".cache/geometry/*.partial/model/train_log.csv")):
+        shutil.copyfile(p, out / "train_log.csv")
+    shutil.rmtree(chk.logs)
+    print(json.dumps({"rc": rec["rc"], "progress": rec["progress"]}), flush=True)
+    return 0
+
+
+def run_progress(runs: Path) -> dict:
+    """How far each stage of the cache in ``runs`` got: done, or cut (its latest checkpoint
+    iteration where it has one)."""
+    found: dict = {}
+    for d in sorted((runs / ".cache").glob("*/*")):
+        if not d.is_dir():
+            continue
+        stage, cut = d.parent.name, d.name.endswith(".partial")
+        entry = {"state": "cut" if cut else "done"}
+        if stage == "geometry" and (d / "model").is_dir():
+            its = [int(p.parent.name.split("_")[-1]) for p in (d / "model").glob("point_cloud/iteration_*/point_cloud.ply")]
+            entry["checkpoint"] = max(its, default=None)
+        found.setdefault(stage, []).append(entry)
+    return found
+
+
 def _profile(chk, out: Path, label: str, flags: list[str], limit: float) -> None:
     """The ``profile`` worker at both sizes on the GPU, its figures into the check's JSON."""
     js = out / "logs" / f"{label}.json"
@@ -629,6 +671,12 @@ def main(argv=None) -> int:
     w.add_argument("--profile-first", action="store_true", help="profile first, in FP32 and TF32, then the variants")
     w.add_argument("--reuse-build", default=None, help="a tar.gz of an earlier lease's gsplat build (--save-build)")
     w.add_argument("--save-build", default=None, help="write this lease's gsplat build here as a tar.gz")
+    r = sub.add_parser("paper-run", help="the default run on the GPU, continued over calls until it ends")
+    r.add_argument("--out", required=True)
+    r.add_argument("--runs", required=True, help="the run's folder, kept between calls (it resumes there)")
+    r.add_argument("--budget", type=float, default=580.0, help="seconds for this call")
+    r.add_argument("--set", action="append", default=[], help="KEY=VALUE for the run (repeatable)")
+    r.add_argument("--tiny", action="store_true", help="check the script on a CPU (figures mean nothing)")
     dg = sub.add_parser("diagnose-all", help="diagnose's variants side by side on one GPU")
     dg.add_argument("--out", required=True)
     dg.add_argument("--seconds", type=float, default=150.0, help="seconds per variant")
@@ -650,6 +698,8 @@ def main(argv=None) -> int:
         return diagnose_all(args)
     if args.cmd == "watch":
         return watch_all(args)
+    if args.cmd == "paper-run":
+        return paper_run(args)
     sizes = [tuple(int(x) for x in s.split("x")) for s in args.sizes.split(",")]
     Path(args.json).write_text(json.dumps(profile(sizes, args.device, args.repeats, args.tf32), indent=1))
     return 0
