@@ -563,6 +563,14 @@ def paper_run(args) -> int:
     rec["progress"] = run_progress(runs)
     rec["results"] = _run_figures(runs)
     chk.save()
+    for i, more in enumerate(args.rerun_with if rec["rc"] == 0 else []):
+        # the same run with other settings of its last stages: the finished stages are reused
+        extra_sets = [x for kv in more.split(",") if kv for x in ("--set", kv)]
+        again = chk.sh(f"rerun_{i}", _cli("run", "--method", "trase", "--dataset", "hypernerf", "--runs", str(runs),
+                                          *extra, *sets, *extra_sets), chk.left() - 10, _py())
+        again["settings"] = more
+        again["results"] = _run_figures(runs, more)
+        chk.save()
     for p in sorted(runs.glob(".cache/geometry/*/model/train_log.csv")) + sorted(
             runs.glob(".cache/geometry/*.partial/model/train_log.csv")):
         shutil.copyfile(p, out / "train_log.csv")
@@ -612,9 +620,12 @@ def _collect_diag(chk, out: Path, v: str, p, seconds: float) -> None:
     chk.save()
 
 
-def _run_figures(runs: Path) -> dict:
-    """The run's figures from its results.json, and its reconstruction's train log in brief."""
-    found = sorted(runs.glob("trase/hypernerf/*/*/results.json"))
+def _run_figures(runs: Path, settings: str = "") -> dict:
+    """The run's figures from its results.json (the newest one, or the newest made with the
+    ``--set`` overrides ``settings``, KEY=VALUE,...), and its reconstruction's train log in brief."""
+    found = sorted(runs.glob("trase/hypernerf/*/*/results.json"), key=lambda p: p.stat().st_mtime)
+    wanted = [kv for kv in settings.split(",") if kv]
+    found = [p for p in found if all(kv in json.loads(p.read_text())["run"]["overrides"] for kv in wanted)]
     fig: dict = {}
     if found:
         res = json.loads(found[-1].read_text())
@@ -676,6 +687,8 @@ def main(argv=None) -> int:
     r.add_argument("--runs", required=True, help="the run's folder, kept between calls (it resumes there)")
     r.add_argument("--budget", type=float, default=580.0, help="seconds for this call")
     r.add_argument("--set", action="append", default=[], help="KEY=VALUE for the run (repeatable)")
+    r.add_argument("--rerun-with", action="append", default=[],
+                   help="KEY=VALUE,...: once the run has ended, the same run with these settings too (repeatable)")
     r.add_argument("--tiny", action="store_true", help="check the script on a CPU (figures mean nothing)")
     dg = sub.add_parser("diagnose-all", help="diagnose's variants side by side on one GPU")
     dg.add_argument("--out", required=True)

@@ -67,3 +67,33 @@ def test_without_an_archive_the_build_compiles_as_before(tmp_path, monkeypatch):
     monkeypatch.setattr(os, "environ", dict(os.environ))
     rec = gpu_check.build_gsplat(_Check(), reuse=str(tmp_path / "missing.tar.gz"))
     assert rec["reused_archive"] is False
+
+
+def _touch(path: Path, text: str = "") -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text)
+    return path
+
+
+def test_a_cut_run_reports_each_stage_and_the_geometry_checkpoint_it_resumes_from(tmp_path):
+    cache = tmp_path / ".cache"
+    _touch(cache / "masks" / "k1" / "masks.npz")
+    for it in (1000, 2000):
+        _touch(cache / "geometry" / "k2.partial" / "model" / "point_cloud" / f"iteration_{it}" / "point_cloud.ply")
+    _touch(cache / "geometry" / "k2.partial" / "model" / "point_cloud" / "iteration_3000" / "unfinished.tmp")
+    assert gpu_check.run_progress(tmp_path) == {"geometry": [{"state": "cut", "checkpoint": 2000}],
+                                                "masks": [{"state": "done"}]}
+
+
+def test_the_figures_of_a_rerun_are_read_from_the_results_with_its_settings(tmp_path):
+    import json
+
+    base = {"run": {"overrides": ["a=1"]}, "which": "base"}
+    rerun = {"run": {"overrides": ["a=1", "method.render_rule=visible"]}, "which": "rerun"}
+    p_rerun = _touch(tmp_path / "trase" / "hypernerf" / "synthetic" / "c2" / "results.json", json.dumps(rerun))
+    p_base = _touch(tmp_path / "trase" / "hypernerf" / "synthetic" / "c1" / "results.json", json.dumps(base))
+    os.utime(p_rerun, (1, 1))  # the base run's results are the newest
+    assert gpu_check._run_figures(tmp_path)["results"]["which"] == "base"
+    assert gpu_check._run_figures(tmp_path, "method.render_rule=visible")["results"]["which"] == "rerun"
+    assert "results" not in gpu_check._run_figures(tmp_path, "method.render_rule=other")
+    assert p_base.is_file()
