@@ -7,7 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from benchmark.cache import StageRecord
-from benchmark.pipeline.context import SequenceRun, frozen_geometry
+from benchmark.pipeline.context import SequenceRun
 from benchmark.scoring import read_mask
 
 NOTE = ("geometry's ceiling: every gaussian labelled by the object it shows most in the training views' "
@@ -25,7 +25,7 @@ def run(ctx: SequenceRun) -> list[StageRecord]:
     def work(d: Path) -> dict:
         from benchmark.protocol.ceiling import label_ceiling
 
-        gaussians, deformation = frozen_geometry(ctx.geometry)
+        gaussians, deformation = ctx.geometry
         gts = [read_mask(p) for p in ctx.scene.gt_masks]
         score, info = label_ceiling(gaussians, deformation, ctx.scene, gts, ccfg["rule"], ccfg["threshold"])
         return {k: score.to_dict()[k] for k in ("miou", "macc", "pooled_iou")} | info

@@ -36,9 +36,9 @@ class SequenceRun:
 
 
 def frozen_geometry(geometry: tuple) -> tuple:
-    """(gaussians, deformation) for a stage that renders the model many times without changing
-    it (evaluate, ceiling): the deformation's offsets computed once per time
-    (trase.deformation.MemoisedDeformation; the same values)."""
+    """(gaussians, deformation) for a stage that renders the model many times at the same few
+    times without changing it (evaluate: the test views): the deformation's offsets computed
+    once per time (trase.deformation.MemoisedDeformation; the same values)."""
     from trase.deformation import MemoisedDeformation
 
     gaussians, deformation = geometry

@@ -251,10 +251,11 @@ def test_a_memoised_deformation_passes_through_what_it_cannot_keep():
 
 def test_a_full_memo_computes_further_times_without_keeping_them():
     g, counted = _model(), _Counted(DeformMLP.preset("2x16"))
-    per_time = 50 * (3 + 4 + 3) * 4  # bytes of one time's offsets
+    per_time = sum(-(-50 * k * 4 // 64) * 64 for k in (3, 4, 3))  # bytes of one time's offsets, each aligned
     memo = MemoisedDeformation(counted, g.means, max_bytes=2 * per_time)
     with torch.no_grad():
         for _ in range(2):
             for t in (0.1, 0.2, 0.3):
                 memo(g.means, t)
     assert (memo.misses, memo.hits, counted.calls) == (4, 2, 4)  # 0.1 and 0.2 kept, 0.3 computed twice
+    assert memo.allocated == 2 * per_time
