@@ -336,6 +336,11 @@ def _cli(*args: str) -> list[str]:
     return [sys.executable, "-m", "benchmark.cli", *args]
 
 
+def _default_run(runs: Path, *args: str) -> list[str]:
+    """The default run's command (``make demo``'s: TRASE on the built-in HyperNeRF-format scene)."""
+    return _cli("run", "--method", "trase", "--dataset", "hypernerf", "--runs", str(runs), *args)
+
+
 EXTENSIONS_DIR = "/tmp/trase-torch-extensions"  # torch's JIT builds (gsplat's), at a path the check knows
 
 
@@ -449,8 +454,7 @@ def run_all(args) -> int:
     # 4. the default run, keeping time for perf gpu after it
     runs = out / "runs"
     extra = TINY_RUN if args.tiny else []
-    rec = chk.sh("run_hypernerf", _cli("run", "--method", "trase", "--dataset", "hypernerf", "--runs", str(runs),
-                                       *extra), chk.left() - (100 if cuda else 15), _py())
+    rec = chk.sh("run_hypernerf", _default_run(runs, *extra), chk.left() - (100 if cuda else 15), _py())
     rec["results"] = _run_figures(runs)
     chk.save()
 
@@ -558,22 +562,20 @@ def paper_run(args) -> int:
     _scene_kernels_and_gsplat(chk, cuda)
     extra = TINY_RUN if args.tiny else []
     sets = [x for kv in args.set for x in ("--set", kv)]
-    rec = chk.sh("run_hypernerf", _cli("run", "--method", "trase", "--dataset", "hypernerf", "--runs", str(runs),
-                                       *extra, *sets), chk.left() - 10, _py())
+    rec = chk.sh("run_hypernerf", _default_run(runs, *extra, *sets), chk.left() - 10, _py())
     rec["progress"] = run_progress(runs)
     rec["results"] = _run_figures(runs)
     chk.save()
     for i, more in enumerate(args.rerun_with if rec["rc"] == 0 else []):
         # the same run with other settings of its last stages: the finished stages are reused
         extra_sets = [x for kv in more.split(",") if kv for x in ("--set", kv)]
-        again = chk.sh(f"rerun_{i}", _cli("run", "--method", "trase", "--dataset", "hypernerf", "--runs", str(runs),
-                                          *extra, *sets, *extra_sets), chk.left() - 10, _py())
+        again = chk.sh(f"rerun_{i}", _default_run(runs, *extra, *sets, *extra_sets), chk.left() - 10, _py())
         again["settings"] = more
         again["results"] = _run_figures(runs, more)
         chk.save()
-    for p in sorted(runs.glob(".cache/geometry/*/model/train_log.csv")) + sorted(
-            runs.glob(".cache/geometry/*.partial/model/train_log.csv")):
-        shutil.copyfile(p, out / "train_log.csv")
+    logs = sorted(runs.glob(".cache/geometry/*/model/train_log.csv"), key=lambda p: p.stat().st_mtime)
+    if logs:  # the reconstruction's, finished or cut (a .partial folder)
+        shutil.copyfile(logs[-1], out / "train_log.csv")
     shutil.rmtree(chk.logs)
     print(json.dumps({"rc": rec["rc"], "progress": rec["progress"]}), flush=True)
     return 0

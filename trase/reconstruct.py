@@ -495,7 +495,7 @@ def _check_static(tr: _Trainer, it: int, cfg: ReconstructionConfig, data: ImageC
 
 @torch.no_grad()
 def _views_psnr(tr: _Trainer, data: ImageCache, times: list[float], bg: torch.Tensor, backend: str,
-                near: float = RENDER_NEAR) -> tuple[list[float], list[float]]:
+                near: float) -> tuple[list[float], list[float]]:
     """PSNR (dB) and time of each training view at ``times`` (a static check's)."""
     keep = {round(float(t), 9) for t in times}
     deformation = tr.deformation()
@@ -508,7 +508,7 @@ def _views_psnr(tr: _Trainer, data: ImageCache, times: list[float], bg: torch.Te
 
 
 def _hold_region(tr: _Trainer, data: ImageCache, lagging: set[float], bg: torch.Tensor, backend: str,
-                 error: float, near: float = RENDER_NEAR) -> torch.Tensor:
+                 error: float, near: float) -> torch.Tensor:
     """[N] bool: the gaussians that draw a pixel of a lagging time's training view whose colour
     is off by more than ``error`` (mean absolute error over the channels): the gradient of that
     region's error reaches their opacity or their colour (the colour's as well, since the

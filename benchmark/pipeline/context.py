@@ -35,18 +35,6 @@ class SequenceRun:
         return load_geometry(self.records["geometry"].path)
 
 
-def frozen_geometry(geometry: tuple) -> tuple:
-    """(gaussians, deformation) for a stage that renders the model many times at the same few
-    times without changing it (evaluate: the test views): the deformation's offsets computed
-    once per time (trase.deformation.MemoisedDeformation; the same values)."""
-    from trase.deformation import MemoisedDeformation
-
-    gaussians, deformation = geometry
-    if deformation is None or gaussians is None:
-        return gaussians, deformation
-    return gaussians, MemoisedDeformation(deformation, gaussians.means)
-
-
 def load_geometry(stage_dir: Path) -> tuple:
     """(gaussians, deformation) from a geometry stage directory."""
     from trase.checkpoint import load_model, load_tabulated_geometry

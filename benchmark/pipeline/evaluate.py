@@ -10,7 +10,7 @@ import numpy as np
 
 from benchmark.cache import StageRecord
 from benchmark.io import atomic_directory
-from benchmark.pipeline.context import SequenceRun, frozen_geometry, jsonable
+from benchmark.pipeline.context import SequenceRun, jsonable
 from benchmark.pipeline.prompts import load_prompts
 from benchmark.scoring import metric_version, read_mask, read_official_ground_truth, score_masks
 
@@ -137,7 +137,11 @@ def run(ctx: SequenceRun) -> list[StageRecord]:
                         {"fit": fit_rec.key, "prompts": prompts_rec.key, "gt": ctx.gt_key})
 
     def work(d: Path) -> dict:
-        gaussians, deformation = frozen_geometry(ctx.geometry)
+        from trase.deformation import memoised
+
+        gaussians, deformation = ctx.geometry
+        # every test view is rendered many times over (click sets, oracle, pictures): offsets once per time
+        deformation = memoised(deformation, gaussians.means) if gaussians is not None else deformation
         fitted = FittedModel.load(fit_rec.path, gaussians, deformation, ctx.method.settings_class())
         prompts, _ = load_prompts(prompts_rec)
         return evaluate(ctx.method, fitted, ctx.scene, prompts, d)

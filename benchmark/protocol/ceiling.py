@@ -88,7 +88,7 @@ def label_ceiling(gaussians, deformation, scene, gts: Sequence[np.ndarray], rule
                   threshold: float = 0.5):
     """-> (ScoreResult "v1" of the truth-labelled gaussians on the test views, info dict)."""
     from benchmark.scoring import score_masks
-    from trase.deformation import MemoisedDeformation
+    from trase.deformation import memoised
     from trase.segment import RULES, render_alpha, render_visible
 
     ids, paths, n_ids = synthetic_truth(scene)
@@ -103,8 +103,7 @@ def label_ceiling(gaussians, deformation, scene, gts: Sequence[np.ndarray], rule
     if rule not in RULES:
         raise CeilingError(f"unknown segmentation rule {rule!r}; choose one of {', '.join(RULES)}")
     render = render_alpha if rule == "alone" else render_visible
-    if deformation is not None:  # the test views are rendered twice (objects, movers): offsets once per time
-        deformation = MemoisedDeformation(deformation, gaussians.means)
+    deformation = memoised(deformation, gaussians.means)  # the test views are rendered twice (objects, movers)
     alphas = [render(gaussians, deformation, sel, v.camera) for v in scene.test]  # [H, W] each
     preds = [a >= threshold for a in alphas]
     names = [f"{i:05d}" for i in range(len(scene.test))]

@@ -8,6 +8,7 @@ from trase.deformation import (
     TabulatedDeformation,
     deformed,
     infer_mlp_config,
+    memoised,
     positional_encoding,
 )
 from trase.gaussians import GaussianModel
@@ -229,6 +230,7 @@ def test_a_memoised_deformation_runs_the_network_once_per_time_and_returns_the_s
     assert not torch.equal(first[0], other[0])
     assert memo.scale_rule == "clamp"
     assert MemoisedDeformation(net, g.means).config() == net.config()  # the wrapped one's attributes
+    assert memoised(None, g.means) is None and isinstance(memoised(net, g.means), MemoisedDeformation)
 
 
 def test_a_memoised_deformation_passes_through_what_it_cannot_keep():

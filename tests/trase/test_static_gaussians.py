@@ -293,6 +293,6 @@ def test_the_hold_region_is_the_gaussians_that_draw_the_bad_pixels(backend):
                        backend=backend).color
     tr = SimpleNamespace(gaussians=g, deformation=lambda: None)
     data = SimpleNamespace(cameras=[cam], images=[gt])
-    hold = _hold_region(tr, data, {0.5}, bg, backend, error=0.2)
+    hold = _hold_region(tr, data, {0.5}, bg, backend, error=0.2, near=0.01)
     assert hold.tolist() == [False, True, False]
-    assert not _hold_region(tr, data, {0.25}, bg, backend, error=0.2).any()  # no view at a lagging time
+    assert not _hold_region(tr, data, {0.25}, bg, backend, error=0.2, near=0.01).any()  # no view at a lagging time
