@@ -20,7 +20,7 @@ from benchmark.config import ConfigError, parse_overrides
 from benchmark.errors import UserError
 from benchmark.io import sha256_files
 from benchmark.pipeline import ceiling, evaluate, fit, geometry, masks, prompts, tracks
-from benchmark.pipeline.context import SequenceRun, scene_fingerprint
+from benchmark.pipeline.context import SequenceRun, render_near, scene_fingerprint
 from benchmark.pipeline.record import build_record
 from benchmark.pipeline.settings import RunSettings, run_settings
 from benchmark.plugins import run_packages
@@ -140,6 +140,9 @@ def prepare_sequence(opts: RunOptions, sequence: str | None, create: bool = True
     views = scene.test or scene.train
     size = (views[0].camera.width, views[0].camera.height) if views else None
     settings = run_settings(method, spec, variant, overrides, size)
+    # every stage renders the geometry with the near plane it is trained with (in the scene's key
+    # where it is not the default, so stages rendered at another plane are not reused)
+    scene = scene.with_near(render_near(settings.geometry.source, settings.geometry.train.near_plane))
     chash = config_hash(settings.to_dict())
     # runs that differ only in their seed share settings.group_hash: one row of a table, over seeds
     group = settings.group_hash

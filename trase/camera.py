@@ -23,6 +23,12 @@ import math
 
 import numpy as np
 
+# the near plane of a camera that names none (view-space depth, scene units): renders through it
+# draw nothing nearer. The cpu presets train with it; the public 3DGS rasterizer's is 0.2, which
+# the paper preset trains with (ReconstructionConfig.near_plane), and a geometry is rendered with
+# the plane it was trained with (benchmark: the scene's cameras carry it)
+NEAR_PLANE = 0.01
+
 
 class CameraError(ValueError):
     """An invalid camera; the message says which camera and what is wrong."""
@@ -41,6 +47,7 @@ class Camera:
     radial: tuple[float, float, float] = (0.0, 0.0, 0.0)  # k1, k2, k3
     tangential: tuple[float, float] = (0.0, 0.0)  # p1, p2
     fisheye: bool = False
+    near: float = NEAR_PLANE  # renders through this camera draw nothing nearer (view-space depth)
 
     def __post_init__(self) -> None:
         K = np.asarray(self.K, dtype=np.float64)
@@ -64,6 +71,8 @@ class Camera:
             raise CameraError(f"{label}: distortion must be 3 finite radial and 2 tangential terms")
         if not math.isfinite(self.time):
             raise CameraError(f"{label}: time is not finite")
+        if not (math.isfinite(self.near) and self.near > 0):
+            raise CameraError(f"{label}: near plane must be a positive number of scene units, got {self.near!r}")
         object.__setattr__(self, "K", K)
         object.__setattr__(self, "w2c", w2c)
         object.__setattr__(self, "width", int(self.width))
@@ -195,6 +204,10 @@ class Camera:
     def with_time(self, time: float) -> Camera:
         return dataclasses.replace(self, time=float(time))
 
+    def with_near(self, near: float) -> Camera:
+        """The same camera whose renders cull at ``near`` (the plane its geometry was trained with)."""
+        return dataclasses.replace(self, near=float(near))
+
     def undistorted(self) -> Camera:
         """The pinhole camera (same K, pose, size) that undistorted images are resampled to."""
         return dataclasses.replace(self, radial=(0.0, 0.0, 0.0), tangential=(0.0, 0.0), fisheye=False)
@@ -211,6 +224,8 @@ class Camera:
             "radial": list(self.radial),
             "tangential": list(self.tangential),
             "fisheye": self.fisheye,
+            # only where it is not the default: files and keys of cameras at the default stay as before
+            **({"near": self.near} if self.near != NEAR_PLANE else {}),
         }
 
     @classmethod
@@ -225,6 +240,7 @@ class Camera:
             radial=tuple(d.get("radial", (0.0, 0.0, 0.0))),
             tangential=tuple(d.get("tangential", (0.0, 0.0))),
             fisheye=bool(d.get("fisheye", False)),
+            near=float(d.get("near", NEAR_PLANE)),
         )
 
 

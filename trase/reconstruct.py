@@ -56,7 +56,6 @@ from trase.gaussians import GaussianModel
 from trase.io import read_torch
 from trase.losses import l1_loss, mean_squared_error, opacity_entropy, psnr, psnr_of_mse, ssim
 from trase.reconstruction_config import ReconstructionConfig, expon_lr, time_noise_scale
-from trase.render.rasterize import NEAR_PLANE as RENDER_NEAR
 from trase.training_images import ImageCache, load_image
 from trase.training_log import ProgressBar, TrainLog
 
@@ -67,9 +66,10 @@ if TYPE_CHECKING:
 # -- rendering ------------------------------------------------------------------------------
 def render_view(gaussians: GaussianModel, deformation, camera: Camera, background=None,
                 backend: str = "auto", time_offset: float = 0.0, with_deform: bool = True,
-                visible_only: bool = False, near: float = RENDER_NEAR):
+                visible_only: bool = False, near: float | None = None):
     """Render gaussians deformed to camera.time. Returns (RenderOutput, deformed means [N,3]).
-    ``near``: the rasterizer's near plane (``ReconstructionConfig.near_plane`` while training).
+    ``near``: the rasterizer's near plane (``ReconstructionConfig.near_plane`` while training;
+    None: the camera's).
 
     ``visible_only``: the deformation's gradients are computed for the gaussians the camera
     can see only (``deformation.deformed_visible``; same image and gradients up to rounding).
@@ -92,7 +92,7 @@ def render_view(gaussians: GaussianModel, deformation, camera: Camera, backgroun
 
 @torch.no_grad()
 def evaluate_psnr(gaussians: GaussianModel, deformation, views: Sequence, background=None,
-                  backend: str = "auto", downscale: float = 1.0, near: float = RENDER_NEAR) -> float:
+                  backend: str = "auto", downscale: float = 1.0, near: float | None = None) -> float:
     """Mean over views of the PSNR (dB) of the clamped render against the view's image."""
     if not views:
         raise ValueError("evaluate_psnr: no views")
@@ -103,12 +103,12 @@ def evaluate_psnr(gaussians: GaussianModel, deformation, views: Sequence, backgr
 @torch.no_grad()
 def evaluate_images(gaussians: GaussianModel, deformation, views: Sequence, background=None,
                     backend: str = "auto", downscale: float = 1.0, ssim_too: bool = True, lpips=None,
-                    near: float = RENDER_NEAR) -> dict:
+                    near: float | None = None) -> dict:
     """The field's image measures of the clamped renders against the views' images (alpha
     composited over ``background``, black by default, as in training): mean PSNR (dB) and mean
     SSIM (3DGS's 11x11 gaussian window, ``losses.ssim``) over the views, the views' PSNRs, and
     with ``lpips`` (a ``trase.lpips.LPIPS``) the mean LPIPS. ``near``: the near plane the
-    geometry was trained with (``ReconstructionConfig.near_plane``)."""
+    geometry was trained with (``ReconstructionConfig.near_plane``; None: each view camera's)."""
     if not views:
         raise ValueError("evaluate_images: no views")
     bg = torch.zeros(3) if background is None else torch.as_tensor(background, dtype=torch.float32).cpu()

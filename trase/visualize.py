@@ -142,7 +142,7 @@ def depth_colors(depth: np.ndarray, alpha: np.ndarray) -> np.ndarray:
 def orbit_cameras(anchor: Camera, centre: np.ndarray, n: int, degrees: float = 30.0,
                   times: np.ndarray | None = None) -> list[Camera]:
     """``n`` cameras on an arc of ``degrees`` around ``centre`` (about the anchor camera's up
-    axis), each looking at it; the anchor's intrinsics, times 0..1 unless given."""
+    axis), each looking at it; the anchor's intrinsics and near plane, times 0..1 unless given."""
     from scipy.spatial.transform import Rotation
 
     from trase.camera import look_at
@@ -156,7 +156,7 @@ def orbit_cameras(anchor: Camera, centre: np.ndarray, n: int, degrees: float = 3
     for k, (a, t) in enumerate(zip(angles, ts)):
         eye = centre + Rotation.from_rotvec(np.deg2rad(a) * up / np.linalg.norm(up)).apply(eye0)
         cams.append(Camera(anchor.K, look_at(eye, centre, up), anchor.width, anchor.height, time=float(t),
-                           name=f"orbit/{k:04d}"))
+                           name=f"orbit/{k:04d}", near=anchor.near))
     return cams
 
 

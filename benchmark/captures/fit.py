@@ -26,7 +26,7 @@ from benchmark.cache import StageCache, config_hash
 from benchmark.config import merge, parse_overrides, typed
 from benchmark.io import atomic_directory, atomic_write_bytes, atomic_write_json
 from benchmark.pipeline import fit, geometry, masks, tracks
-from benchmark.pipeline.context import SequenceRun, scene_fingerprint
+from benchmark.pipeline.context import SequenceRun, render_near, scene_fingerprint
 from benchmark.pipeline.settings import capture_settings
 
 FIT_STAGES = (masks.run, geometry.run, tracks.run, fit.run)
@@ -69,6 +69,7 @@ def fit_capture(opts: FitOptions) -> Path:
     method = get_method(opts.method)
     first = scene.train[0].camera
     settings = capture_settings(method, monocular(scene), capture, overrides, (first.width, first.height))
+    scene = scene.with_near(render_near(settings.geometry.source, settings.geometry.train.near_plane))
     out = Path(opts.out_dir) if opts.out_dir else Path("fits") / scene.sequence
     ctx = SequenceRun(StageCache(Path(opts.cache_dir) if opts.cache_dir else out / ".cache"), scene, settings,
                       method, opts.progress, scene_fingerprint(scene), gt_key="")

@@ -57,6 +57,14 @@ class Scene:
                 f"{self.root}: {len(self.gt_masks)} ground-truth masks for {len(self.test)} test views"
             )
 
+    def with_near(self, near: float) -> Scene:
+        """The scene whose every camera culls at ``near``: renders of a geometry use the near
+        plane it was trained with (``benchmark.pipeline.context.render_near``)."""
+        def seen(views: list[View]) -> list[View]:
+            return [dataclasses.replace(v, camera=v.camera.with_near(near)) for v in views]
+
+        return dataclasses.replace(self, train=seen(self.train), test=seen(self.test), validation=seen(self.validation))
+
     @property
     def times(self) -> np.ndarray:
         """[T] sorted distinct normalised times over train and test views."""

@@ -45,6 +45,25 @@ def load_geometry(stage_dir: Path) -> tuple:
     return load_model(stage_dir / "model")
 
 
+def render_near(source: str, train_near: float) -> float:
+    """The near plane every stage renders a geometry with: the one a reconstruction was trained
+    with (``geometry.train.near_plane``: 0.2 in the paper preset, as the public rasterizer; 0.01
+    in the cpu presets), else the cameras' default (ground truth, an imported model: as before).
+    Why: gaussians nearer than the training plane were never drawn, so never fitted to an image."""
+    from trase.camera import NEAR_PLANE
+
+    return float(train_near) if source == "reconstruct" else NEAR_PLANE
+
+
+def recorded_render_near(config: dict) -> float:
+    """``render_near`` of a run's or fit's recorded config (a near plane at the cameras' default
+    is left out of the record: benchmark.pipeline.settings.AS_BEFORE)."""
+    from trase.camera import NEAR_PLANE
+
+    geometry = config.get("geometry", {})
+    return render_near(geometry.get("source", "reconstruct"), geometry.get("train", {}).get("near_plane", NEAR_PLANE))
+
+
 def synthetic_truth(scene):
     """The scene's truth (benchmark.datasets.truth); a clear error on real data."""
     if scene.truth is None:

@@ -43,6 +43,13 @@ class SceneFolder:
     def times(self) -> list[float]:
         return sorted({float(c.time) for _, c in self.views})
 
+    @property
+    def near(self) -> float:
+        """The near plane the model is rendered with (its cameras'; trase.camera.NEAR_PLANE without any)."""
+        from trase.camera import NEAR_PLANE
+
+        return float(self.views[0][1].near) if self.views else NEAR_PLANE
+
 
 def open_scene_folder(path: Path | str, cache: Path | str | None = None) -> SceneFolder:
     """Open a run, fit or edit folder (see the module doc); a clear error for anything else."""
@@ -84,7 +91,7 @@ def _find_stage(run: Path, stage: str, key: str, cache: Path | None) -> Path:
 def _open_run(run: Path, cache: Path | None) -> SceneFolder:
     from benchmark.datasets import load_scene
     from benchmark.methods import FittedModel
-    from benchmark.pipeline.context import load_geometry
+    from benchmark.pipeline.context import load_geometry, recorded_render_near
     from trase.edit import EditableModel
 
     rec = read_json(run / "results.json", "results.json")
@@ -100,7 +107,7 @@ def _open_run(run: Path, cache: Path | None) -> SceneFolder:
     scene_dir = Path(rec["scene_dir"])
     if not scene_dir.is_dir():
         raise UserError(f"{run / 'results.json'}: its scene {scene_dir} is gone (regenerate or pass the data root)")
-    scene = load_scene(rec["dataset"], scene_dir)
+    scene = load_scene(rec["dataset"], scene_dir).with_near(recorded_render_near(rec.get("config", {})))
     model = EditableModel(_with_features(gaussians, fitted.features), deformation, fitted.labels, fitted.keep)
     return SceneFolder("run", run, model, [(v.name, v.camera) for v in scene.test],
                        [int(k) for k in rec.get("selected_clusters", [])], rec["dataset"], _click_rule(rec))

@@ -25,10 +25,11 @@ HEIGHTS = ("120", "240", "480")
 
 
 def camera_from_view(R_c2w: np.ndarray, position: np.ndarray, fov_y: float, aspect: float, height: int,
-                     t: float):
+                     t: float, near: float | None = None):
     """A trase Camera from a viewer's pose (OpenCV axes: +z forward, -y up), vertical field
-    of view (radians), aspect (width / height) and render height."""
-    from trase.camera import Camera, intrinsics
+    of view (radians), aspect (width / height) and render height; ``near``: the model's near
+    plane (None: the cameras' default)."""
+    from trase.camera import NEAR_PLANE, Camera, intrinsics
 
     H = int(height)
     W = max(1, round(H * float(aspect)))
@@ -36,7 +37,8 @@ def camera_from_view(R_c2w: np.ndarray, position: np.ndarray, fov_y: float, aspe
     w2c = np.eye(4)
     w2c[:3, :3] = R_c2w.T
     w2c[:3, 3] = -R_c2w.T @ np.asarray(position, np.float64)
-    return Camera(intrinsics(fy, fy, W / 2.0, H / 2.0), w2c, W, H, time=float(t), name="viewer")
+    return Camera(intrinsics(fy, fy, W / 2.0, H / 2.0), w2c, W, H, time=float(t), name="viewer",
+                  near=NEAR_PLANE if near is None else float(near))
 
 
 class SceneViewer:
@@ -187,7 +189,7 @@ class SceneViewer:
 
         R = vtf.SO3(np.asarray(c.wxyz)).as_matrix()
         return camera_from_view(R, np.asarray(c.position), c.fov, c.aspect, int(self.gui_height.value),
-                                float(self.gui_time.value))
+                                float(self.gui_time.value), self.folder.near)
 
     def draw(self, client) -> np.ndarray:
         with self._lock:

@@ -241,3 +241,27 @@ def test_seeds_are_runs_side_by_side_and_one_leaderboard_row(data_root, tmp_path
     assert page.count("<figcaption>frame ") == len(clicked) > 1  # one picture per clicked frame
     assert main(args + ["--set", "seed=1"]) == 1
     assert "either with --seeds or with --set seed" in capsys.readouterr().err
+
+
+def test_every_stage_renders_with_the_geometrys_near_plane(data_root, tmp_path):
+    """The scene's cameras carry the near plane the geometry is reconstructed with (the paper
+    preset's 0.2, the cpu presets' 0.01), so features, prompts, evaluate and ceiling draw what
+    training drew; at the default nothing changes (the scene's key included), elsewhere the key
+    changes with it (stages rendered at another plane are not reused)."""
+    from benchmark.pipeline.context import recorded_render_near, scene_fingerprint
+    from benchmark.runner import RunOptions, prepare_sequence
+
+    def prepared(*overrides):
+        opts = RunOptions("trase", "hypernerf", ["synthetic"], data_root, tmp_path, overrides=list(overrides))
+        return prepare_sequence(opts, "synthetic", create=False)
+
+    cpu = prepared()
+    assert {v.camera.near for v in cpu.scene.train + cpu.scene.test} == {0.01}
+    paper = prepared("geometry.train.near_plane=0.2")
+    assert {v.camera.near for v in paper.scene.train + paper.scene.test} == {0.2}
+    assert scene_fingerprint(paper.scene) != scene_fingerprint(cpu.scene)
+    truth = prepared("geometry.train.near_plane=0.2", "geometry.source=ground-truth")
+    assert {v.camera.near for v in truth.scene.test} == {0.01}  # not trained: the cameras' default
+    assert scene_fingerprint(truth.scene) == scene_fingerprint(cpu.scene)
+    assert recorded_render_near(paper.settings.to_dict()) == 0.2
+    assert recorded_render_near({}) == recorded_render_near(cpu.settings.to_dict()) == 0.01

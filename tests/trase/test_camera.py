@@ -86,3 +86,17 @@ def test_dict_round_trip():
     back = Camera.from_dict(cam.to_dict())
     assert back.to_dict() == cam.to_dict()
     assert dataclasses.replace(cam, time=0.5).time == 0.5
+
+
+def test_near_plane_travels_with_the_camera():
+    from trase.camera import NEAR_PLANE
+
+    cam = _cam(name="x")
+    assert cam.near == NEAR_PLANE and "near" not in cam.to_dict()  # the default: files and keys as before
+    far = cam.with_near(0.2)
+    assert far.near == 0.2 and far.to_dict()["near"] == 0.2
+    assert Camera.from_dict(far.to_dict()).near == 0.2
+    assert far.scaled(2).near == 0.2 and far.with_time(0.5).near == 0.2 and far.undistorted().near == 0.2
+    for bad in (0.0, -1.0, float("nan"), float("inf")):
+        with pytest.raises(CameraError, match="x: near plane must be a positive number"):
+            cam.with_near(bad)

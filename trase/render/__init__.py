@@ -3,7 +3,8 @@
     from trase.render import rasterize, pixel_weights, RenderOutput, PixelWeights
 """
 
-from trase.render.rasterize import BACKENDS, NEAR_PLANE, pixel_weights, rasterize
+from trase.camera import NEAR_PLANE
+from trase.render.rasterize import BACKENDS, pixel_weights, rasterize
 from trase.render.types import PixelWeights, RenderError, RenderOutput
 
 __all__ = ["BACKENDS", "NEAR_PLANE", "PixelWeights", "RenderError", "RenderOutput", "pixel_weights", "rasterize"]

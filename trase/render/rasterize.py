@@ -21,9 +21,8 @@ from trase.render.projection import project_gaussians
 from trase.render.types import PixelWeights, RenderError, RenderOutput
 
 BACKENDS = ("torch", "numba", "gsplat", "auto")
-# the near plane (view-space depth, scene units) when a caller names none: nearer gaussians are
-# not drawn. The public 3DGS rasterizer's is 0.2 (ReconstructionConfig.near_plane trains with it)
-NEAR_PLANE = 0.01
+# NEAR_PLANE (trase.camera): a camera's near plane when it names none; a render culls at the
+# camera's own (``Camera.near``) unless the caller names another
 
 
 def _check_inputs(means, quats, scales, opacities, camera, colors, sh_degree, features, background):
@@ -91,12 +90,13 @@ def rasterize(
     features: torch.Tensor | None = None,  # [N, D]
     background: torch.Tensor | None = None,  # [3], colour only
     backend: str = "auto",
-    near: float = NEAR_PLANE,
+    near: float | None = None,  # None: the camera's near plane
     tile_size: int = 16,
 ) -> RenderOutput:
     """Render one view; differentiable w.r.t. every tensor argument (torch and numba). The
     output carries the projection (``means2d``, ``radii``), so a trainer needs no second one."""
     _check_inputs(means, quats, scales, opacities, camera, colors, sh_degree, features, background)
+    near = camera.near if near is None else near
     backend = _resolve_backend(backend, means.device)
     if backend == "gsplat":
         from trase.render.gsplat_backend import rasterize_gsplat
@@ -157,13 +157,14 @@ def pixel_weights(
     camera: Camera,
     pixels: torch.Tensor | None = None,  # [P] int64 linear ids row * W + col; None = all
     min_weight: float = 0.0,
-    near: float = NEAR_PLANE,
+    near: float | None = None,  # None: the camera's near plane
     tile_size: int = 16,
 ) -> PixelWeights:
     """Each pixel's contributing gaussians (front to back) and weights w = alpha * T, from the
     same binning and compositing rules as ``rasterize`` (computed on CPU with numba, returned
     on the input device). Not differentiable: it is for frozen geometry."""
     _check_inputs(means, quats, scales, opacities, camera, None, None, None, None)
+    near = camera.near if near is None else near
     from trase.render.numba_backend import pixel_weights_numba
 
     dev = means.device

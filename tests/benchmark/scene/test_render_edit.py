@@ -128,3 +128,27 @@ def test_edit_style_with_local_weights(run_dir, tmp_path, capsys):
     styled, base = open_scene_folder(tmp_path / "s").model, open_scene_folder(run_dir).model
     assert styled.num_gaussians == base.num_gaussians
     assert not torch.equal(styled.gaussians.sh_dc, base.gaussians.sh_dc)
+
+
+def test_folders_render_with_the_near_plane_their_geometry_trained_with(run_dir, tmp_path):
+    """A run's folder gives its views the near plane of its reconstruction (here written into a
+    copy of the tiny run's record); orbits and the viewer's cameras keep it."""
+    import shutil
+
+    from benchmark.scene.viewer import camera_from_view
+    from trase.visualize import look_centre, orbit_cameras
+
+    assert open_scene_folder(run_dir).near == 0.01  # ground-truth geometry: the cameras' default
+    copy = tmp_path / "run"
+    shutil.copytree(run_dir, copy)
+    rec = json.loads((copy / "results.json").read_text())
+    rec["config"]["geometry"] = {**rec["config"]["geometry"], "source": "reconstruct",
+                                 "train": {**rec["config"]["geometry"].get("train", {}), "near_plane": 0.2}}
+    (copy / "results.json").write_text(json.dumps(rec))
+    cache = next(p / ".cache" for p in run_dir.parents if (p / ".cache").is_dir())
+    far = open_scene_folder(copy, cache)
+    assert far.near == 0.2 and {c.near for _, c in far.views} == {0.2}
+    cams = [c for _, c in far.views]
+    assert {c.near for c in orbit_cameras(cams[0], look_centre(cams), 3)} == {0.2}
+    assert camera_from_view(np.eye(3), np.zeros(3), 1.0, 4 / 3, 120, 0.5, far.near).near == 0.2
+    assert camera_from_view(np.eye(3), np.zeros(3), 1.0, 4 / 3, 120, 0.5).near == 0.01

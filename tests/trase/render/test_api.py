@@ -105,3 +105,23 @@ def test_render_carries_its_projection(backend):
         lp = loss_of(_split(*loss_at(eps), True, sc["features"].shape[1], None))
         lm = loss_of(_split(*loss_at(-eps), True, sc["features"].shape[1], None))
         assert float((lp - lm) / (2 * eps)) == pytest.approx(float(g[i, 0]), rel=1e-4)
+
+
+@pytest.mark.parametrize("backend", ["torch", "numba"])
+def test_a_render_culls_at_the_cameras_near_plane(backend):
+    """A gaussian nearer than the camera's near plane is not drawn; a near named by the caller
+    overrides the camera's (the trainer names its own); pixel_weights follows the same plane."""
+    from trase.render import pixel_weights
+
+    cam = camera()
+    sc = scene(n=1, d=0, seed=2)
+    with torch.no_grad():  # 0.1 in front of the camera, on its axis
+        sc["means"][0] = torch.tensor(cam.c2w[:3, 3] + 0.1 * cam.c2w[:3, 2], dtype=torch.float32)
+        sc["scales"].fill_(0.01)
+        sc["opacities"].fill_(0.9)
+    near, far = cam, cam.with_near(0.2)
+    assert rasterize(camera=near, backend=backend, **sc).alpha.max() > 0.5
+    assert rasterize(camera=far, backend=backend, **sc).alpha.max() == 0
+    assert rasterize(camera=far, backend=backend, near=0.01, **sc).alpha.max() > 0.5
+    geo = [sc[k].detach() for k in ("means", "quats", "scales", "opacities")]
+    assert pixel_weights(*geo, near).weights.numel() > 0 and pixel_weights(*geo, far).weights.numel() == 0
