@@ -77,7 +77,8 @@ def mask_files(views) -> list[str]:
 
 def camera_dict(camera) -> dict:
     """A camera as cameras.json writes it: OpenCV axes (x right, y down, z forward), K 3x3,
-    w2c 4x4 (world to camera), size in pixels, time in [0, 1], lens (zero: pinhole)."""
+    w2c 4x4 (world to camera), size in pixels, time in [0, 1], lens (zero: pinhole), and the
+    near plane where it is not the default 0.01 (trase.camera.Camera.to_dict)."""
     d = camera.to_dict()
     d.pop("name", None)
     return d
