@@ -108,9 +108,9 @@ def test_lpips(fit_dir: Path, scene_dir: Path, sets: list[str], lpips) -> float:
     """Mean LPIPS of the fitted model's renders of the held-out views (read as the fit read them)."""
     from benchmark.captures import CaptureOptions, load_capture
     from benchmark.config import merge, parse_overrides, typed
+    from benchmark.pipeline.context import recorded_render_near
     from trase.checkpoint import load_model
     from trase.reconstruct import evaluate_images
-    from trase.render import NEAR_PLANE
 
     rec = json.loads((fit_dir / "fit.json").read_text())
     capture = merge(CaptureOptions(holdout="layout").to_dict(), parse_overrides(sets).get("capture", {}), "capture.")
@@ -118,8 +118,8 @@ def test_lpips(fit_dir: Path, scene_dir: Path, sets: list[str], lpips) -> float:
     g, d = load_model(fit_dir / "model")
     train = rec["config"]["geometry"]["train"]
     bg = (1.0, 1.0, 1.0) if train["white_background"] else None
-    near = train.get("near_plane", NEAR_PLANE)  # a run records it only where it is not the cpu presets' plane
-    return evaluate_images(g, d, scene.test, bg, ssim_too=False, lpips=lpips, near=near)["lpips"]
+    return evaluate_images(g, d, scene.test, bg, ssim_too=False, lpips=lpips,
+                           near=recorded_render_near(rec["config"]))["lpips"]
 
 
 def run(quick: bool = False, echo=print, out_dir: Path | None = None, scenes: list | None = None,

@@ -38,7 +38,8 @@ def run(ctx: SequenceRun) -> list[StageRecord]:
         else:
             raise ConfigError(f"--set geometry.source={src}: choose {', '.join(SOURCES)}")
         gaussians, deformation = load_geometry(d)
-        # the held-out views composited over the background the reconstruction trained on
+        # the held-out views composited over the background the reconstruction trained on, at
+        # the near plane their cameras carry (benchmark.pipeline.context.render_near)
         bg = (1.0, 1.0, 1.0) if geometry.train.white_background else None
         info = {"source": src, "n_gaussians": int(gaussians.num_gaussians), "test_psnr": None,
                 "motion": "dynamic" if deformation is not None else "static (plain 3DGS, no deformation network)"}
@@ -53,7 +54,7 @@ def run(ctx: SequenceRun) -> list[StageRecord]:
             info["static_gaussians"] = int(static.sum())
         for split, views in (("test", scene.test), ("validation", scene.validation)):
             if views:
-                m = evaluate_images(gaussians, deformation, views, bg, near=geometry.train.near_plane)
+                m = evaluate_images(gaussians, deformation, views, bg)
                 info.update({f"{split}_psnr": round(m["psnr"], 3), f"{split}_ssim": round(m["ssim"], 4)})
         peak = peak_memory_mib(device)
         return {**info, **({"peak_gpu_mib": peak} if peak is not None else {})}
