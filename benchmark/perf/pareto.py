@@ -65,10 +65,28 @@ def plot(runs: list[dict], front: list[int], path: Path, title: str,
          xlabel: str = "features + fit + evaluate time (s)", ylabel: str = "mIoU (official metric)") -> None:
     """Scatter of mIoU vs time (log x), each point labelled by what differs from the base;
     the Pareto front drawn as a line through its points."""
+    import matplotlib.pyplot as plt
+
+    fig = figure(runs, front, title, xlabel, ylabel)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
+    plt.close(fig)
+
+
+TITLE_CHARS = 90  # a title line at most this long fits the 7-inch figure at font size 9
+
+
+def figure(runs: list[dict], front: list[int], title: str, xlabel: str, ylabel: str):
+    """``plot``'s figure (matplotlib, Agg): the title wrapped to the figure's width, the time
+    axis's ticks as plain seconds where the runs span less than a decade (log ticks would read
+    2.8x10^2)."""
+    import textwrap
+
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import FuncFormatter
 
     fig, ax = plt.subplots(figsize=(7, 4.5), dpi=120)
     xs = [r["seconds"] for r in runs]
@@ -80,15 +98,19 @@ def plot(runs: list[dict], front: list[int], path: Path, title: str,
     for r in runs:
         ax.annotate(r["label"], (r["seconds"], r["miou"]), fontsize=7, xytext=(4, 3), textcoords="offset points")
     ax.set_xscale("log")
+    positive = [x for x in xs if x > 0]
+    if positive and max(positive) < 10 * min(positive):
+        seconds = FuncFormatter(lambda v, _pos: f"{v:g}")
+        ax.xaxis.set_major_formatter(seconds)
+        ax.xaxis.set_minor_formatter(seconds)
+        ax.tick_params(axis="x", which="minor", labelsize=7)
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
-    ax.set_title(title, fontsize=9)
+    ax.set_title("\n".join(textwrap.wrap(title, TITLE_CHARS)), fontsize=9)
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path)
-    plt.close(fig)
+    return fig
 
 
 def run(quick: bool = False, echo: Callable[[str], None] = print, out_dir: Path | None = None) -> dict:
