@@ -8,8 +8,8 @@ sharing the cache compute each stage once (``benchmark.stage_lock``: stale locks
 workers are broken). A partial directory is kept on failure: stages that checkpoint (reconstruction)
 resume from what it holds; others simply overwrite their files.
 
-Keys hash the stage name, the stage's own config, the keys of its inputs and the stage's code
-version (``STAGE_VERSIONS``), so a change anywhere upstream gives every downstream stage a new
+Keys hash the stage name, the stage's own config, the keys of its inputs, the stage's code
+version (``STAGE_VERSIONS``) and the numeric mode it computes in (``benchmark.numerics``), so a change anywhere upstream gives every downstream stage a new
 key, and another method run on the same scene finds the shared upstream stages (masks,
 reconstruction) already done.
 """
@@ -27,6 +27,7 @@ import time
 from pathlib import Path
 from typing import Callable
 
+from benchmark import numerics as numeric_modes
 from benchmark.io import atomic_write_json, read_json
 from benchmark.stage_lock import HEARTBEAT_S, STALE_AFTER_S, StageLock
 
@@ -75,15 +76,20 @@ class StageRecord:
 class StageCache:
     """Stages by key under ``root``. Many processes (on many machines, on a shared
     filesystem) may use one cache: a stage is computed by whoever takes its lock
-    (``benchmark.stage_lock``); the others wait for the finished stage and reuse it."""
+    (``benchmark.stage_lock``); the others wait for the finished stage and reuse it. Stages
+    computed in another numeric mode have other keys (native keys are those from before the
+    modes existed)."""
 
     def __init__(self, root: str | Path, heartbeat_s: float = HEARTBEAT_S, stale_after_s: float = STALE_AFTER_S,
-                 poll_s: float = 1.0):
+                 poll_s: float = 1.0, numerics: str = numeric_modes.DEFAULT):
         self.root = Path(root)
         self.heartbeat_s, self.stale_after_s, self.poll_s = heartbeat_s, stale_after_s, poll_s
+        self.numerics = numerics
 
     def key(self, stage: str, config: dict, inputs: dict[str, str] | None = None) -> str:
         payload = {"stage": stage, "config": config, "inputs": inputs or {}}
+        if self.numerics != "native":
+            payload["numerics"] = self.numerics
         version = STAGE_VERSIONS.get(stage, 1)
         if version != 1:
             payload["code_version"] = version

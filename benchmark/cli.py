@@ -82,9 +82,16 @@ def cli() -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Console entry point. Known errors print one line and exit 1, never a traceback."""
+    """Console entry point. Known errors print one line and exit 1, never a traceback. The
+    numeric environment is set first, before any command loads numpy, torch or numba."""
+    from benchmark import numerics
     from benchmark.errors import is_user_error
 
+    try:
+        numerics.apply(numerics.requested_mode(argv))
+    except numerics.NumericsError as exc:
+        click.echo(f"error: {exc}", err=True)
+        return 1
     try:
         cli.main(args=argv, prog_name="trase-bench", standalone_mode=False)
     except click.exceptions.Abort:

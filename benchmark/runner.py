@@ -15,6 +15,7 @@ import sys
 import time
 from pathlib import Path
 
+from benchmark import numerics
 from benchmark.cache import PlanCache, StageCache, StageRecord, config_hash
 from benchmark.config import ConfigError, parse_overrides
 from benchmark.errors import UserError
@@ -156,7 +157,7 @@ def plan_sequence(opts: RunOptions, sequence: str | None) -> list[tuple[str, str
     and writing nothing (a missing synthetic scene is an error, not generated)."""
     p = prepare_sequence(opts, sequence, create=False)
     check_free(p.out_dir, p.chash)
-    ctx = p.context(PlanCache(opts.cache_root), False)
+    ctx = p.context(PlanCache(opts.cache_root, numerics=p.settings.machine.numerics), False)
     plan = []
     for stage in stages_of(p.method):
         for rec in stage(ctx):
@@ -177,7 +178,8 @@ def run_sequence(opts: RunOptions, sequence: str | None, reporter: Reporter, ind
         reporter.finish()
         return path
 
-    ctx = p.context(StageCache(opts.cache_root), opts.progress)
+    numerics.check(p.settings.machine.numerics)  # before any stage: the bits its config promises
+    ctx = p.context(StageCache(opts.cache_root, numerics=p.settings.machine.numerics), opts.progress)
     for stage in stages_of(p.method):
         for rec in stage(ctx):
             ctx.records[rec.stage] = rec

@@ -31,6 +31,7 @@ import sys
 import time
 from pathlib import Path
 
+from benchmark import numerics
 from benchmark.errors import UserError
 from benchmark.stage_lock import known_dead
 
@@ -544,6 +545,7 @@ def submit(spec: SweepSpec, wait: bool = True, echo=print, states: list | None =
         echo(f"{len(flying)} job(s) already queued or running: not submitted again")
     if not jobs:
         return {"submitted": 0, "tasks": 0}
+    mode = sweep_numerics(spec)  # the workers inherit its environment
     if spec.executor == "slurm":
         spec = resolve_resources(spec, echo)
     logs = spec.state_dir / "logs"
@@ -565,8 +567,8 @@ def submit(spec: SweepSpec, wait: bool = True, echo=print, states: list | None =
                     host=socket.gethostname(), submitted=time.time())
     said = io.StringIO()  # sbatch's own output, which submitit copies to ours: the error below says it once
     try:
-        with idle_threads_sleep(spec.executor == "local" and len(tasks) > 1), contextlib.redirect_stderr(said), \
-                contextlib.redirect_stdout(said), ex.batch():
+        with idle_threads_sleep(spec.executor == "local" and len(tasks) > 1), numerics.environment(mode), \
+                contextlib.redirect_stderr(said), contextlib.redirect_stdout(said), ex.batch():
             handles = [ex.submit(t) for t in tasks]
     except Exception as exc:  # noqa: BLE001 - nothing was queued: the states go back, one line says why
         _restore(spec, jobs, before)
@@ -592,6 +594,15 @@ def submit(spec: SweepSpec, wait: bool = True, echo=print, states: list | None =
                 what = (ours[-1].split("SweepJobsFailed:", 1)[-1].strip() if ours else lines[-1] if lines else "")
                 echo(f"task {h.job_id} ended with an error: {what[:300]} (log: {h.paths.stdout})")
     return out
+
+
+def sweep_numerics(spec: SweepSpec) -> str:
+    """The one numeric mode of a sweep's jobs (benchmark.numerics), which their workers inherit."""
+    modes = {numerics.mode_from_sets(sets) or numerics.DEFAULT for sets in spec.variants.values()}
+    if len(modes) > 1:
+        raise SweepError(f"{spec.path or spec.name}: the variants ask for {' and '.join(sorted(modes))} numerics; a "
+                         "sweep computes in one mode (its rows are compared): split it into one sweep per mode")
+    return modes.pop()
 
 
 def _freeze_spec(spec: SweepSpec) -> None:

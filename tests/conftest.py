@@ -14,6 +14,12 @@ from __future__ import annotations
 import os
 import sys
 
+from benchmark import numerics
+
+# the default numeric mode, in place before any test imports numpy, torch or numba (as the
+# command line does): in-process runs compute as `trase-bench` does
+numerics.apply(numerics.DEFAULT)
+
 # no kernel compilation beside scene generation in tests (benchmark.background_compile): its
 # own tests turn it on
 os.environ.setdefault("TRASE_PRECOMPILE", "0")

@@ -25,6 +25,7 @@ import numpy as np
 from benchmark.cache import StageCache, config_hash
 from benchmark.config import merge, parse_overrides, typed
 from benchmark.io import atomic_directory, atomic_write_bytes, atomic_write_json
+from benchmark.numerics import check as check_numerics
 from benchmark.pipeline import fit, geometry, masks, tracks
 from benchmark.pipeline.context import SequenceRun, render_near, scene_fingerprint
 from benchmark.pipeline.settings import capture_settings
@@ -71,8 +72,9 @@ def fit_capture(opts: FitOptions) -> Path:
     settings = capture_settings(method, monocular(scene), capture, overrides, (first.width, first.height))
     scene = scene.with_near(render_near(settings.geometry.source, settings.geometry.train.near_plane))
     out = Path(opts.out_dir) if opts.out_dir else Path("fits") / scene.sequence
-    ctx = SequenceRun(StageCache(Path(opts.cache_dir) if opts.cache_dir else out / ".cache"), scene, settings,
-                      method, opts.progress, scene_fingerprint(scene), gt_key="")
+    check_numerics(settings.machine.numerics)
+    cache = StageCache(Path(opts.cache_dir) if opts.cache_dir else out / ".cache", numerics=settings.machine.numerics)
+    ctx = SequenceRun(cache, scene, settings, method, opts.progress, scene_fingerprint(scene), gt_key="")
     for stage in FIT_STAGES:
         for rec in stage(ctx):
             ctx.records[rec.stage] = rec

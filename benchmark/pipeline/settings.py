@@ -13,6 +13,7 @@ import dataclasses
 import sys
 from typing import Any
 
+from benchmark import numerics
 from benchmark.cache import config_hash
 from benchmark.config import ConfigError, flatten, merge, typed
 from benchmark.datasets.registry import get_dataset
@@ -96,6 +97,7 @@ AS_BEFORE = {
     "static_hold_error": (0.0, ("static_hold_error",)),  # above the time gap, hold every gaussian back
     "deform_scale_rule": ("clamp", ("deform_scale_rule",)),  # the CPU presets' scale rule, the only one before
     "near_plane": (0.01, ("near_plane",)),  # the rasterizer's near plane, the only one before
+    "numerics": ("native", ("numerics",)),  # each library's own kernels for this processor (benchmark.numerics)
 }
 
 
@@ -107,6 +109,25 @@ def recorded_settings(section):
     dropped = {name for key, (value, names) in AS_BEFORE.items() if key in section and section[key] == value
                for name in names}
     return {k: recorded_settings(v) for k, v in section.items() if k not in dropped}
+
+
+def recorded_machine(cfg: dict) -> dict:
+    """``cfg`` with its machine section as recorded: left out where native numerics leave it
+    empty (a native run keeps the name and stage keys it had before the setting existed)."""
+    machine = recorded_settings(cfg.get("machine") or {})
+    return {k: v for k, v in cfg.items() if k != "machine"} | ({"machine": machine} if machine else {})
+
+
+@dataclasses.dataclass
+class MachineSettings:
+    """How the run's process computes (benchmark.numerics): "portable" (one x86-64 baseline,
+    the same bits on every machine) or "native" (this processor's fastest kernels)."""
+
+    numerics: str = numerics.DEFAULT
+
+    def __post_init__(self) -> None:
+        if self.numerics not in numerics.MODES:
+            raise ConfigError(f"--set machine.numerics={self.numerics}: choose {' or '.join(numerics.MODES)}")
 
 
 @dataclasses.dataclass
@@ -150,6 +171,7 @@ class RunSettings:
     geometry: GeometrySettings
     method: Any  # the method's typed settings (its presets' config class)
     prompts: PromptProtocol | None = None  # benchmark runs
+    machine: MachineSettings = dataclasses.field(default_factory=MachineSettings)
     capture: dict | None = None  # trase-bench fit: the capture's reading options (CaptureOptions)
     sources: dict[str, str] = dataclasses.field(default_factory=dict)  # dotted setting -> where declared
     group_hash: str = ""  # the config hash without the run seed: one row of a table over seeds
@@ -164,7 +186,8 @@ class RunSettings:
         if self.capture is not None:
             out["capture"] = dict(self.capture)
         out["seed"] = self.seed
-        return recorded_settings(out)
+        out["machine"] = dataclasses.asdict(self.machine)
+        return recorded_machine(recorded_settings(out))
 
 
 def run_settings(method, spec, variant: str, overrides: dict, image_size: tuple[int, int] | None = None) -> RunSettings:
@@ -214,7 +237,7 @@ def _resolve(method, ctx: Context, overrides: dict, masks: dict, extra: dict) ->
     base = {"masks": masks,
             "geometry": {"source": "reconstruct", "preset": preset, "model_dir": None,
                          "train": dataclasses.asdict(geometry.config)},
-            "method": dataclasses.asdict(resolved.config), **extra}
+            "method": dataclasses.asdict(resolved.config), "machine": {"numerics": numerics.DEFAULT}, **extra}
     plain = without_seed(overrides)
     cfg = merge(apply_seed(base, seed), plain)
     settings = _typed(method, cfg, preset)
@@ -225,7 +248,7 @@ def _resolve(method, ctx: Context, overrides: dict, masks: dict, extra: dict) ->
     # the same run without its seed (an explicit seed of one section stays), and without --set
     group = _with_devices(merge(apply_seed(base, 0), plain), settings)
     default = _with_devices(merge(base, {}), settings)
-    settings.group_hash = config_hash(recorded_settings({**group, "masks": recorded_masks(group["masks"])}))
+    settings.group_hash = config_hash(recorded_machine(recorded_settings({**group, "masks": recorded_masks(group["masks"])})))
     settings.is_default = preset == auto_preset and group == default
     return settings
 
@@ -257,7 +280,7 @@ def _typed(method, cfg: dict, preset: str) -> RunSettings:
     return RunSettings(preset=preset, seed=cfg["seed"], masks=masks,
                        geometry=geometry, method=method_settings,
                        prompts=typed(PromptProtocol, cfg["prompts"], "prompts") if "prompts" in cfg else None,
-                       capture=cfg.get("capture"))
+                       capture=cfg.get("capture"), machine=typed(MachineSettings, cfg["machine"], "machine"))
 
 
 # -- the preset -----------------------------------------------------------------------------
@@ -335,7 +358,8 @@ def _get(d: dict, path: tuple[str, ...]):
     return d
 
 
-__all__ = ["GEOMETRY_PRESETS", "SEED_PATHS", "TRACKING", "CaptureMaskSettings", "GeometrySettings", "MaskSettings",
+__all__ = ["GEOMETRY_PRESETS", "SEED_PATHS", "TRACKING", "CaptureMaskSettings", "GeometrySettings", "MachineSettings",
+           "MaskSettings",
            "PromptProtocol", "RunSettings", "apply_seed", "capture_settings", "key_config", "recorded_masks",
            "recorded_settings", "run_seed",
            "run_settings", "take_preset", "without_seed"]

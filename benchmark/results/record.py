@@ -61,23 +61,21 @@ def package_versions() -> dict[str, str]:
     return out
 
 
-def machine_info() -> dict:
-    """Where a result was made, including what changes its bits on another machine: the
-    instruction set torch's kernels use and the CPU numba compiles for (docs/determinism.md)."""
+def machine_info(numeric_mode: str | None = None) -> dict:
+    """Where a result was made, including what changes its bits on another machine: the numeric
+    mode and what it pins (benchmark.numerics: CPU model, x86-64 levels, the instruction set
+    torch's kernels use and the CPU numba compiles for; docs/determinism.md)."""
+    from benchmark import numerics
+
+    mode = numeric_mode or os.environ.get(numerics.ENV_MODE) or "native"
+    described = numerics.describe(mode)
     out = {
         "platform": platform.platform(),
         "processor": platform.machine(),
         "cpu_count": os.cpu_count(),
+        "numerics": {k: v for k, v in described.items() if k not in ("torch_cpu_capability", "numba_cpu")},
     }
-    try:
-        import numba
-        import torch
-        from llvmlite import binding
-
-        out["torch_cpu_capability"] = torch.backends.cpu.get_cpu_capability()
-        out["numba_cpu"] = numba.config.CPU_NAME or binding.get_host_cpu_name()
-    except (ImportError, AttributeError, RuntimeError):
-        pass
+    out.update({k: described[k] for k in ("torch_cpu_capability", "numba_cpu") if k in described})
     return out
 
 
@@ -123,7 +121,8 @@ def write_results(path: Path, record: RunRecord | dict) -> None:
     record.setdefault("schema", SCHEMA)
     record.setdefault("created", datetime.datetime.now(datetime.timezone.utc).isoformat())
     record.setdefault("versions", package_versions())
-    record.setdefault("machine", machine_info())
+    mode = ((record.get("config") or {}).get("machine") or {}).get("numerics", "native")
+    record.setdefault("machine", machine_info(mode))
     validate(record, path)
     atomic_write_json(path, record)
 

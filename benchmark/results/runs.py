@@ -27,6 +27,7 @@ import sys
 from pathlib import Path
 
 from benchmark.errors import UserError
+from benchmark.numerics import BASELINE
 from benchmark.results.record import (
     LEGACY_SCHEMAS,
     RUN_KINDS,
@@ -135,6 +136,7 @@ def protocol(record: dict) -> dict:
         **tracks_protocol(cfg.get("masks") or {}),
         "prompts": prompts,
         "render": mcfg.get("render_rule", "alone"),
+        "numerics": numerics_protocol(cfg),
         "metric": official.get("metric_version", "?"),
     }
     if "command" in mcfg:  # a method in its own environment (benchmark.methods.command)
@@ -142,6 +144,13 @@ def protocol(record: dict) -> dict:
                 "features": f"the method's own (TOML sha256 {str(mcfg.get('toml_sha256', '?'))[:12]})",
                 "render": "the method's own"}
     return out
+
+
+def numerics_protocol(cfg: dict) -> str:
+    """The numeric mode of a run's config (benchmark.numerics): portable bits name their baseline;
+    records from before the modes computed natively."""
+    mode = (cfg.get("machine") or {}).get("numerics", "native")
+    return f"portable {BASELINE}" if mode == "portable" else mode
 
 
 def tracks_protocol(masks: dict) -> dict:

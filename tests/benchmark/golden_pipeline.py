@@ -1,14 +1,15 @@
-"""Golden results of ``trase-bench run`` on the tiny synthetic scenes, recorded before the
-benchmark layer's redesign, so every behaviour-preserving commit can be checked bit for bit.
+"""Golden results of ``trase-bench run`` on the tiny synthetic scenes: one recording, compared bit
+for bit on every machine (portable numerics, benchmark.numerics), so every behaviour-preserving
+commit is checked on whatever machine runs the tests.
 
-    python -m tests.benchmark.golden_pipeline --write   # re-record (only for an intended change)
+    python -m tests.benchmark.golden_pipeline --write     # re-record (only for an intended change)
+    python -m tests.benchmark.golden_pipeline --confirm   # add this machine to those that reproduced it
+    python -m tests.benchmark.golden_pipeline --numerics native --json out.json   # measure natively
 
 Each case is one run (method, dataset, --set values); what is compared: the scores (v1,
 official, oracle, ceiling, click sets), the clusters chosen, the model's size and the checksums
-of the predicted masks and of the geometry. Each recording names the machine's instruction
-sets: feature and geometry bits depend on them (docs/determinism.md), so the exact comparison
-applies where one matches; ``--write`` adds (or replaces) this machine's recording, made at a
-commit before the change it is to check. What holds on every machine: golden_portable.py.
+of the predicted masks and of the geometry. The recording lists the machines (CPU model,
+x86-64 levels) that gave it. Native mode is checked within a tolerance: golden_portable.py.
 """
 
 from __future__ import annotations
@@ -19,10 +20,9 @@ from pathlib import Path
 
 GOLDEN = Path(__file__).with_name("golden") / "pipeline.json"
 
-# The recording's click rule, pinned: the default became "feature" after the recording, and
-# the reconstructed case's bits depend on the instruction set, so it cannot be re-recorded on
-# another machine. With "feature" the first case's click sets 1 and 4 choose other clusters on
-# these 40-step features (0.555 -> 0.092); the other cases choose the same (Intel AVX-512).
+# The recording's click rule, pinned: the default became "feature" after the cases were first
+# recorded. With "feature" the first case's click sets 1 and 4 choose other clusters on these
+# 40-step features (0.555 -> 0.092); the other cases choose the same.
 RECORDED_CLICK_RULE = "method.prompts.click_rule=weight"
 FAST_GT = ["geometry.source=ground-truth", "method.features.iterations=40", "method.features.n_pixels=400",
            RECORDED_CLICK_RULE]
@@ -37,18 +37,21 @@ CASES = {
 }
 
 
-def machine_isa() -> dict:
-    import numba
-    import torch
+def machine() -> dict:
+    """This machine as a recording lists it: its CPU and instruction sets, where the kernels of
+    its native mode would go (benchmark.numerics)."""
     from llvmlite import binding
 
-    return {"torch_cpu_capability": torch.backends.cpu.get_cpu_capability(),
-            "numba_cpu": numba.config.CPU_NAME or binding.get_host_cpu_name()}
+    from benchmark import numerics
+
+    d = numerics.describe("native")
+    return {"cpu_model": d["cpu_model"], "x86_levels": d["x86_levels"], "host_cpu": binding.get_host_cpu_name(),
+            "avx512": bool(d["avx512"]), "libc": d["libc"]}
 
 
-def recordings() -> list[dict]:
-    """The recordings, one per instruction set."""
-    return json.loads(GOLDEN.read_text())["recordings"] if GOLDEN.is_file() else []
+def recording() -> dict:
+    """The recording: {"numerics", "cases", "machines"}."""
+    return json.loads(GOLDEN.read_text())
 
 
 def _pick(r: dict) -> dict:
@@ -67,7 +70,7 @@ def _pick(r: dict) -> dict:
     }
 
 
-def measure(work: Path, cases=CASES) -> dict:
+def measure(work: Path, cases=CASES, numerics_mode: str = "portable") -> dict:
     """Run every case on freshly generated tiny scenes under ``work`` -> {case: picked results}."""
     from benchmark.cli import main
     from benchmark.datasets.synthetic import generate
@@ -82,7 +85,7 @@ def measure(work: Path, cases=CASES) -> dict:
         runs = work / "runs" / case
         args = ["run", "--method", method, "--dataset", dataset, "--sequence", "synthetic", "--data-root",
                 str(data), "--runs", str(runs), "--quiet"]
-        for s in sets:
+        for s in [*sets, f"machine.numerics={numerics_mode}"]:
             args += ["--set", s]
         if main(args) != 0:
             raise RuntimeError(f"golden case {case}: trase-bench run failed")
@@ -94,20 +97,36 @@ def measure(work: Path, cases=CASES) -> dict:
 def main(argv=None) -> int:
     import tempfile
 
+    from benchmark import numerics
+
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--write", action="store_true", help=f"record into {GOLDEN}")
+    ap.add_argument("--write", action="store_true", help=f"record into {GOLDEN} (replaces the recording)")
+    ap.add_argument("--confirm", action="store_true", help="add this machine to the recording's machines "
+                    "(only when it reproduces every case bit for bit)")
+    ap.add_argument("--numerics", choices=numerics.MODES, default=numerics.DEFAULT)
+    ap.add_argument("--cases", nargs="+", choices=list(CASES), help="measure only these (default: all)")
     ap.add_argument("--json", type=Path, help="write the measurement here (what the test compares)")
     args = ap.parse_args(argv)
+    if args.cases and (args.write or args.confirm):
+        raise SystemExit("--write and --confirm measure every case")
+    numerics.apply(args.numerics)  # before measure() loads numpy, torch and numba, as trase-bench does
+    cases = {c: CASES[c] for c in args.cases} if args.cases else CASES
     with tempfile.TemporaryDirectory() as tmp:
-        results = measure(Path(tmp))
-    record = {"machine": machine_isa(), "cases": results}
+        results = measure(Path(tmp), cases, numerics_mode=args.numerics)
+    record = {"numerics": args.numerics, "cases": results, "machines": [machine()]}
+    if args.write or args.confirm:
+        if args.numerics != "portable":
+            raise SystemExit("the recording holds portable numerics only")
+        if args.confirm:
+            golden = recording()
+            if golden["cases"] != results:
+                raise SystemExit("this machine does not reproduce the recording: not confirmed")
+            record["machines"] = [m for m in golden["machines"] if m != machine()] + [machine()]
+        GOLDEN.write_text(json.dumps(record, indent=1, sort_keys=True) + "\n")
     text = json.dumps(record, indent=1, sort_keys=True) + "\n"
-    if args.write:
-        others = [r for r in recordings() if r["machine"] != record["machine"]]
-        GOLDEN.write_text(json.dumps({"recordings": [*others, record]}, indent=1, sort_keys=True) + "\n")
     if args.json:
         args.json.write_text(text)
-    else:
+    elif not (args.write or args.confirm):
         print(text)
     return 0
 

@@ -1,14 +1,15 @@
 """The machine-independent golden record of the run settings, recorded before the settings'
-redesign so every behaviour-preserving commit is checked on any machine (the bit-exact pipeline
-results of golden_pipeline.py apply only where the instruction sets match):
+redesign so every behaviour-preserving commit is checked on any machine:
 
 - ``configs``: the hash and protocol label of every resolved run config (each method x dataset x
-  preset x scene variant x image size, and captures of each rig), recorded before the redesign;
+  preset x scene variant x image size, and captures of each rig);
 - ``stage_keys``: the cache keys of the golden pipeline cases' stages, with fixed input
-  fingerprints (recorded after the redesign: keys hash resolved values, not the preset's name);
-- ``gt_cases``: the scores of the ground-truth-geometry golden cases, compared within
-  GT_TOLERANCE (CEILING_TOLERANCE for the geometry's ceiling): features differ in their last
-  bits between instruction sets, and 40 feature steps leave clusters a click can tip.
+  fingerprints (keys hash resolved values, not the preset's name).
+
+The pipeline's results are golden_pipeline.py's; in native numerics its ground-truth-geometry
+cases are compared within GT_TOLERANCE (CEILING_TOLERANCE for the geometry's ceiling): features
+differ in their last bits between instruction sets, and 40 feature steps leave clusters a click
+can tip.
 
     python -m tests.benchmark.golden_portable --write   # re-record (only for an intended change)
 """
@@ -85,7 +86,8 @@ def stage_keys() -> dict:
         overrides = parse_overrides([*sets, "geometry.train.device=cpu", "method.features.device=cpu"])
         settings = run_settings(method, get_dataset(d), "synthetic", overrides, (160, 120))
         scene = types.SimpleNamespace(train=[], test=[], truth=object())
-        ctx = SequenceRun(PlanCache(Path("/nonexistent-trase-bench-cache")), scene, settings, method, False,
+        cache = PlanCache(Path("/nonexistent-trase-bench-cache"), numerics=settings.machine.numerics)
+        ctx = SequenceRun(cache, scene, settings, method, False,
                           scene_key="scene", gt_key="gt")
         for stage in STAGES:
             for rec in stage(ctx):
@@ -95,7 +97,8 @@ def stage_keys() -> dict:
 
 
 def gt_cases(pipeline_cases: dict) -> dict:
-    """The compared fields of the ground-truth-geometry cases of a golden_pipeline measurement."""
+    """The fields compared within a tolerance of the ground-truth-geometry cases of a
+    golden_pipeline measurement."""
     return {c: {k: r[k] for k in GT_FIELDS} for c, r in pipeline_cases.items() if c.endswith("-gt")}
 
 
@@ -104,8 +107,6 @@ def main(argv=None) -> int:
     ap.add_argument("--write", action="store_true", help=f"record into {GOLDEN}")
     args = ap.parse_args(argv)
     record = {"configs": resolved_configs(), "stage_keys": stage_keys()}
-    if GOLDEN.is_file():  # the ground-truth cases are recorded with golden_pipeline's measurement
-        record["gt_cases"] = json.loads(GOLDEN.read_text()).get("gt_cases", {})
     text = json.dumps(record, indent=1, sort_keys=True) + "\n"
     if args.write:
         GOLDEN.write_text(text)

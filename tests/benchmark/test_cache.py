@@ -83,7 +83,7 @@ def test_read_json_errors_name_the_file(tmp_path):
 def test_code_version_bump_gives_a_new_key(tmp_path, monkeypatch):
     import benchmark.cache as cache_mod
 
-    cache = StageCache(tmp_path)
+    cache = StageCache(tmp_path, numerics="native")  # native keys: as before the numeric modes
     cfg, inputs = {"knn": 0}, {"masks": "m"}
     monkeypatch.setattr(cache_mod, "STAGE_VERSIONS", {})
     v1 = cache.key("features", cfg, inputs)
@@ -92,3 +92,11 @@ def test_code_version_bump_gives_a_new_key(tmp_path, monkeypatch):
     v2 = cache.key("features", cfg, inputs)
     assert v2 != v1
     assert cache.key("masks", cfg, inputs) == config_hash({"stage": "masks", "config": cfg, "inputs": inputs})
+
+
+def test_stages_of_another_numeric_mode_have_other_keys(tmp_path):
+    cfg, inputs = {"knn": 0}, {"masks": "m"}
+    native = StageCache(tmp_path, numerics="native").key("features", cfg, inputs)
+    portable = StageCache(tmp_path, numerics="portable").key("features", cfg, inputs)
+    assert native != portable
+    assert StageCache(tmp_path).key("features", cfg, inputs) == portable  # the default mode

@@ -274,3 +274,15 @@ def test_a_submitter_and_a_worker_writing_one_state_at_once_both_succeed(tmp_pat
     assert errors == []
     assert json.loads(state_path(spec.target, job).read_text())["state"] in ("submitted", "running")
     assert not list(state_path(spec.target, job).parent.glob("*.lock"))  # released
+
+
+def test_a_sweep_computes_in_one_numeric_mode_its_workers_inherit(tmp_path):
+    import dataclasses as dc
+
+    from benchmark.sweep import SweepError, SweepSpec, sweep_numerics
+
+    spec = SweepSpec("s", tmp_path, ("trase",), ("hypernerf",), {}, {"a": ("machine.numerics=native",), "b": ()}, (0,))
+    with pytest.raises(SweepError, match="ask for native and portable numerics; a sweep computes in one mode"):
+        sweep_numerics(spec)
+    assert sweep_numerics(dc.replace(spec, variants={"a": ("machine.numerics=native",)})) == "native"
+    assert sweep_numerics(dc.replace(spec, variants={"b": ("seed=1",)})) == "portable"

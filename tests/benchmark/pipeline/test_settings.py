@@ -127,3 +127,16 @@ def test_settings_at_their_as_before_value_are_neither_recorded_nor_keyed():
 
     other = {"stop_interval": 0, "stop_patience": 2, "stop_after_s": 5, "static_threshold": 0.0, "static_scene": "y"}
     assert recorded_settings({"x": other}) == {"x": {"stop_after_s": 5, "static_scene": "y"}}
+
+
+def test_the_numeric_mode_is_recorded_and_native_runs_keep_their_names():
+    spec, method = get_dataset("hypernerf"), get_method("trase")
+    portable = run_settings(method, spec, "synthetic", {}, (160, 120))
+    native = run_settings(method, spec, "synthetic", parse_overrides(["machine.numerics=native"]), (160, 120))
+    assert portable.to_dict()["machine"] == {"numerics": "portable"} and portable.is_default
+    # native numerics are what the code computed before the modes: the record and hash of then
+    assert "machine" not in native.to_dict() and not native.is_default
+    assert config_hash(native.to_dict()) == config_hash({k: v for k, v in portable.to_dict().items() if k != "machine"})
+    assert native.group_hash != portable.group_hash
+    with pytest.raises(ConfigError, match="machine.numerics=fast: choose portable or native"):
+        run_settings(method, spec, "synthetic", parse_overrides(["machine.numerics=fast"]), (160, 120))

@@ -208,3 +208,18 @@ def test_a_front_click_rule_names_its_share_in_the_protocol():
     assert "click weight;" in protocol_label(protocol({"config": config()}))
     front = config(prompts={"click_rule": "front", "front_share": 0.4})
     assert "click front 0.4;" in protocol_label(protocol({"config": front}))
+
+
+def test_portable_and_native_numerics_are_labelled_and_never_share_a_row(tmp_path):
+    from benchmark.results.runs import protocol, protocol_label
+
+    portable = config() | {"machine": {"numerics": "portable"}}
+    native = config()  # records without a machine section computed natively
+    assert "numerics portable x86-64-v3;" in protocol_label(protocol({"config": portable}))
+    assert "numerics native;" in protocol_label(protocol({"config": native}))
+    write(tmp_path, record("trase", "hypernerf", "synthetic", 0.8, 0.9, cfg=portable))
+    write(tmp_path, record("trase", "hypernerf", "synthetic", 0.7, 0.9, cfg=native, overrides=["machine.numerics=native"]))
+    groups = {r["run"]["group"] for r in find_runs(tmp_path)}
+    assert len(groups) == 2  # two configs: two rows wherever both are shown, never one mean
+    rec = json.loads(next(tmp_path.rglob("results.json")).read_text())
+    assert rec["machine"]["numerics"]["mode"] in ("portable", "native") and rec["machine"]["numerics"]["cpu_model"]
