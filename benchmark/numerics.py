@@ -233,5 +233,19 @@ def describe(mode: str) -> dict:
     return out
 
 
-__all__ = ["BASELINE", "DEFAULT", "MODES", "NumericsError", "PORTABLE_ENV", "apply", "check", "describe", "environment",
-           "missing_features", "mode_from_argv", "mode_from_sets", "requested_mode", "wanted_env"]
+__all__ = [
+    "BASELINE",
+    "DEFAULT",
+    "MODES",
+    "PORTABLE_ENV",
+    "NumericsError",
+    "apply",
+    "check",
+    "describe",
+    "environment",
+    "missing_features",
+    "mode_from_argv",
+    "mode_from_sets",
+    "requested_mode",
+    "wanted_env",
+]

@@ -22,7 +22,7 @@ import torch
 
 from trase.deformation import DeformMLP, TabulatedDeformation, infer_mlp_config
 from trase.gaussians import GaussianFileError, GaussianModel, rgb_to_sh_dc
-from trase.io import atomic_write_bytes, read_torch
+from trase.io import atomic_torch_save, atomic_write_bytes, read_torch
 
 
 class CheckpointError(ValueError):
@@ -32,12 +32,6 @@ class CheckpointError(ValueError):
 
 
 _ITER_RE = re.compile(r"^iteration_(\d+)$")
-
-
-def atomic_torch_save(obj, path: Path) -> None:
-    buf = io.BytesIO()
-    torch.save(obj, buf)
-    atomic_write_bytes(Path(path), buf.getvalue())
 
 
 def available_iterations(model_dir: str | Path) -> list[int]:

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from trase.io import atomic_path
+from trase.io import atomic_path, atomic_torch_save
 
 
 def _atomic(path: Path, write) -> None:
@@ -60,7 +60,7 @@ def export_clusters(out_dir: str | Path, labels: np.ndarray, features=None) -> d
     labels = np.asarray(labels, dtype=np.int64).reshape(-1)
     paths = {"clusters_npy": out / "clusters.npy", "clusters_pt": out / "clusters.pt"}
     _atomic(paths["clusters_npy"], lambda tmp: _save_npy(tmp, labels))
-    _atomic(paths["clusters_pt"], lambda tmp: torch.save({"id": labels}, tmp))
+    atomic_torch_save({"id": labels}, paths["clusters_pt"])
     if features is not None:
         feats = np.asarray(features.detach().cpu() if torch.is_tensor(features) else features, dtype=np.float32)
         paths["features_npy"] = out / "features.npy"

@@ -370,7 +370,7 @@ class _Checkpoint:
                    criterion: _Criterion | None = None) -> None:
         if time.perf_counter() - self.last < self.every_s:
             return
-        from trase.checkpoint import atomic_torch_save
+        from trase.io import atomic_torch_save
 
         atomic_torch_save({"features": feats.detach().cpu(), "optimizer": opt.state_dict(), "step": next_step,
                            "rng": step.rng.bit_generator.state, "gen": step.gen.get_state(),

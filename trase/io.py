@@ -48,6 +48,18 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> None:
         os.fsync(f.fileno())
 
 
+def atomic_torch_save(obj, path: str | Path) -> None:
+    """``torch.save`` made atomic. Saved through memory, so the archive inside is named the same
+    whatever the temporary file's name: the same object gives the same bytes."""
+    import io
+
+    import torch
+
+    buf = io.BytesIO()
+    torch.save(obj, buf)
+    atomic_write_bytes(path, buf.getvalue())
+
+
 def atomic_write_text(path: str | Path, text: str) -> None:
     atomic_write_bytes(path, text.encode("utf-8"))
 

@@ -36,7 +36,6 @@ import torch
 from trase.camera import Camera
 from trase.checkpoint import (
     CheckpointError,
-    atomic_torch_save,
     available_iterations,
     load_model,
     save_model,
@@ -53,7 +52,7 @@ from trase.deformation import DeformMLP, deformed, deformed_visible
 from trase.densify import DensifyStrategy, in_view, scene_extent
 from trase.devices import resolve_device
 from trase.gaussians import GaussianModel
-from trase.io import read_torch
+from trase.io import atomic_torch_save, read_torch
 from trase.losses import l1_loss, mean_squared_error, opacity_entropy, psnr, psnr_of_mse, ssim
 from trase.reconstruction_config import ReconstructionConfig, expon_lr, time_noise_scale
 from trase.training_images import ImageCache, load_image

@@ -1,0 +1,28 @@
+"""``make demo`` gives a newcomer the recorded figures on any machine, and the README quotes them
+(golden_demo.py: how they were recorded and on which machines)."""
+
+import re
+from pathlib import Path
+
+import pytest
+
+from tests.benchmark.golden_demo import DEMO, differences, measure, recording
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_the_readme_quotes_the_recorded_demo_line():
+    line = recording()["figures"]["line"]
+    assert line in (ROOT / "README.md").read_text(), f"README.md does not show the demo's recorded line: {line}"
+
+
+def test_the_recording_is_of_the_makefiles_demo_run():
+    demo = re.search(r"^demo:.*\n\t\$\(VENV\)/bin/trase-bench (.+)$", (ROOT / "Makefile").read_text(), re.M)
+    assert demo and demo.group(1).split() == DEMO
+
+
+@pytest.mark.slow
+def test_a_fresh_demo_run_gives_the_recorded_figures_bit_for_bit(tmp_path):
+    golden = recording()
+    diff = differences(golden["figures"], measure(tmp_path))
+    assert not diff, f"make demo differs from its recording (reproduced on {len(golden['machines'])} machine(s)): {diff}"
