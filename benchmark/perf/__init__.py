@@ -29,7 +29,8 @@ SUITES.add("gpu", "benchmark.perf.gpu:run",
 SUITES.add("pipeline", "benchmark.perf.pipeline:run",
            "Per-stage time and peak memory of the runner per synthetic dataset, 2 sizes; exponents.")
 SUITES.add("determinism", "benchmark.perf.determinism:run",
-           "A fixed seed under other thread counts and instruction sets (fresh processes): bit-identical or by how much not.")
+           "A fixed seed under other thread counts and numeric modes (fresh processes): bit-identical or by how much "
+           "not, and the seconds each stage took.")
 SUITES.add("captures", "benchmark.perf.captures:run",
            "trase-bench fit on the built-in scene written as nerfies / COLMAP / transforms captures: click IoU, stage times.")
 SUITES.add("viewer", "benchmark.perf.viewer:run",

@@ -85,9 +85,10 @@ def test_all_suites_quick(tmp_path, monkeypatch, capsys):
     assert "Pareto" in text and "ARI vs known" in text
 
     det = s["determinism"]["variants"]
-    assert det["baseline"]["geometry"]["identical"] and det["baseline"]["features"]["identical"]
+    base = det["portable (default)"]
+    assert base["geometry"]["identical"] and base["features"]["identical"] and base["numerics"] == "portable"
     # the claim of tests/trase/test_thread_determinism.py, here through whole fresh processes
     assert det["numba 1 thread"]["geometry"]["identical"] and det["numba 1 thread"]["features"]["identical"]
-    assert set(det) == {"baseline", "numba 1 thread", "torch 1 thread", "torch 2 threads", "torch default ISA",
-                        "numba generic CPU"}
-    assert "instruction sets" in SUITES.entry("determinism").help
+    assert set(det) == {"portable (default)", "numba 1 thread", "torch 1 thread", "torch 2 threads", "native"}
+    assert det["native"]["numerics"] == "native" and base["geometry_s"] > 0 and base["features_s"] > 0
+    assert "numeric modes" in SUITES.entry("determinism").help
