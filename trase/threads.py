@@ -33,7 +33,13 @@ def numba_threads(work: int = 0, min_work: int = 0):
 @contextlib.contextmanager
 def torch_threads(n: int | None):
     """torch's intra-op threads set to ``n`` inside the block (``None`` or < 1: as they are),
-    restored on exit: a stage's thread count is part of its config, not the process's."""
+    restored on exit: a stage's thread count is part of its config, not the process's.
+
+    Numba's thread pool is started first: its start sets the OpenMP thread count that torch
+    (and MKL) read to numba's, and where the block's first parallel kernel started it, the
+    stage ran on numba's count instead of ``n``, but only in a process where no numba kernel
+    had run before (a stage after a cached one), with other bits."""
+    numba.get_num_threads()  # starts the pool (once per process)
     old = torch.get_num_threads()
     if n is not None and int(n) > 0:
         torch.set_num_threads(int(n))
