@@ -57,7 +57,6 @@ PORTABLE_ENV = {
     # OpenCV's dispatched AVX-512 code switched off (its own feature names, comma-separated)
     "OPENCV_CPU_DISABLE": "AVX512F,AVX512-SKX",
 }
-LIBRARIES = ("numpy", "torch", "numba", "cv2", "scipy")  # those that read PORTABLE_ENV when they load
 
 
 class NumericsError(UserError):
@@ -91,15 +90,12 @@ def wanted_env(mode: str) -> dict[str, str | None]:
     return dict.fromkeys(PORTABLE_ENV)
 
 
-def loaded_libraries() -> list[str]:
-    return [name for name in LIBRARIES if name in sys.modules]
-
-
 def apply(mode: str) -> None:
     """Put ``mode``'s environment in place for this process (where its libraries are not loaded
-    yet) and the processes it starts. A machine that cannot give portable mode keeps its own
-    environment; ``check`` says why when a run needs the mode."""
-    if mode == "portable" and missing_features():
+    yet) and the processes it starts. A machine that cannot give portable mode (another
+    architecture, or an x86-64 processor below the baseline) keeps its own environment; ``check``
+    says why when a run needs the mode."""
+    if mode == "portable" and missing_features() != []:
         return
     os.environ[ENV_MODE] = mode
     for key, value in wanted_env(mode).items():

@@ -81,3 +81,10 @@ def test_a_record_says_the_mode_and_the_machine():
     assert d["mode"] == "portable" and d["baseline"] == "x86-64-v3" and d["env"] == numerics.PORTABLE_ENV
     assert "x86-64-v3" in d["x86_levels"] and d["cpu_model"]
     assert numerics.describe("native")["baseline"] == "native" and "env" not in numerics.describe("native")
+
+
+def test_a_machine_that_cannot_give_portable_numerics_keeps_its_own_environment(monkeypatch):
+    monkeypatch.setattr(numerics, "host_features", lambda: None)  # e.g. aarch64: no x86-64 target for numba
+    with numerics.environment("native"):
+        numerics.apply("portable")
+        assert "NUMBA_CPU_NAME" not in os.environ and os.environ[numerics.ENV_MODE] == "native"
