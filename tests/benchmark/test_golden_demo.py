@@ -17,7 +17,7 @@ def test_the_readme_quotes_the_recorded_demo_line():
 
 
 def test_the_recording_is_of_the_makefiles_demo_run():
-    demo = re.search(r"^demo:.*\n\t\$\(VENV\)/bin/trase-bench (.+)$", (ROOT / "Makefile").read_text(), re.M)
+    demo = re.search(r"^demo:.*\n\t\$\(VENV\)/bin/trase-bench (.+)$", (ROOT / "Makefile").read_text(), re.MULTILINE)
     assert demo and demo.group(1).split() == DEMO
 
 
