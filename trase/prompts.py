@@ -53,6 +53,7 @@ class Click:
     view: str = ""  # name of the view the click was made in
     time: float | None = None  # None: the camera's time
     view_index: int = -1  # index of that view among the scene's test views (-1: unknown)
+    positive: bool = True  # False: a negative click ("not this"), which removes and keeps out a cluster
 
 
 @torch.no_grad()
@@ -75,10 +76,11 @@ def render_depth(gaussians, deformation, camera: Camera) -> tuple[np.ndarray, np
 
 def lift_pixels(
     gaussians, deformation, camera: Camera, uv: np.ndarray, min_alpha: float = 0.5,
-    depth_alpha: tuple[np.ndarray, np.ndarray] | None = None,
+    depth_alpha: tuple[np.ndarray, np.ndarray] | None = None, allowed: np.ndarray | None = None,
 ) -> np.ndarray:
     """Pixels uv [P, 2] -> [P] int64 id of the nearest deformed gaussian to the unprojected
-    surface point at camera.time; -1 where the rendered alpha is below min_alpha."""
+    surface point at camera.time (of the ``allowed`` [N] bool ones, where given); -1 where the
+    rendered alpha is below min_alpha."""
     uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
     out = np.full(uv.shape[0], -1, np.int64)
     if uv.shape[0] == 0 or gaussians.num_gaussians == 0:
@@ -93,15 +95,20 @@ def lift_pixels(
         return out
     pts = camera.unproject(uv[ok], depth[row[ok], col[ok]])
     means = geometry_at(gaussians, deformation, camera.time)[0].cpu().numpy().astype(np.float64)
-    _, idx = cKDTree(means).query(pts, k=1)
-    out[ok] = np.asarray(idx, dtype=np.int64)
+    ids = np.arange(means.shape[0]) if allowed is None else np.flatnonzero(allowed)  # [M] candidates
+    if ids.size == 0:
+        return out
+    _, idx = cKDTree(means[ids]).query(pts, k=1)
+    out[ok] = ids[np.asarray(idx, dtype=np.int64)]
     return out
 
 
 def click_to_cluster(gaussians, deformation, camera: Camera, click: Click, labels: np.ndarray,
                      min_alpha: float = 0.5, rule: str = "depth", radius: int = 1,
-                     features: np.ndarray | None = None, front_share: float = FRONT_SHARE) -> int:
-    """One click -> cluster id (-1 when the click hits no surface).
+                     features: np.ndarray | None = None, front_share: float = FRONT_SHARE,
+                     exclude=()) -> int:
+    """One click -> cluster id (-1 when the click hits no surface), never one of ``exclude``
+    (each rule then picks its best cluster among the others).
 
     ``rule="depth"`` (the paper's): rendered depth -> 3D point -> nearest deformed gaussian.
     ``rule="weight"``: the cluster with the largest compositing weight in the
@@ -128,6 +135,9 @@ def click_to_cluster(gaussians, deformation, camera: Camera, click: Click, label
             raise PromptError("click rule 'feature' needs the gaussians' features")
         features = gaussians.features.detach().cpu().numpy()  # the editor's models carry them
     cam = camera if click.time is None else camera.with_time(click.time)
+    labels = np.asarray(labels, dtype=np.int64)
+    out = np.isin(labels, np.fromiter(exclude, np.int64)) if len(exclude) else None  # [N] gaussians excluded
+    labels = labels if out is None else np.where(out, -1, labels)
     if rule == "front" and not 0.0 < front_share <= 1.0:
         raise PromptError(f"front_share must be in (0, 1], got {front_share}")
     if rule in ("weight", "feature", "front"):
@@ -144,8 +154,42 @@ def click_to_cluster(gaussians, deformation, camera: Camera, click: Click, label
             depth = cam.world_to_camera(means)[:, 2]  # [K] camera z of each pair's gaussian
             return _front_cluster(idx, w, depth, labels, front_share)
         return _nearest_cluster_feature(idx, w, labels, features)
-    gid = int(lift_pixels(gaussians, deformation, cam, np.array([[click.u, click.v]]), min_alpha)[0])
+    allowed = None if out is None else ~out
+    gid = int(lift_pixels(gaussians, deformation, cam, np.array([[click.u, click.v]]), min_alpha, allowed=allowed)[0])
     return -1 if gid < 0 else int(labels[gid])
+
+
+def clicks_to_clusters(gaussians, deformation, cameras: list[Camera], clicks: list[Click], labels: np.ndarray,
+                       **rule) -> tuple[list[int], list[int]]:
+    """A sequence of clicks, each in its view's camera (``cameras[i]`` for ``clicks[i]``) ->
+    (the clusters selected, sorted; the cluster of each click in order, -1 for none).
+
+    A positive click adds its cluster, chosen among those no negative click has ruled out. A
+    negative click removes the selected cluster under it (the rule's choice among the selected
+    ones; where none of them is there, the rule's choice among all) and keeps it out of later
+    clicks. ``rule``: click_to_cluster's keyword arguments."""
+    if len(cameras) != len(clicks):
+        raise PromptError(f"{len(clicks)} clicks need as many cameras, got {len(cameras)}")
+    all_ids = {int(k) for k in np.unique(np.asarray(labels, dtype=np.int64)) if k >= 0}
+    selected: list[int] = []
+    excluded: set[int] = set()
+    per_click = []
+    for camera, click in zip(cameras, clicks):
+        def pick(exclude, camera=camera, click=click):
+            return click_to_cluster(gaussians, deformation, camera, click, labels, exclude=exclude, **rule)
+
+        if click.positive:
+            k = pick(excluded)
+            if k >= 0 and k not in selected:
+                selected.append(k)
+        else:
+            k = pick(all_ids - set(selected)) if selected else -1
+            k = k if k >= 0 else pick(excluded)
+            if k >= 0:
+                excluded.add(k)
+                selected = [c for c in selected if c != k]
+        per_click.append(k)
+    return sorted(selected), per_click
 
 
 @torch.no_grad()

@@ -102,6 +102,7 @@ def select_clicks(fit_dir: Path | str, clicks: list[str], out_dir: Path | str | 
     masks at every view, written to ``out_dir`` (default ``<fit>/selection``) ->
     {"clusters", "per_click", "per_mask", "masks": {view: bool [H, W]}}."""
     from benchmark.io import atomic_directory, atomic_write_bytes
+    from benchmark.methods import click_selection
     from benchmark.protocol.prompts import BenchmarkPrompts
     from trase.prompts import Click, mask_to_clusters
 
@@ -118,10 +119,10 @@ def select_clicks(fit_dir: Path | str, clicks: list[str], out_dir: Path | str | 
         if not (0 <= x < cam.width and 0 <= y < cam.height):
             raise UserError(f"--click {text!r}: pixel outside the {cam.width}x{cam.height} view")
         parsed.append(Click(x + 0.5, y + 0.5, view, cam.time, names.index(view)))  # the pixel's centre
-    per_click = []
+    per_click, selected_by_clicks = [], []
     if parsed:
         prompts = BenchmarkPrompts(parsed[0].view_index, parsed[0].view, parsed[0].time, parsed, source="command-line")
-        per_click = method.click_clusters(fitted, scene, prompts)
+        selected_by_clicks, per_click = click_selection(method, fitted, scene, prompts)
     def camera_of(view: str):
         if view not in names:
             raise UserError(f"--mask: no view {view!r} in {fit_dir} (e.g. {', '.join(names[:3])})")
@@ -131,7 +132,7 @@ def select_clicks(fit_dir: Path | str, clicks: list[str], out_dir: Path | str | 
     for text in masks:
         cam, mask = mask_prompt(text, camera_of)
         per_mask.append(mask_to_clusters(fitted.gaussians, fitted.deformation, cam, mask, fitted.labels))
-    clusters = sorted({k for k in per_click if k >= 0} | {k for ks in per_mask for k in ks})
+    clusters = sorted(set(selected_by_clicks) | {k for ks in per_mask for k in ks})
     rendered = method.render_selection(fitted, scene, clusters)
     out = Path(out_dir) if out_dir else Path(fit_dir) / "selection"
     from imagefiles import png_bytes

@@ -225,6 +225,19 @@ class Method:
         return None
 
 
+def click_selection(method, fitted, scene, prompts) -> tuple[list[int], list[int]]:
+    """(the clusters selected, the cluster of each click in order) of a method that selects
+    clusters: its own ``click_selection`` where it has one (negative clicks remove), else the
+    clusters of its clicks, which must then all be positive."""
+    own = getattr(method, "click_selection", None)
+    if own is not None:
+        return own(fitted, scene, prompts)
+    if any(not c.positive for c in prompts.clicks):
+        raise MethodError(f"method {method.name!r} takes positive clicks only (it has no click_selection)")
+    per_click = method.click_clusters(fitted, scene, prompts)
+    return sorted({k for k in per_click if k >= 0}), per_click
+
+
 def click_view(scene, prompts, click):
     """The test view a click was made in (its own frame; else the prompts' first frame)."""
     name = click.view or prompts.view
@@ -237,5 +250,5 @@ def click_view(scene, prompts, click):
     raise MethodError(f"prompt view {name!r} is not a test view of {scene.root}")
 
 
-__all__ = ["ENTRY_POINT_GROUP", "METHODS", "FittedModel", "Method", "MethodError", "check_method_class", "click_view",
-           "get_method", "register_method"]
+__all__ = ["ENTRY_POINT_GROUP", "METHODS", "FittedModel", "Method", "MethodError", "check_method_class",
+           "click_selection", "click_view", "get_method", "register_method"]

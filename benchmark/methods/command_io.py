@@ -114,7 +114,7 @@ def write_prompts(prompts, scene, out: Path) -> int:
     for k, c in enumerate(prompts.clicks, start=1):
         cam = scene.test[c.view_index].camera
         x, y = min(int(c.u), cam.width - 1), min(int(c.v), cam.height - 1)
-        click = {"object": k, "u": float(c.u), "v": float(c.v), "x": x, "y": y}
+        click = {"object": k, "u": float(c.u), "v": float(c.v), "x": x, "y": y, "positive": c.positive}
         objects.append({**click, "frame": names[c.view_index], "view": c.view})
         frames.setdefault(names[c.view_index], []).append(click)
     doc = {"version": LAYOUT_VERSION, "rule": prompts.source,

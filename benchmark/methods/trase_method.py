@@ -115,29 +115,31 @@ class TraseMethod(Method):
     # set that chose the same clusters from memory)
     selects_clusters = True
 
-    def click_clusters(self, fitted: FittedModel, scene, prompts) -> list[int]:
-        """The cluster each prompt click chose, in click order (-1: a click on no surface)."""
-        from trase.prompts import click_to_cluster
+    def click_selection(self, fitted: FittedModel, scene, prompts) -> tuple[list[int], list[int]]:
+        """(the clusters the prompt clicks select, the cluster of each click in click order; -1:
+        a click on no surface): positive clicks add, negative ones remove and keep out
+        (trase.prompts.clicks_to_clusters)."""
+        from trase.prompts import clicks_to_clusters
 
         clicks = fitted.config.prompts
-        min_alpha, rule, radius = float(clicks.min_alpha), str(clicks.click_rule), int(clicks.click_radius)
-        out = []
-        for c in prompts.clicks:
-            view = click_view(scene, prompts, c)
-            out.append(int(click_to_cluster(fitted.gaussians, fitted.deformation, view.camera, c, fitted.labels,
-                                            min_alpha, rule, radius, features=fitted.features,
-                                            front_share=float(clicks.front_share))))
-        return out
+        cameras = [click_view(scene, prompts, c).camera for c in prompts.clicks]
+        return clicks_to_clusters(fitted.gaussians, fitted.deformation, cameras, list(prompts.clicks), fitted.labels,
+                                  min_alpha=float(clicks.min_alpha), rule=str(clicks.click_rule),
+                                  radius=int(clicks.click_radius), features=fitted.features,
+                                  front_share=float(clicks.front_share))
+
+    def click_clusters(self, fitted: FittedModel, scene, prompts) -> list[int]:
+        """The cluster each prompt click chose, in click order (-1: a click on no surface)."""
+        return self.click_selection(fitted, scene, prompts)[1]
 
     def select(self, fitted: FittedModel, scene, prompts) -> list[int]:
         """Prompt clicks -> chosen cluster ids (clicks on no surface choose nothing)."""
-        return sorted({k for k in self.click_clusters(fitted, scene, prompts) if k >= 0})
+        return self.click_selection(fitted, scene, prompts)[0]
 
     def segment(self, fitted: FittedModel, scene, prompts) -> list[np.ndarray]:
         """Masks of the test views for the clusters the clicks choose; records the cluster of
         each click (``stats["click_clusters"]``) and the chosen set (``selected_clusters``)."""
-        per_click = self.click_clusters(fitted, scene, prompts) if fitted.gaussians is not None else []
-        clusters = sorted({k for k in per_click if k >= 0})
+        clusters, per_click = self.click_selection(fitted, scene, prompts) if fitted.gaussians is not None else ([], [])
         fitted.stats["click_clusters"] = per_click
         fitted.stats["selected_clusters"] = clusters
         return self.render_selection(fitted, scene, clusters)

@@ -37,6 +37,8 @@ def score_click_sets(method, fitted, scene, prompts, gts: list[np.ndarray], name
     each chose, the clusters chosen, mIoU) and median / worst / best; None with a single set.
     Set 0 is the run's own clicks: ``first`` (its entry, already scored) and ``first_preds``;
     a set choosing clusters already rendered reuses their masks."""
+    from benchmark.methods import click_selection
+
     sets = prompts.click_sets()
     if len(sets) < 2:
         return None
@@ -45,8 +47,8 @@ def score_click_sets(method, fitted, scene, prompts, gts: list[np.ndarray], name
     for j, p in enumerate(sets[1:], start=1):
         entry: dict = {"set": j, "clicks": _click_list(p)}
         if getattr(method, "selects_clusters", False) and fitted.gaussians is not None:
-            per_click = method.click_clusters(fitted, scene, p)
-            chosen = tuple(sorted({k for k in per_click if k >= 0}))
+            selected, per_click = click_selection(method, fitted, scene, p)
+            chosen = tuple(selected)
             if chosen not in rendered:
                 rendered[chosen] = method.render_selection(fitted, scene, list(chosen))
             preds = rendered[chosen]

@@ -119,12 +119,18 @@ class BenchmarkPrompts:
 
 
 def _click_dict(c: Click) -> dict:
-    return {"u": c.u, "v": c.v, "view": c.view, "view_index": c.view_index, "time": c.time}
+    """A click as the prompts file holds it; ``"positive": false`` only on a negative click, so
+    files of positive clicks are as before polarity existed."""
+    return {"u": c.u, "v": c.v, "view": c.view, "view_index": c.view_index, "time": c.time,
+            **({} if c.positive else {"positive": False})}
 
 
 def _click_from(c: dict) -> Click:
+    positive = c.get("positive", True)
+    if not isinstance(positive, bool):
+        raise TypeError(f"a click's positive is true or false, not {positive!r}")
     return Click(float(c["u"]), float(c["v"]), str(c["view"]), None if c["time"] is None else float(c["time"]),
-                 int(c["view_index"]))
+                 int(c["view_index"]), positive)
 
 
 TRACK_FRAMES = 3  # alternative clicks are spread over an object's first three frames
