@@ -40,6 +40,7 @@ STAGE_VERSIONS: dict[str, int] = {
     "features": 2,  # 2: smoothing with K=0 normalises features (raw features before)
     "ceiling": 6,  # 2: object alpha statistics; votes from at most 600 training views; 3: per object (objects); 4: spill; 5: spill of all objects only; 6: movers and mover_frames
     "fit": 2,  # 2: records the clustering sample's size (cluster_sample)
+    "command-inputs": 2,  # 2: each click of prompts.json says whether it is positive
     "prompts": 2,  # 2: a click per object in its first frame, each naming its frame (prompts file v3)
     # scores, oracle and click sets; bump when scoring or segmentation code changes what it
     # writes for the same inputs

@@ -96,29 +96,42 @@ def fitted_capture(fit_dir: Path | str):
     return record, method, fitted, scene
 
 
+def parsed_clicks(texts: list[str], scene, fit_dir, positive: bool = True) -> list:
+    """``VIEW:X,Y`` texts -> trase.prompts.Click at the pixels' centres (``positive`` False: negative
+    clicks, given as --unclick)."""
+    from trase.prompts import Click
+
+    names = [v.name for v in scene.test]
+    option = "--click" if positive else "--unclick"
+    out = []
+    for text in texts:
+        view, x, y = parse_click(text)
+        if view not in names:
+            raise UserError(f"{option} {text!r}: no view {view!r} in {fit_dir} (e.g. {', '.join(names[:3])})")
+        cam = scene.test[names.index(view)].camera
+        if not (0 <= x < cam.width and 0 <= y < cam.height):
+            raise UserError(f"{option} {text!r}: pixel outside the {cam.width}x{cam.height} view")
+        out.append(Click(x + 0.5, y + 0.5, view, cam.time, names.index(view), positive))
+    return out
+
+
 def select_clicks(fit_dir: Path | str, clicks: list[str], out_dir: Path | str | None = None,
-                  masks: list[str] = ()) -> dict:
+                  masks: list[str] = (), unclicks: list[str] = ()) -> dict:
     """Clusters chosen by ``clicks`` (``VIEW:X,Y``) and ``masks`` (``VIEW:PATH``) and their
     masks at every view, written to ``out_dir`` (default ``<fit>/selection``) ->
-    {"clusters", "per_click", "per_mask", "masks": {view: bool [H, W]}}."""
+    {"clusters", "per_click", "per_mask", "masks": {view: bool [H, W]}}. ``unclicks``: negative
+    clicks, taken before the clicks: the cluster under each is kept out, so a click where it
+    blends with another picks the other (``per_click`` lists them first)."""
     from benchmark.io import atomic_directory, atomic_write_bytes
     from benchmark.methods import click_selection
     from benchmark.protocol.prompts import BenchmarkPrompts
-    from trase.prompts import Click, mask_to_clusters
+    from trase.prompts import mask_to_clusters
 
     if not clicks and not masks:
         raise UserError("give at least one --click VIEW:X,Y or --mask VIEW:PATH")
     _, method, fitted, scene = fitted_capture(fit_dir)
     names = [v.name for v in scene.test]
-    parsed = []
-    for text in clicks:
-        view, x, y = parse_click(text)
-        if view not in names:
-            raise UserError(f"--click {text!r}: no view {view!r} in {fit_dir} (e.g. {', '.join(names[:3])})")
-        cam = scene.test[names.index(view)].camera
-        if not (0 <= x < cam.width and 0 <= y < cam.height):
-            raise UserError(f"--click {text!r}: pixel outside the {cam.width}x{cam.height} view")
-        parsed.append(Click(x + 0.5, y + 0.5, view, cam.time, names.index(view)))  # the pixel's centre
+    parsed = parsed_clicks(list(unclicks), scene, fit_dir, positive=False) + parsed_clicks(list(clicks), scene, fit_dir)
     per_click, selected_by_clicks = [], []
     if parsed:
         prompts = BenchmarkPrompts(parsed[0].view_index, parsed[0].view, parsed[0].time, parsed, source="command-line")

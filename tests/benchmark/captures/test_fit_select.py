@@ -175,6 +175,17 @@ def test_fit_exports_a_folder_that_select_reads(capture_dirs, tmp_path):
     by_mask = select_clicks(out, [], tmp_path / "by-mask", masks=[f"{v['name']}:{tmp_path / 'object.png'}"])
     assert k in by_mask["per_mask"][0] and by_mask["clusters"] == by_mask["per_mask"][0]
     assert (tmp_path / "by-mask" / "selection.json").is_file()
+    # a negative click at the pixel of a click keeps that click's cluster out: the click picks another or none
+    from benchmark.protocol.prompts import interior_points
+
+    (u, w), = interior_points(method.render_selection(fitted, scene, [k])[names.index(v["name"])], 1)[:1]
+    on_k = f"{v['name']}:{int(u)},{int(w)}"
+    (first,) = select_clicks(out, [on_k], tmp_path / "clicked")["per_click"]
+    unclicked = select_clicks(out, [on_k], tmp_path / "unclicked", unclicks=[on_k])
+    assert first >= 0 and unclicked["per_click"][0] == first and unclicked["per_click"][1] != first
+    assert first not in unclicked["clusters"]
+    with pytest.raises(UserError, match="--unclick .*pixel outside"):
+        select_clicks(out, [on_k], tmp_path / "bad", unclicks=[f"{v['name']}:10000,1"])
     with pytest.raises(UserError, match="at least one --click VIEW:X,Y or --mask"):
         select_clicks(out, [])
     with pytest.raises(UserError, match="pixel outside"):

@@ -93,6 +93,7 @@ def test_prompts_give_each_objects_click_in_its_frame(written):
     for k, (obj, click) in enumerate(zip(doc["objects"], prompts.clicks), start=1):
         assert obj["object"] == k and (obj["u"], obj["v"]) == (click.u, click.v)
         assert obj["frame"] == names[click.view_index] and (obj["x"], obj["y"]) == (int(click.u), int(click.v))
+        assert obj["positive"] is True  # the benchmark's clicks are positive
         assert read_mask(scene.gt_masks[click.view_index])[obj["y"], obj["x"]]  # on its object
     assert sum(len(c) for c in doc["frames"].values()) == len(doc["objects"])
     for frame, clicks in doc["frames"].items():
