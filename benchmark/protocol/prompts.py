@@ -41,7 +41,7 @@ PROMPTS_VERSION = 3  # 2: each click names its own test frame; 3: new objects li
 BENCHMARK_RULES = ("gt-first-appearance", "gt-first-frame")
 
 
-def _regions(gt: np.ndarray, min_area: int, keep_largest: bool = True) -> list[tuple[int, float, float, np.ndarray]]:
+def mask_regions(gt: np.ndarray, min_area: int, keep_largest: bool = True) -> list[tuple[int, float, float, np.ndarray]]:
     """(area, u, v, region mask) per connected region of gt [H, W] with >= min_area pixels,
     (u, v) the pixel centre of its distance-transform maximum (ties: first in row-major
     order), largest region first. With only smaller regions, ``keep_largest`` keeps the
@@ -71,7 +71,7 @@ def _regions(gt: np.ndarray, min_area: int, keep_largest: bool = True) -> list[t
 def interior_points(gt: np.ndarray, min_area: int = 20) -> list[tuple[float, float]]:
     """One (u, v) per connected region of gt [H, W] with >= min_area pixels (the largest
     region when all are smaller): its most interior pixel centre, largest region first."""
-    return [(u, v) for _, u, v, _ in _regions(gt, min_area)]
+    return [(u, v) for _, u, v, _ in mask_regions(gt, min_area)]
 
 
 @dataclasses.dataclass
@@ -190,7 +190,7 @@ def make_benchmark_prompts(test_views: Sequence, gt_masks, min_area: int = 20,
         if done:
             continue
         if first is None:
-            regions = _regions(gt, min_area)
+            regions = mask_regions(gt, min_area)
             if regions:
                 first = i
         elif rule == "gt-first-frame":
@@ -198,7 +198,7 @@ def make_benchmark_prompts(test_views: Sequence, gt_masks, min_area: int = 20,
             continue
         else:
             near = cv2.dilate(seen.astype(np.uint8), kernel) > 0 if seen.shape == gt.shape else None
-            regions = [r for r in _regions(gt, min_area, keep_largest=False)
+            regions = [r for r in mask_regions(gt, min_area, keep_largest=False)
                        if near is None or not (r[3] & near).any()]
         clicks += [Click(u, v, view.name, float(view.camera.time), i) for _, u, v, _ in regions]
         tracks += [[(i, region)] for _, _, _, region in regions]

@@ -1,0 +1,82 @@
+"""The robot user of interactive segmentation (RITM's, SimpleClick's, SAM's evaluation): after
+the first clicks, each next click goes to the most interior pixel (the distance-transform
+maximum) of the largest error region of the click frames: positive where the object was missed,
+negative where something else was selected. It stops when every click frame reaches the target
+IoU or the budget of extra clicks is spent. Only the click frames' ground truth is read, as a
+person looks at the view they click in.
+
+The score after k clicks gives the curve; the number of clicks a sequence needs to reach an IoU
+(NoC@85, NoC@90) counts the budget's clicks + 1 where it never does, as the standard does.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+from benchmark.protocol.prompts import mask_regions
+from trase.prompts import Click
+
+
+def iou(pred: np.ndarray, gt: np.ndarray) -> float:
+    """IoU of two bool masks [H, W]; 1 where both are empty."""
+    union = np.logical_or(pred, gt).sum()
+    return 1.0 if union == 0 else float(np.logical_and(pred, gt).sum() / union)
+
+
+def next_click(preds: dict[int, np.ndarray], gts: dict[int, np.ndarray], frames: dict[int, tuple[str, float]]) -> Click | None:
+    """The click at the most interior pixel of the largest error region over the click frames
+    (``frames``: view index -> (view name, time)); positive in a missed region (ground truth
+    not predicted), negative in a wrongly predicted one. Ties: missed before wrong, then the
+    frames in order. None where the prediction is right everywhere."""
+    best = None  # (area, order, click)
+    for order, i in enumerate(sorted(frames)):
+        pred, gt = np.asarray(preds[i], dtype=bool), np.asarray(gts[i], dtype=bool)
+        for positive, error in ((True, gt & ~pred), (False, pred & ~gt)):
+            regions = mask_regions(error, min_area=1)
+            if not regions:
+                continue
+            area, u, v, _ = regions[0]
+            rank = (area, -(2 * order + (not positive)))
+            if best is None or rank > best[0]:
+                name, time = frames[i]
+                best = (rank, Click(u, v, name, time, i, positive))
+    return None if best is None else best[1]
+
+
+def corrective_clicks(first: list[Click], predict: Callable[[list[Click]], dict[int, np.ndarray]],
+                      gts: dict[int, np.ndarray], budget: int, target: float) -> tuple[list[Click], list[float]]:
+    """The first clicks, then corrective ones -> (every click in order, the click frames' mean IoU
+    after each click count, from len(first) on). ``predict``: clicks -> the predicted masks of
+    the click frames (view index -> bool [H, W]); ``gts``: their ground truth; ``budget``: the
+    most extra clicks; stops early once every click frame reaches ``target``."""
+    if not first:
+        raise ValueError("the robot user starts from at least one click")
+    frames = {c.view_index: (c.view, c.time) for c in first}
+    missing = sorted(set(frames) - set(gts))
+    if missing:
+        raise ValueError(f"no ground truth for the click frames {missing}")
+    clicks, curve = list(first), []
+    while True:
+        preds = predict(clicks)
+        ious = [iou(preds[i], gts[i]) for i in sorted(frames)]
+        curve.append(float(np.mean(ious)))
+        if min(ious) >= target or len(clicks) - len(first) >= budget:
+            return clicks, curve
+        click = next_click(preds, gts, frames)
+        if click is None:
+            return clicks, curve
+        clicks.append(click)
+
+
+def clicks_to_reach(curve: Sequence[float], first: int, target: float, budget: int) -> int:
+    """How many clicks a curve (the score after ``first``, ``first`` + 1, ... clicks) needs to
+    reach ``target``; ``first`` + ``budget`` + 1 where it never does."""
+    for k, score in enumerate(curve):
+        if score >= target:
+            return first + k
+    return first + budget + 1
+
+
+__all__ = ["clicks_to_reach", "corrective_clicks", "iou", "next_click"]

@@ -1,0 +1,75 @@
+"""The robot user (benchmark.protocol.corrective): where its next click goes, when it stops, and
+how many clicks a curve needs."""
+
+import numpy as np
+import pytest
+
+from benchmark.protocol.corrective import clicks_to_reach, corrective_clicks, iou, next_click
+from trase.prompts import Click
+
+H, W = 20, 30
+
+
+def _box(r0, r1, c0, c1):
+    m = np.zeros((H, W), bool)
+    m[r0:r1, c0:c1] = True
+    return m
+
+
+FRAMES = {0: ("v0", 0.0), 3: ("v3", 0.5)}
+
+
+def test_a_missed_region_gets_a_positive_click_at_its_most_interior_pixel():
+    gt = _box(2, 9, 3, 10)  # 7x7, centre pixel (row 5, column 6)
+    c = next_click({0: np.zeros((H, W), bool), 3: np.zeros((H, W), bool)}, {0: gt, 3: np.zeros((H, W), bool)}, FRAMES)
+    assert (c.u, c.v, c.positive, c.view, c.view_index, c.time) == (6.5, 5.5, True, "v0", 0, 0.0)
+
+
+def test_the_largest_error_of_the_click_frames_wins_and_a_wrong_region_gets_a_negative_click():
+    gt = _box(2, 9, 3, 10)
+    wrong = gt | _box(10, 20, 10, 30)  # 200 px selected that are not the object, in frame 3
+    c = next_click({0: gt, 3: wrong}, {0: gt, 3: gt}, FRAMES)
+    assert not c.positive and c.view_index == 3 and not gt[int(c.v), int(c.u)] and wrong[int(c.v), int(c.u)]
+    assert next_click({0: gt, 3: gt}, {0: gt, 3: gt}, FRAMES) is None  # nothing to correct
+
+
+def _region_predictor(labels: np.ndarray):
+    """A method whose objects are the regions of ``labels``: a positive click adds the region
+    under it, a negative one removes it."""
+    def predict(clicks):
+        chosen = set()
+        for c in clicks:
+            k = int(labels[int(c.v), int(c.u)])
+            chosen = chosen | {k} if c.positive else chosen - {k}
+        chosen.discard(0)
+        return {i: np.isin(labels, sorted(chosen)) for i in (0,)}
+    return predict
+
+
+def test_it_corrects_until_the_target_and_records_the_curve():
+    labels = np.zeros((H, W), np.int64)
+    labels[2:9, 3:10], labels[10:18, 12:28], labels[0:6, 20:30] = 1, 2, 3
+    gt = {0: np.isin(labels, [1, 2])}
+    first = [Click(6.5, 5.5, "v0", 0.0, 0)]  # on region 1 only
+    clicks, curve = corrective_clicks(first, _region_predictor(labels), gt, budget=3, target=0.9)
+    assert len(clicks) == 2 and clicks[1].positive and labels[int(clicks[1].v), int(clicks[1].u)] == 2
+    assert curve[0] == pytest.approx(iou(labels == 1, gt[0])) and curve[1] == 1.0
+
+
+def test_a_wrong_first_click_is_undone_by_a_negative_one_and_the_budget_bounds_it():
+    labels = np.zeros((H, W), np.int64)
+    labels[2:9, 3:10], labels[10:18, 12:28] = 1, 2
+    gt = {0: labels == 1}
+    first = [Click(20.5, 14.5, "v0", 0.0, 0)]  # on region 2: everything wrong
+    clicks, curve = corrective_clicks(first, _region_predictor(labels), gt, budget=3, target=0.9)
+    assert [c.positive for c in clicks] == [True, False, True] and curve == [0.0, 0.0, 1.0]
+    never = corrective_clicks(first, lambda clicks: {0: np.zeros((H, W), bool)}, gt, budget=2, target=0.9)
+    assert len(never[0]) == 3 and never[1] == [0.0, 0.0, 0.0]
+
+
+def test_clicks_to_reach_counts_the_budget_plus_one_where_the_target_is_never_reached():
+    assert clicks_to_reach([0.5, 0.86, 0.95], first=2, target=0.85, budget=3) == 3
+    assert clicks_to_reach([0.5, 0.86, 0.95], first=2, target=0.90, budget=3) == 4
+    assert clicks_to_reach([0.5, 0.6], first=2, target=0.85, budget=3) == 6
+    with pytest.raises(ValueError, match="at least one click"):
+        corrective_clicks([], lambda c: {}, {}, budget=1, target=0.9)
