@@ -9,9 +9,9 @@ workers are broken). A partial directory is kept on failure: stages that checkpo
 resume from what it holds; others simply overwrite their files.
 
 Keys hash the stage name, the stage's own config, the keys of its inputs, the stage's code
-version (``STAGE_VERSIONS``) and the numeric mode it computes in (``benchmark.numerics``), so a change anywhere upstream gives every downstream stage a new
-key, and another method run on the same scene finds the shared upstream stages (masks,
-reconstruction) already done.
+version (``STAGE_VERSIONS``) and the numeric mode it computes in (``benchmark.numerics``), so a
+change anywhere upstream gives every downstream stage a new key, and another method run on the
+same scene finds the shared upstream stages (masks, reconstruction) already done.
 """
 
 from __future__ import annotations

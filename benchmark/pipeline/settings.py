@@ -103,19 +103,14 @@ AS_BEFORE = {
 
 def recorded_settings(section):
     """``section`` (nested dicts) as a run records and hashes it: in each dict, the settings of
-    AS_BEFORE that hold their "as before" value are left out with those named beside them."""
+    AS_BEFORE that hold their "as before" value are left out with those named beside them, and
+    so is a section those drops leave empty (``machine`` with native numerics)."""
     if not isinstance(section, dict):
         return section
     dropped = {name for key, (value, names) in AS_BEFORE.items() if key in section and section[key] == value
                for name in names}
-    return {k: recorded_settings(v) for k, v in section.items() if k not in dropped}
-
-
-def recorded_machine(cfg: dict) -> dict:
-    """``cfg`` with its machine section as recorded: left out where native numerics leave it
-    empty (a native run keeps the name and stage keys it had before the setting existed)."""
-    machine = recorded_settings(cfg.get("machine") or {})
-    return {k: v for k, v in cfg.items() if k != "machine"} | ({"machine": machine} if machine else {})
+    out = {k: recorded_settings(v) for k, v in section.items() if k not in dropped}
+    return {k: v for k, v in out.items() if v != {} or section[k] == {}}
 
 
 @dataclasses.dataclass
@@ -187,7 +182,7 @@ class RunSettings:
             out["capture"] = dict(self.capture)
         out["seed"] = self.seed
         out["machine"] = dataclasses.asdict(self.machine)
-        return recorded_machine(recorded_settings(out))
+        return recorded_settings(out)
 
 
 def run_settings(method, spec, variant: str, overrides: dict, image_size: tuple[int, int] | None = None) -> RunSettings:
@@ -248,7 +243,7 @@ def _resolve(method, ctx: Context, overrides: dict, masks: dict, extra: dict) ->
     # the same run without its seed (an explicit seed of one section stays), and without --set
     group = _with_devices(merge(apply_seed(base, 0), plain), settings)
     default = _with_devices(merge(base, {}), settings)
-    settings.group_hash = config_hash(recorded_machine(recorded_settings({**group, "masks": recorded_masks(group["masks"])})))
+    settings.group_hash = config_hash(recorded_settings({**group, "masks": recorded_masks(group["masks"])}))
     settings.is_default = preset == auto_preset and group == default
     return settings
 
