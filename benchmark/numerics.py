@@ -20,6 +20,7 @@ heavy: it must run before numpy, torch and numba are imported.
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import platform
 import sys
@@ -122,13 +123,14 @@ def environment(mode: str):
                 os.environ[k] = v
 
 
-def host_features() -> set[str] | None:
+@functools.cache
+def host_features() -> frozenset[str] | None:
     """The host's instruction-set features in LLVM's names (None off x86-64)."""
     if platform.machine().lower() not in ("x86_64", "amd64"):
         return None
     from llvmlite import binding  # pure ctypes: loads none of the libraries pinned here
 
-    return {k for k, on in binding.get_host_cpu_features().items() if on}
+    return frozenset(k for k, on in binding.get_host_cpu_features().items() if on)
 
 
 def missing_features() -> list[str] | None:
@@ -208,8 +210,8 @@ def x86_levels(host: set[str] | None) -> list[str]:
 
 
 def describe(mode: str) -> dict:
-    """What a results file records of the numerics: the mode, the machine (model, levels, the
-    AVX-512 features it has) and what each loaded library computes with."""
+    """What a results file records of the numerics: the mode, its environment and the machine
+    (model, x86-64 levels, the AVX-512 features it has, its C library)."""
     host = host_features()
     out = {"mode": mode, "baseline": BASELINE if mode == "portable" else "native",
            "cpu_model": cpu_model(), "x86_levels": x86_levels(host),
@@ -217,6 +219,12 @@ def describe(mode: str) -> dict:
            "libc": "-".join(platform.libc_ver()) or "unknown"}
     if mode == "portable":
         out["env"] = dict(PORTABLE_ENV)
+    return out
+
+
+def kernels() -> dict:
+    """What the loaded libraries compute with: torch's kernel level and numba's target CPU."""
+    out = {}
     if "torch" in sys.modules:
         import torch
 
@@ -239,6 +247,7 @@ __all__ = [
     "check",
     "describe",
     "environment",
+    "kernels",
     "missing_features",
     "mode_from_argv",
     "mode_from_sets",

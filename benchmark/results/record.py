@@ -68,15 +68,13 @@ def machine_info(numeric_mode: str | None = None) -> dict:
     from benchmark import numerics
 
     mode = numeric_mode or os.environ.get(numerics.ENV_MODE) or "native"
-    described = numerics.describe(mode)
-    out = {
+    return {
         "platform": platform.platform(),
         "processor": platform.machine(),
         "cpu_count": os.cpu_count(),
-        "numerics": {k: v for k, v in described.items() if k not in ("torch_cpu_capability", "numba_cpu")},
+        "numerics": numerics.describe(mode),
+        **numerics.kernels(),
     }
-    out.update({k: described[k] for k in ("torch_cpu_capability", "numba_cpu") if k in described})
-    return out
 
 
 @dataclasses.dataclass

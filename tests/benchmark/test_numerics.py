@@ -53,8 +53,10 @@ def test_a_processor_without_the_baseline_is_told_what_it_lacks(monkeypatch):
 def test_a_run_in_a_process_loaded_under_another_mode_stops_before_any_stage(tmp_path, capsys):
     # this process loaded numba, torch and numpy in portable mode: a native run cannot be computed here
     import numba  # noqa: F401
-    import torch  # noqa: F401
+    import torch
 
+    # torch fixes its kernel level at its first use: here, in portable mode, whatever ran before
+    assert torch.backends.cpu.get_cpu_capability() == "AVX2"
     with numerics.environment("portable"):
         rc = main(["run", "--method", "trase", "--dataset", "hypernerf", "--data-root", str(tmp_path / "data"),
                    "--runs", str(tmp_path / "runs"), "--quiet", "--set", "machine.numerics=native"])
@@ -68,7 +70,7 @@ def test_each_mode_loads_the_libraries_as_it_says():
     """In fresh processes: portable pins torch at AVX2 and numba at the baseline; native leaves
     them to the processor; each passes its own check."""
     code = ("import sys; from benchmark import numerics as n; m = sys.argv[1]; n.apply(m); "
-            "import numpy, torch, numba; n.check(m); d = n.describe(m); "
+            "import numpy, torch, numba; n.check(m); d = n.kernels(); "
             "print(d['torch_cpu_capability'], d['numba_cpu'])")
     out = {m: subprocess.run([sys.executable, "-c", code, m], cwd=ROOT, capture_output=True, text=True, check=True,
                              timeout=120).stdout.split() for m in numerics.MODES}
