@@ -54,7 +54,7 @@ def recording() -> dict:
     return json.loads(GOLDEN.read_text())
 
 
-def _pick(r: dict) -> dict:
+def picked(r: dict) -> dict:
     """The compared part of a results record."""
     cs = r.get("click_sets") or {}
     return {
@@ -90,7 +90,7 @@ def measure(work: Path, cases=CASES, numerics_mode: str = "portable") -> dict:
         if main(args) != 0:
             raise RuntimeError(f"golden case {case}: trase-bench run failed")
         (path,) = runs.glob(f"{method}/{dataset}/synthetic/*/results.json")
-        out[case] = _pick(load_results(path))
+        out[case] = picked(load_results(path))
     return out
 
 
