@@ -12,7 +12,9 @@ scene, then feature training on that scene's ground-truth geometry. Variants:
   every run computed before the numeric modes; on an AVX-512 machine, another vector width.
 
 Printed per variant: whether the gaussians and the features are bit-identical to the
-baseline's, the largest difference, the test PSNR and the seconds each stage took. What a
+baseline's, the largest difference, the test PSNR and the seconds each stage took (numba's
+compilation included where its cache holds no kernels of that mode yet: run the suite twice to
+compare speed). What a
 difference does downstream (clusters, clicks, mIoU) is a whole run's business: see
 docs/determinism.md.
 """
