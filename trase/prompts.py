@@ -24,6 +24,7 @@ The benchmark's clicks from ground truth and the oracle live in benchmark.protoc
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 import torch
@@ -136,8 +137,8 @@ def click_to_cluster(gaussians, deformation, camera: Camera, click: Click, label
         features = gaussians.features.detach().cpu().numpy()  # the editor's models carry them
     cam = camera if click.time is None else camera.with_time(click.time)
     labels = np.asarray(labels, dtype=np.int64)
-    out = np.isin(labels, np.fromiter(exclude, np.int64)) if len(exclude) else None  # [N] gaussians excluded
-    labels = labels if out is None else np.where(out, -1, labels)
+    ruled_out = np.isin(labels, np.fromiter(exclude, np.int64)) if len(exclude) else None  # [N] bool
+    labels = labels if ruled_out is None else np.where(ruled_out, -1, labels)
     if rule == "front" and not 0.0 < front_share <= 1.0:
         raise PromptError(f"front_share must be in (0, 1], got {front_share}")
     if rule in ("weight", "feature", "front"):
@@ -154,7 +155,7 @@ def click_to_cluster(gaussians, deformation, camera: Camera, click: Click, label
             depth = cam.world_to_camera(means)[:, 2]  # [K] camera z of each pair's gaussian
             return _front_cluster(idx, w, depth, labels, front_share)
         return _nearest_cluster_feature(idx, w, labels, features)
-    allowed = None if out is None else ~out
+    allowed = None if ruled_out is None else ~ruled_out
     gid = int(lift_pixels(gaussians, deformation, cam, np.array([[click.u, click.v]]), min_alpha, allowed=allowed)[0])
     return -1 if gid < 0 else int(labels[gid])
 
@@ -175,16 +176,14 @@ def clicks_to_clusters(gaussians, deformation, cameras: list[Camera], clicks: li
     excluded: set[int] = set()
     per_click = []
     for camera, click in zip(cameras, clicks):
-        def pick(exclude, camera=camera, click=click):
-            return click_to_cluster(gaussians, deformation, camera, click, labels, exclude=exclude, **rule)
-
+        pick = functools.partial(click_to_cluster, gaussians, deformation, camera, click, labels, **rule)
         if click.positive:
-            k = pick(excluded)
+            k = pick(exclude=excluded)
             if k >= 0 and k not in selected:
                 selected.append(k)
         else:
-            k = pick(all_ids - set(selected)) if selected else -1
-            k = k if k >= 0 else pick(excluded)
+            k = pick(exclude=all_ids - set(selected)) if selected else -1  # a selected cluster under it
+            k = k if k >= 0 else pick(exclude=excluded)
             if k >= 0:
                 excluded.add(k)
                 selected = [c for c in selected if c != k]
