@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from benchmark.commands import old_spelling
-from benchmark.results.leaderboard import FORMATS, render_all
+from benchmark.results.leaderboard_render import FORMATS, render_all
 
 
 @click.command()

@@ -77,6 +77,11 @@ def run(method, dataset, sequences, data_root, runs_dir, cache_dir, overrides, n
         ceiling = f", geometry ceiling {fmt(r['ceiling'].get('miou'))}" if r.get("ceiling") else ""
         v1 = "" if (m["miou"], m["macc"]) == (official["miou"], official["macc"]) else \
             f" (v1: {fmt(m['miou'])} / {fmt(m['macc'])})"
+        corr = r.get("corrective")
+        if corr:  # the single-click score, then the clicks the robot user made
+            curve = corr["curve"]
+            v1 += (f"; after {curve[-1]['clicks']} clicks of at most {corr['first_clicks'] + corr['budget']} "
+                   f"(mIoU@1 {fmt(curve[0]['miou'])}, NoC@85 {corr['noc@85']}, NoC@90 {corr['noc@90']})")
         sets = r.get("click_sets")
         if sets:
             ceiling += f", click sets median {fmt(sets['median'])} worst {fmt(sets['worst'])} of {sets['n']}"

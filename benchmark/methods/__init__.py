@@ -169,6 +169,10 @@ class Method:
     # True: ``learn`` reads tracked masks (ids consistent across views, masks.tracked) from its
     # masks folder; the run then tracks them (masks.tracking, default classical; none refused)
     needs_tracks: bool = False
+    # True: the method takes negative clicks (a click's ``positive`` False removes what it
+    # points at); the benchmark's corrective clicks then include negative ones. False: positive
+    # corrections only, and the run's protocol label says so
+    negative_clicks: bool = False
 
     def settings_class(self) -> type:
         if self.presets is None:
@@ -227,15 +231,27 @@ class Method:
 
 def click_selection(method, fitted, scene, prompts) -> tuple[list[int], list[int]]:
     """(the clusters selected, the cluster of each click in order) of a method that selects
-    clusters: its own ``click_selection`` where it has one (negative clicks remove), else the
-    clusters of its clicks, which must then all be positive."""
+    clusters: its own ``click_selection`` where it has one, else the clusters of its clicks
+    (``click_clusters``) taken in order, a positive click's added unless a negative click
+    removed it before, a negative click's removed and kept out. Negative clicks reach only a
+    method that declares them (``negative_clicks``)."""
+    if any(not c.positive for c in prompts.clicks) and not getattr(method, "negative_clicks", False):
+        raise MethodError(f"method {method.name!r} takes positive clicks only (it declares no negative_clicks)")
     own = getattr(method, "click_selection", None)
     if own is not None:
         return own(fitted, scene, prompts)
-    if any(not c.positive for c in prompts.clicks):
-        raise MethodError(f"method {method.name!r} takes positive clicks only (it has no click_selection)")
     per_click = method.click_clusters(fitted, scene, prompts)
-    return sorted({k for k in per_click if k >= 0}), per_click
+    selected: set[int] = set()
+    ruled_out: set[int] = set()
+    for click, k in zip(prompts.clicks, per_click):
+        if k < 0:
+            continue
+        if click.positive and k not in ruled_out:
+            selected.add(k)
+        elif not click.positive:
+            selected.discard(k)
+            ruled_out.add(k)
+    return sorted(selected), per_click
 
 
 def click_view(scene, prompts, click):

@@ -136,6 +136,7 @@ class CGCMethod(TraseMethod):
         return fitted
 
     selects_clusters = False  # clicks query features in a patch, not clusters
+    negative_clicks = False  # CGC's selection is a union of similarity queries: positive clicks only
 
     def segment(self, fitted: FittedModel, scene, prompts) -> list[np.ndarray]:
         import torch

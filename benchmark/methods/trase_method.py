@@ -114,6 +114,7 @@ class TraseMethod(Method):
     # segment = select clusters by clicks, then render_selection (evaluate re-renders a click
     # set that chose the same clusters from memory)
     selects_clusters = True
+    negative_clicks = True  # a negative click removes its cluster and keeps it out (trase.prompts)
 
     def click_selection(self, fitted: FittedModel, scene, prompts) -> tuple[list[int], list[int]]:
         """(the clusters the prompt clicks select, the cluster of each click in click order; -1:

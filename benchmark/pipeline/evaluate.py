@@ -27,34 +27,33 @@ def render_clusters(fitted, camera) -> np.ndarray:
     return Painter(model).render(camera, "clusters")
 
 
-def _click_list(prompts) -> list[list[float]]:
-    return [[c.view_index, round(c.u, 1), round(c.v, 1)] for c in prompts.clicks]
+def _click_list(clicks) -> list[list[float]]:
+    return [[c.view_index, round(c.u, 1), round(c.v, 1)] for c in clicks]
 
 
-def score_click_sets(method, fitted, scene, prompts, gts: list[np.ndarray], names: list[str],
-                     first: dict, first_preds: list[np.ndarray]) -> dict | None:
-    """Official mIoU of every click set (benchmark.protocol.prompts) -> per set (its clicks, the cluster
-    each chose, the clusters chosen, mIoU) and median / worst / best; None with a single set.
-    Set 0 is the run's own clicks: ``first`` (its entry, already scored) and ``first_preds``;
-    a set choosing clusters already rendered reuses their masks."""
-    from benchmark.methods import click_selection
+def score_click_sets(predictor, prompts, gts: list[np.ndarray], names: list[str], first: dict,
+                     protocol) -> dict | None:
+    """Official mIoU of every click set (benchmark.protocol.prompts), each after the robot user
+    where the protocol corrects (benchmark.pipeline.corrective) -> per set (its first clicks,
+    its corrections, the cluster each click chose, the clusters chosen, mIoU) and median /
+    worst / best; None with a single set. Set 0 is the run's own: ``first`` (its entry, already
+    scored); a set choosing clusters already rendered reuses their masks (``predictor``)."""
+    from benchmark.pipeline.corrective import click_dicts, correct
 
     sets = prompts.click_sets()
     if len(sets) < 2:
         return None
-    rendered = {tuple(first.get("selected", ())): first_preds}
     out = [first]
     for j, p in enumerate(sets[1:], start=1):
-        entry: dict = {"set": j, "clicks": _click_list(p)}
-        if getattr(method, "selects_clusters", False) and fitted.gaussians is not None:
-            selected, per_click = click_selection(method, fitted, scene, p)
-            chosen = tuple(selected)
-            if chosen not in rendered:
-                rendered[chosen] = method.render_selection(fitted, scene, list(chosen))
-            preds = rendered[chosen]
-            entry |= {"click_clusters": per_click, "selected": list(chosen)}
-        else:
-            preds = method.segment(fitted, scene, p)
+        entry: dict = {"set": j, "clicks": _click_list(p.clicks)}
+        clicks = list(p.clicks)
+        if protocol.corrections > 0:
+            run = correct(predictor, clicks, gts, protocol)
+            clicks = run.clicks
+            entry["corrections"] = click_dicts(clicks[run.n_first:])
+        preds, selected, per_click = predictor.masks(clicks)
+        if selected is not None:
+            entry |= {"click_clusters": per_click, "selected": selected}
         entry["miou"] = score_masks(dict(zip(names, preds)), dict(zip(names, gts)), "official").miou
         out.append(entry)
     scores = np.array([e["miou"] for e in out], dtype=float)
@@ -78,19 +77,45 @@ def score_predictions(names: list[str], preds: list, gt_paths: list[Path]):
     return gts, score_masks(by_name, dict(zip(names, gts)), "v1"), score_masks(by_name, dict(zip(names, stored)), "official")
 
 
-def evaluate(method, fitted, scene, prompts, directory: Path) -> dict:
-    """Predicted masks for every test view -> ``directory``/pred/*.png and clusters/, and the
-    scores (v1 and official, as dicts), oracle, scores of the other click sets, model facts."""
+def segment_prompts(method, fitted, scene, prompts, protocol, gts: list[np.ndarray], names: list[str]):
+    """The run's masks at every test view under the prompt protocol -> (predictor, masks,
+    clusters selected, cluster per click, the corrective summary or None). The first clicks
+    alone where the protocol does not correct (``prompts.corrections`` 0)."""
+    from benchmark.pipeline.corrective import Predictor, correct, score_curve
+    from benchmark.scoring import read_official_ground_truth
+
+    predictor = Predictor(method, fitted, scene, prompts)
+    if protocol.corrections == 0:
+        preds = method.segment(fitted, scene, prompts)
+        selected = list(fitted.stats.get("selected_clusters", []))
+        if predictor.by_clusters:  # the other click sets reuse these masks
+            predictor.rendered[(None, tuple(selected))] = preds
+        return predictor, preds, selected, fitted.stats.get("click_clusters"), None
+    run = correct(predictor, list(prompts.clicks), gts, protocol)
+    stored = [read_official_ground_truth(p) for p in scene.gt_masks]
+    summary, (preds, selected, per_click) = score_curve(predictor, run, names, stored)
+    summary["target"] = float(protocol.correction_target)
+    if selected is None:  # a method that does not select clusters records its own
+        selected, per_click = list(fitted.stats.get("selected_clusters", [])), fitted.stats.get("click_clusters")
+    return predictor, preds, selected, per_click, summary
+
+
+def evaluate(method, fitted, scene, prompts, directory: Path, protocol) -> dict:
+    """Predicted masks for every test view under the prompt ``protocol`` (the run's
+    PromptProtocol) -> ``directory``/pred/*.png and clusters/, and the scores (v1 and official,
+    as dicts), the corrective clicks and curve, oracle, scores of the other click sets, model
+    facts."""
     import cv2
 
     from benchmark.results.stability import geometry_checksum, save_cluster_maps
     from trase.checkpoint import model_storage
 
-    preds = method.segment(fitted, scene, prompts)
+    names = [f"{i:05d}" for i in range(len(scene.test))]
+    gts = [read_mask(p) for p in scene.gt_masks]
+    predictor, preds, selected, per_click, corrective = segment_prompts(method, fitted, scene, prompts, protocol,
+                                                                        gts, names)
     if len(preds) != len(scene.test):
         raise RuntimeError(f"{method.name}.segment returned {len(preds)} masks for {len(scene.test)} test views")
-    selected = list(fitted.stats.get("selected_clusters", []))
-    names = [f"{i:05d}" for i in range(len(scene.test))]
     gts, v1, official = score_predictions(names, preds, scene.gt_masks)
     with atomic_directory(directory / "pred") as d:
         for n, m in zip(names, preds):
@@ -102,8 +127,9 @@ def evaluate(method, fitted, scene, prompts, directory: Path) -> dict:
             cv2.imwrite(str(d / f"{n}.png"), rgb[..., ::-1])
         if fitted.gaussians is not None:  # for agreement between seeds (benchmark.results.stability)
             save_cluster_maps(d, fitted, {n: scene.test[names.index(n)].camera for n in shown})
-    per_click = fitted.stats.get("click_clusters")  # methods that choose clusters by clicks
-    first = {"set": 0, "clicks": _click_list(prompts), "miou": official.miou}
+    first = {"set": 0, "clicks": _click_list(prompts.clicks), "miou": official.miou}
+    if corrective is not None:
+        first["corrections"] = corrective["corrections"]
     if per_click is not None:
         first |= {"click_clusters": list(per_click), "selected": selected}
     out = {
@@ -111,7 +137,8 @@ def evaluate(method, fitted, scene, prompts, directory: Path) -> dict:
         "official": official.to_dict(),
         "selected": selected,
         "click_clusters": per_click,
-        "click_sets": score_click_sets(method, fitted, scene, prompts, gts, names, first, preds),
+        "corrective": corrective,
+        "click_sets": score_click_sets(predictor, prompts, gts, names, first, protocol),
         "oracle": None,
         "n_gaussians": int(fitted.features.shape[0]),
         "n_clusters": int(fitted.stats.get("n_clusters", 0)),
@@ -131,11 +158,23 @@ def evaluate(method, fitted, scene, prompts, directory: Path) -> dict:
     return jsonable(out)
 
 
+def corrective_key(protocol) -> dict:
+    """The corrective protocol's part of the evaluate stage's key; none where it does not
+    correct, so single-click stages keep their keys."""
+    from benchmark.protocol.corrective import PROTOCOL_VERSION
+
+    if protocol.corrections == 0:
+        return {}
+    return {"corrective": {"version": PROTOCOL_VERSION, "corrections": int(protocol.corrections),
+                           "target": float(protocol.correction_target)}}
+
+
 def run(ctx: SequenceRun) -> list[StageRecord]:
     from benchmark.methods import FittedModel
 
     fit_rec, prompts_rec = ctx.records["fit"], ctx.records["prompts"]
-    key = ctx.cache.key("evaluate", {"method": ctx.method.name, **METRICS_KEY},
+    protocol = ctx.settings.prompts
+    key = ctx.cache.key("evaluate", {"method": ctx.method.name, **METRICS_KEY, **corrective_key(protocol)},
                         {"fit": fit_rec.key, "prompts": prompts_rec.key, "gt": ctx.gt_key})
 
     def work(d: Path) -> dict:
@@ -146,7 +185,7 @@ def run(ctx: SequenceRun) -> list[StageRecord]:
         deformation = memoised(deformation, gaussians.means) if gaussians is not None else deformation
         fitted = FittedModel.load(fit_rec.path, gaussians, deformation, ctx.method.settings_class())
         prompts, _ = load_prompts(prompts_rec)
-        return evaluate(ctx.method, fitted, ctx.scene, prompts, d)
+        return evaluate(ctx.method, fitted, ctx.scene, prompts, d, protocol)
 
     return [ctx.cache.run("evaluate", key, work, {"method": ctx.method.name})]
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 from benchmark.cache import StageRecord
@@ -22,7 +21,8 @@ def run(ctx: SequenceRun) -> list[StageRecord]:
     n_sets = protocol.click_sets
     if n_sets < 1:
         raise ConfigError(f"--set prompts.click_sets={n_sets!r}: a whole number >= 1 (1: the run's own clicks only)")
-    pcfg = dataclasses.asdict(protocol)
+    # the first clicks and click sets; the corrections are the evaluate stage's (they read the method)
+    pcfg = {"rule": protocol.rule, "click_sets": n_sets}
     key = ctx.cache.key("prompts", pcfg, {"gt": ctx.gt_key})
 
     def work(d: Path) -> dict:

@@ -98,6 +98,7 @@ AS_BEFORE = {
     "deform_scale_rule": ("clamp", ("deform_scale_rule",)),  # the CPU presets' scale rule, the only one before
     "near_plane": (0.01, ("near_plane",)),  # the rasterizer's near plane, the only one before
     "numerics": ("native", ("numerics",)),  # each library's own kernels for this processor (benchmark.numerics)
+    "corrections": (0, ("corrections", "correction_target")),  # the first clicks alone (the single-click protocol)
 }
 
 
@@ -153,7 +154,19 @@ class PromptProtocol:
     # clicks on every object of interest, in the first test frame it appears in
     # ("gt-first-frame": the first non-empty frame only)
     rule: str = "gt-first-appearance"
-    click_sets: int = 5  # click sets scored beside the run's own; 1 = the single-click protocol alone
+    click_sets: int = 5  # click sets scored beside the run's own; 1 = the run's own clicks alone
+    # the robot user (benchmark.protocol.corrective): at most this many corrective clicks per
+    # first click (object of interest), until every click frame reaches the target IoU; 0: the
+    # first clicks alone (the single-click protocol)
+    corrections: int = 3
+    correction_target: float = 0.9
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.corrections, int) or isinstance(self.corrections, bool) or self.corrections < 0:
+            raise ConfigError(f"--set prompts.corrections={self.corrections!r}: a whole number >= 0 "
+                              "(0: the first clicks alone)")
+        if not 0.0 < float(self.correction_target) <= 1.0:
+            raise ConfigError(f"--set prompts.correction_target={self.correction_target!r}: an IoU in (0, 1]")
 
 
 @dataclasses.dataclass

@@ -2,8 +2,10 @@
 the first clicks, each next click goes to the most interior pixel (the distance-transform
 maximum) of the largest error region of the click frames: positive where the object was missed,
 negative where something else was selected. It stops when every click frame reaches the target
-IoU or the budget of extra clicks is spent. Only the click frames' ground truth is read, as a
-person looks at the view they click in.
+IoU or the budget of extra clicks is spent, or when its next click would repeat its last one
+(that click changed nothing there; an earlier click may be repeated, as a positive click at a
+pixel whose cluster a negative click ruled out since picks another). Only the click frames' ground
+truth is read, as a person looks at the view they click in.
 
 The score after k clicks gives the curve; the number of clicks a sequence needs to reach an IoU
 (NoC@85, NoC@90) counts the budget's clicks + 1 where it never does, as the standard does.
@@ -18,6 +20,8 @@ import numpy as np
 from benchmark.protocol.prompts import mask_regions
 from trase.prompts import Click
 
+PROTOCOL_VERSION = 1  # in the evaluate stage's key: another robot user makes other clicks
+
 
 def iou(pred: np.ndarray, gt: np.ndarray) -> float:
     """IoU of two bool masks [H, W]; 1 where both are empty."""
@@ -25,15 +29,18 @@ def iou(pred: np.ndarray, gt: np.ndarray) -> float:
     return 1.0 if union == 0 else float(np.logical_and(pred, gt).sum() / union)
 
 
-def next_click(preds: dict[int, np.ndarray], gts: dict[int, np.ndarray], frames: dict[int, tuple[str, float]]) -> Click | None:
+def next_click(preds: dict[int, np.ndarray], gts: dict[int, np.ndarray], frames: dict[int, tuple[str, float]],
+               negatives: bool = True) -> Click | None:
     """The click at the most interior pixel of the largest error region over the click frames
     (``frames``: view index -> (view name, time)); positive in a missed region (ground truth
-    not predicted), negative in a wrongly predicted one. Ties: missed before wrong, then the
-    frames in order. None where the prediction is right everywhere."""
+    not predicted), negative in a wrongly predicted one (missed regions only where
+    ``negatives`` is False: a method without negative clicks). Ties: missed before wrong, then
+    the frames in order. None where no such error is left."""
     best = None  # (area, order, click)
     for order, i in enumerate(sorted(frames)):
         pred, gt = np.asarray(preds[i], dtype=bool), np.asarray(gts[i], dtype=bool)
-        for positive, error in ((True, gt & ~pred), (False, pred & ~gt)):
+        errors = ((True, gt & ~pred), (False, pred & ~gt)) if negatives else ((True, gt & ~pred),)
+        for positive, error in errors:
             regions = mask_regions(error, min_area=1)
             if not regions:
                 continue
@@ -46,7 +53,8 @@ def next_click(preds: dict[int, np.ndarray], gts: dict[int, np.ndarray], frames:
 
 
 def corrective_clicks(first: list[Click], predict: Callable[[list[Click]], dict[int, np.ndarray]],
-                      gts: dict[int, np.ndarray], budget: int, target: float) -> tuple[list[Click], list[float]]:
+                      gts: dict[int, np.ndarray], budget: int, target: float,
+                      negatives: bool = True) -> tuple[list[Click], list[float]]:
     """The first clicks, then corrective ones -> (every click in order, the click frames' mean IoU
     after each click count, from len(first) on). ``predict``: clicks -> the predicted masks of
     the click frames (view index -> bool [H, W]); ``gts``: their ground truth; ``budget``: the
@@ -64,8 +72,8 @@ def corrective_clicks(first: list[Click], predict: Callable[[list[Click]], dict[
         curve.append(float(np.mean(ious)))
         if min(ious) >= target or len(clicks) - len(first) >= budget:
             return clicks, curve
-        click = next_click(preds, gts, frames)
-        if click is None:
+        click = next_click(preds, gts, frames, negatives)
+        if click is None or click == clicks[-1]:  # the last click again would change nothing: stop
             return clicks, curve
         clicks.append(click)
 
@@ -79,4 +87,4 @@ def clicks_to_reach(curve: Sequence[float], first: int, target: float, budget: i
     return first + budget + 1
 
 
-__all__ = ["clicks_to_reach", "corrective_clicks", "iou", "next_click"]
+__all__ = ["PROTOCOL_VERSION", "clicks_to_reach", "corrective_clicks", "iou", "next_click"]

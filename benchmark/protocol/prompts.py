@@ -88,8 +88,8 @@ class BenchmarkPrompts:
         return {
             "version": PROMPTS_VERSION, "source": self.source, "view_index": self.view_index,
             "view": self.view, "time": self.time,
-            "clicks": [_click_dict(c) for c in self.clicks],
-            "alternatives": [[_click_dict(c) for c in clicks] for clicks in self.alternatives],
+            "clicks": [click_dict(c) for c in self.clicks],
+            "alternatives": [[click_dict(c) for c in clicks] for clicks in self.alternatives],
         }
 
     @classmethod
@@ -118,7 +118,7 @@ class BenchmarkPrompts:
         return [self] + [dataclasses.replace(self, clicks=list(cs), alternatives=[]) for cs in self.alternatives]
 
 
-def _click_dict(c: Click) -> dict:
+def click_dict(c: Click) -> dict:
     """A click as the prompts file holds it; ``"positive": false`` only on a negative click, so
     files of positive clicks are as before polarity existed."""
     return {"u": c.u, "v": c.v, "view": c.view, "view_index": c.view_index, "time": c.time,

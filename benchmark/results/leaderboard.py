@@ -24,8 +24,6 @@ follow the supplementary. Rules:
 from __future__ import annotations
 
 import dataclasses
-import html
-import io
 import math
 from importlib import resources
 from typing import NamedTuple
@@ -36,11 +34,11 @@ from benchmark.datasets import DATASETS
 from benchmark.results.record import total_seconds
 from benchmark.results.runs import ProtocolLegend, protocol, protocol_label
 
-FORMATS = ("markdown", "latex", "csv", "html")
 PUBLISHED_NOTE = (
     "Published rows: the TRASE paper's supplementary per-sequence tables and their Average "
     "column (OpenGaussian on HyperNeRF-Mask: Table 1 says 0.6311/0.9411, the supplementary "
-    "0.6531/0.9480; SA4D on Neu3D-Mask mAcc: Table 1 0.9391, supplementary 0.9931)."
+    "0.6531/0.9480; SA4D on Neu3D-Mask mAcc: Table 1 0.9391, supplementary 0.9931). Their prompts: a "
+    "person's clicks in the rendered novel views, as many as the person chose (the paper)."
 )
 METRIC_NOTE = ("Measured cells: the official metric (the public evaluation script's rules, which the "
                "paper's numbers were made with); the project's v1 metric in brackets where it differs.")
@@ -49,6 +47,13 @@ METRIC_NOTE = ("Measured cells: the official metric (the public evaluation scrip
 SPREAD_NOTE = ("± : standard deviation over run seeds (sample, ddof 1); seeds: how many. ≈ : within the "
                "spread of the column's best (|difference| < the larger of the two deviations), so the "
                "order of the two is not established.")
+
+
+CLICK_COLUMNS = ("miou1", "noc85", "noc90")  # measured_frame's columns of the corrective protocol
+CLICK_NAMES = ("mIoU@1", "NoC@85", "NoC@90")
+CLICK_NOTE = ("mIoU@1: official mIoU after one click per object of interest; NoC@85 / NoC@90: clicks the robot "
+              "user needed to reach that mIoU over the test frames (its first clicks + budget + 1 where it never "
+              "did; fewer is better); means over sequences, ± over seeds.")
 
 
 class Row(NamedTuple):
@@ -64,14 +69,21 @@ class Row(NamedTuple):
 @dataclasses.dataclass
 class Table:
     title: str
-    groups: list[str]  # one per column pair (dataset or sequence)
+    groups: list[str]  # one per group of columns (dataset or sequence)
     rows: list[Row]
     notes: list[str] = dataclasses.field(default_factory=list)
+    columns: tuple[str, ...] = ("mIoU", "mAcc")  # per group
+    lower_is_better: tuple[str, ...] = ()  # columns whose best is the least (clicks)
+
+    def column(self, i: int) -> str:
+        """The name of cell i's column."""
+        return self.columns[i % len(self.columns)]
 
     def best(self) -> list[float | None]:
-        n = 2 * len(self.groups)
+        n = len(self.columns) * len(self.groups)
         cols = [[r.cells[i] for r in self.rows if r.cells[i] is not None] for i in range(n)]
-        return [max(c) if c else None for c in cols]
+        return [None if not c else min(c) if self.column(i) in self.lower_is_better else max(c)
+                for i, c in enumerate(cols)]
 
     def has_seeds(self) -> bool:
         return any(r.seeds is not None and r.seeds > 1 for r in self.rows)
@@ -109,6 +121,7 @@ def measured_frame(records: list[dict]) -> pd.DataFrame:
             "seconds": math.nan if r["run"]["kind"] == "external" else total_seconds(r),  # not timed here
             "source": "measured",
             "protocol": protocol_label(protocol(r)),
+            **clicks_of(r),
         }
         for r in records
     ]
@@ -116,7 +129,16 @@ def measured_frame(records: list[dict]) -> pd.DataFrame:
 
 
 COLUMNS = ["variant", "dataset", "sequence", "method", "seed", "miou", "macc", "miou_v1", "macc_v1", "seconds",
-           "source", "protocol"]
+           "source", "protocol", *CLICK_COLUMNS]
+
+
+def clicks_of(record: dict) -> dict:
+    """The corrective protocol's figures of a run (benchmark.pipeline.corrective): mIoU@1 (one
+    click per object), NoC@85, NoC@90; NaN where the run had its first clicks alone."""
+    c = record.get("corrective")
+    if not c:
+        return dict.fromkeys(CLICK_COLUMNS, math.nan)
+    return {"miou1": c["curve"][0]["miou"], "noc85": float(c["noc@85"]), "noc90": float(c["noc@90"])}
 
 
 def published_frame() -> pd.DataFrame:
@@ -128,6 +150,8 @@ def published_frame() -> pd.DataFrame:
     df["source"] = "published"
     df["seconds"] = math.nan
     df["miou_v1"] = df["macc_v1"] = math.nan
+    for col in CLICK_COLUMNS:  # no robot user: the published numbers came from a person's clicks
+        df[col] = math.nan
     df["protocol"] = ""
     df["seed"] = -1
     return df
@@ -208,22 +232,24 @@ def main_table(df: pd.DataFrame, variant: str) -> Table:
     return Table(title, groups, _sorted(rows), notes)
 
 
-def _measured(spans: list[tuple[pd.DataFrame | None, list[str]]]) -> tuple[list, list, list | None, int]:
-    """Cells of a measured row, one (mIoU, mAcc) pair per (runs, sequences) span (runs None:
-    no cell) -> (cells, v1 cells, spread over seeds, seeds: the fewest behind a cell)."""
+def _measured(spans: list[tuple[pd.DataFrame | None, list[str]]], cols=("miou", "macc"),
+              v1_cols=("miou_v1", "macc_v1")) -> tuple[list, list, list | None, int]:
+    """Cells of a measured row, one cell per column of ``cols`` per (runs, sequences) span (runs
+    None: no cell) -> (cells, v1 cells (``v1_cols``, None each where empty), spread over seeds,
+    seeds: the fewest behind a cell)."""
     cells, v1, spread, counts = [], [], [], []
     for part, sequences in spans:
         if part is None:
-            cells += [None, None]
-            v1 += [None, None]
-            spread += [None, None]
+            cells += [None] * len(cols)
+            v1 += [None] * len(cols)
+            spread += [None] * len(cols)
             continue
-        for col in ("miou", "macc"):
+        for col in cols:
             mean, std, n = _over_seeds(part, sequences, col)
             cells.append(mean)
             spread.append(std)
             counts.append(n)
-        v1 += [_over_seeds(part, sequences, "miou_v1")[0], _over_seeds(part, sequences, "macc_v1")[0]]
+        v1 += [_over_seeds(part, sequences, c)[0] for c in v1_cols] if v1_cols else [None] * len(cols)
     return cells, v1, spread or None, min((c for c in counts if c), default=1)
 
 
@@ -247,6 +273,35 @@ def sequence_table(df: pd.DataFrame, variant: str, dataset: str) -> Table:
     return Table(f"{name} per sequence ({variant} data)", seqs, _sorted(rows), notes)
 
 
+def clicks_table(df: pd.DataFrame, variant: str, dataset: str | None = None) -> Table | None:
+    """The corrective protocol's figures (CLICK_NAMES) of the measured methods that have them:
+    per benchmark (``dataset`` None; a method that ran every sequence of it) or per sequence of
+    ``dataset``; None where no run corrected."""
+    have = df[(df.source == "measured") & df.miou1.notna()]
+    if dataset is not None:
+        have = have[have.dataset == dataset]
+    if not len(have):
+        return None
+    if dataset is None:
+        keys = _datasets_in(have, "synthetic")  # only those measured
+        groups = [DATASETS[d].display_name if d in DATASETS else d for d in keys]
+        spans_of = lambda sub: [(sub[sub.dataset == d] if set(_expected_sequences(df, variant, d))
+                                 <= set(sub[sub.dataset == d].sequence) else None, _expected_sequences(df, variant, d))
+                                for d in keys]
+        title = f"Clicks ({variant} data): mIoU@1 and clicks to reach mIoU 0.85 / 0.90 per benchmark"
+    else:
+        groups = _expected_sequences(df, variant, dataset)
+        spans_of = lambda sub: [(sub, [q]) for q in groups]
+        name = DATASETS[dataset].display_name if dataset in DATASETS else dataset
+        title = f"{name} clicks per sequence ({variant} data)"
+    rows, legend = [], ProtocolLegend()
+    for method, sub in have.groupby("method", sort=True):
+        row = _row(method, "measured", sub, *_measured(spans_of(sub), CLICK_COLUMNS, ()), legend=legend)
+        rows.append(row._replace(seconds=None))
+    notes = legend.notes() + [CLICK_NOTE] + ([SPREAD_NOTE] if _any_seeds(rows) else [])
+    return Table(title, groups, _sorted(rows), notes, CLICK_NAMES, CLICK_NAMES[1:])
+
+
 def _value(col: pd.Series) -> float | None:
     return float(col.iloc[0]) if len(col) and pd.notna(col.iloc[0]) else None
 
@@ -261,129 +316,8 @@ def build_tables(records: list[dict], variant: str, published: bool = True) -> l
         df = pd.concat([df, pub[df.columns]], ignore_index=True) if len(df) else pub[df.columns]
     if not len(df):
         return []
-    tables = [main_table(df, variant)]
+    tables = [main_table(df, variant)] + [t for t in [clicks_table(df, variant)] if t]
     for d in _datasets_in(df, variant):
         if (df[(df.dataset == d)].source == "measured").any():
-            tables.append(sequence_table(df, variant, d))
+            tables += [sequence_table(df, variant, d)] + [t for t in [clicks_table(df, variant, d)] if t]
     return tables
-
-
-# -- rendering -------------------------------------------------------------------------------
-def _fmt(x: float | None) -> str:
-    return "—" if x is None else f"{x:.4f}"
-
-
-def _fmt_time(x: float | None) -> str:
-    return "—" if x is None or math.isnan(x) else f"{x:.1f}"
-
-
-def render(table: Table, fmt: str) -> str:
-    if fmt not in FORMATS:
-        raise ValueError(f"unknown format {fmt!r}; choose one of {', '.join(FORMATS)}")
-    return {"markdown": _markdown, "latex": _latex, "csv": _csv, "html": _html}[fmt](table)
-
-
-def _cells(table: Table, bold: callable, pm: str = "±", approx: str = "≈") -> list[tuple[str, list[str], str]]:
-    """(label, cell texts, time text [, seeds text]) per row: the mean (bold if best), ± its
-    spread, ≈ when within the spread of the best, the v1 metric where it differs."""
-    best = table.best()
-    seeds_col = table.has_seeds()
-    out = []
-    for row in table.rows:
-        v1 = row.v1 or [None] * len(row.cells)
-        txt = []
-        for i, v in enumerate(row.cells):
-            t = bold(_fmt(v)) if v is not None and v == best[i] else _fmt(v)
-            sd = row.spread[i] if row.spread else None
-            if v is not None and sd is not None:
-                t += f" {pm} {_fmt(sd)}"
-            if table.within_spread(row, i, best[i]):
-                t = f"{approx}{t}"
-            if v is not None and v1[i] is not None and _fmt(v1[i]) != _fmt(v):
-                t += f" (v1 {_fmt(v1[i])})"
-            txt.append(t)
-        entry = (row.label, txt, _fmt_time(row.seconds))
-        if seeds_col:
-            entry += ("—" if row.seeds is None else str(row.seeds),)
-        out.append(entry)
-    return out
-
-
-def _markdown(t: Table) -> str:
-    head = ["method"] + [f"{g} mIoU" if i % 2 == 0 else f"{g} mAcc"
-                         for g in t.groups for i in range(2)] + ["s/seq"] + (["seeds"] if t.has_seeds() else [])
-    lines = [f"### {t.title}", "", "| " + " | ".join(head) + " |",
-             "|" + "|".join(["---"] + ["---:"] * (len(head) - 1)) + "|"]
-    for label, cells, secs, *seeds in _cells(t, lambda s: f"**{s}**"):
-        lines.append("| " + " | ".join([label] + cells + [secs] + seeds) + " |")
-    lines += [""] + [f"- {n}" for n in t.notes]
-    return "\n".join(lines).rstrip() + "\n"
-
-
-def _latex(t: Table) -> str:
-    esc = lambda s: s.replace("_", r"\_").replace("%", r"\%")
-    extra = t.has_seeds()
-    lines = [r"\begin{table}[t]", r"\centering", r"\caption{" + esc(t.title) + "}",
-             r"\begin{tabular}{l" + "cc" * len(t.groups) + "r" + ("r" if extra else "") + "}", r"\toprule",
-             "Method & " + " & ".join(r"\multicolumn{2}{c}{" + esc(g) + "}" for g in t.groups)
-             + r" & Time" + (" & Seeds" if extra else "") + r" \\",
-             " & " + " & ".join(["mIoU & mAcc"] * len(t.groups)) + r" & s/seq" + (" & " if extra else "")
-             + r" \\", r"\midrule"]
-    for label, cells, secs, *seeds in _cells(t, lambda s: r"\textbf{" + s + "}", pm=r"$\pm$", approx=r"$\approx$"):
-        lines.append(" & ".join([esc(label)] + cells + [secs] + seeds) + r" \\")
-    lines += [r"\bottomrule", r"\end{tabular}"]
-    if t.notes:  # protocol footnotes and the metric note
-        lines += [r"\par\footnotesize"] + [esc(n) + r"\\" for n in t.notes]
-    lines += [r"\end{table}"]
-    return "\n".join(lines) + "\n"
-
-
-def _csv(t: Table) -> str:
-    rows = []
-    for r in t.rows:
-        row = {"table": t.title, "method": r.label}
-        v1 = r.v1 or [None] * len(r.cells)
-        spread = r.spread or [None] * len(r.cells)
-        for i, g in enumerate(t.groups):
-            row[f"{g}_miou"], row[f"{g}_macc"] = r.cells[2 * i], r.cells[2 * i + 1]
-            row[f"{g}_miou_std"], row[f"{g}_macc_std"] = spread[2 * i], spread[2 * i + 1]
-            row[f"{g}_miou_v1"], row[f"{g}_macc_v1"] = v1[2 * i], v1[2 * i + 1]
-        row["seconds_per_sequence"] = r.seconds
-        row["seeds"] = r.seeds
-        row["protocol"] = r.protocol
-        rows.append(row)
-    buf = io.StringIO()
-    pd.DataFrame(rows).to_csv(buf, index=False)
-    return buf.getvalue()
-
-
-def _html(t: Table) -> str:
-    e = html.escape
-    extra = t.has_seeds()
-    head = "".join(f'<th colspan="2">{e(g)}</th>' for g in t.groups)
-    sub = "".join("<th>mIoU</th><th>mAcc</th>" for _ in t.groups)
-    body = "".join(
-        "<tr><td>" + e(label) + "</td>" + "".join(f"<td>{c}</td>" for c in cells)
-        + f"<td>{secs}</td>" + "".join(f"<td>{x}</td>" for x in seeds) + "</tr>"
-        for label, cells, secs, *seeds in _cells(t, lambda s: f"<b>{s}</b>")
-    )
-    notes = "".join(f"<li>{e(n)}</li>" for n in t.notes)
-    seeds_head = "<th rowspan=2>seeds</th>" if extra else ""
-    return (f"<h3>{e(t.title)}</h3><table><thead><tr><th rowspan=2>method</th>{head}"
-            f"<th>s/seq</th>{seeds_head}</tr><tr>{sub}<th></th></tr></thead><tbody>{body}</tbody></table>"
-            + (f"<ul>{notes}</ul>" if notes else "") + "\n")
-
-
-def render_all(records: list[dict], fmt: str = "markdown", variants=("synthetic", "real"),
-               published: bool = True) -> str:
-    parts = []
-    for v in variants:
-        for t in build_tables(records, v, published=published):
-            parts.append(render(t, fmt))
-    if fmt == "html":
-        style = ("<style>body{font-family:sans-serif}table{border-collapse:collapse;margin:1em 0}"
-                 "td,th{border:1px solid #ccc;padding:2px 6px;text-align:right}"
-                 "td:first-child{text-align:left}</style>")
-        return f"<!doctype html><html><head><meta charset='utf-8'>{style}</head><body>" + \
-            "".join(parts) + "</body></html>\n"
-    return "\n".join(parts)

@@ -108,6 +108,9 @@ class RunRecord:
     prompts: dict
     scene_dir: str
     frames: list
+    # the robot user's clicks, the score after each click, NoC@85 / NoC@90
+    # (benchmark.pipeline.corrective); None where the run's prompts were its first clicks alone
+    corrective: dict | None = None
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)

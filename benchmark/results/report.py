@@ -22,40 +22,10 @@ import numpy as np
 from benchmark.errors import UserError
 from benchmark.io import atomic_write_bytes, atomic_write_text
 from benchmark.results.record import load_results
+from benchmark.results.report_clicks import prompts_section
+from benchmark.results.report_images import MAX_FRAMES_SHOWN, img_tag, overlay, png, read_rgb
 from benchmark.results.runs import protocol, protocol_label
 from benchmark.scoring import read_mask
-
-MAX_FRAMES_SHOWN = 8
-
-
-def overlay(image: np.ndarray, pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
-    """RGB uint8 [H,W,3] with true positives green, false positives red, misses blue."""
-    out = image.astype(np.float32) * 0.55
-    tp, fp, fn = pred & gt, pred & ~gt, ~pred & gt
-    for m, colour in ((tp, (40, 200, 40)), (fp, (230, 40, 40)), (fn, (40, 90, 240))):
-        out[m] = out[m] * 0.35 + np.array(colour, np.float32) * 0.65
-    return out.clip(0, 255).astype(np.uint8)
-
-
-def _read_rgb(path: Path, shape: tuple[int, int]) -> np.ndarray:
-    """[H, W, 3] uint8 picture of a test view (imagefiles' rule) at the mask's size."""
-    import cv2
-
-    from imagefiles import ImageFileError, read_rgb8
-
-    try:
-        img = read_rgb8(path)
-    except ImageFileError:
-        return np.full((*shape, 3), 128, np.uint8)  # image moved away: grey backdrop, stated below
-    if img.shape[:2] != shape:
-        img = cv2.resize(img, (shape[1], shape[0]), interpolation=cv2.INTER_AREA)
-    return img
-
-
-def _png(rgb: np.ndarray) -> bytes:
-    from imagefiles import png_bytes
-
-    return png_bytes(rgb)
 
 
 def _iou_plot(record: dict) -> bytes:
@@ -105,55 +75,6 @@ def _ceiling_objects_notes(c: dict) -> list[str]:
     return out
 
 
-def _click_tiles(record: dict, frames: list[dict]) -> list[str]:
-    """One image per prompted frame: the run's clicks (white rings, labelled with the cluster
-    each chose) and the other click sets' clicks (small dots, one colour per set)."""
-    import cv2
-
-    prompts = record.get("prompts") or {}
-    main = prompts.get("clicks", [])
-    chosen = record.get("click_clusters") or [None] * len(main)
-    alts = prompts.get("alternatives", [])
-    by_frame: dict[int, list] = {}
-    for c, k in zip(main, chosen):
-        by_frame.setdefault(int(c["view_index"]), []).append((c, k, 0))
-    for j, cs in enumerate(alts, start=1):
-        for c in cs:
-            by_frame.setdefault(int(c["view_index"]), []).append((c, None, j))
-    palette = [(255, 200, 0), (0, 220, 255), (255, 80, 200), (120, 255, 120), (255, 140, 60)]
-    tiles = []
-    for i in sorted(by_frame)[:MAX_FRAMES_SHOWN]:
-        if not 0 <= i < len(frames):
-            continue
-        f = frames[i]
-        gt = read_mask(f["gt"])
-        img = np.ascontiguousarray(overlay(_read_rgb(Path(f["image"]), gt.shape), np.zeros_like(gt), gt))
-        scale = max(1, 320 // max(gt.shape))
-        img = cv2.resize(img, (gt.shape[1] * scale, gt.shape[0] * scale), interpolation=cv2.INTER_NEAREST)
-        for c, k, j in sorted(by_frame[i], key=lambda x: -x[2]):  # the run's own clicks on top
-            pt = (int(c["u"] * scale), int(c["v"] * scale))
-            if j == 0:
-                cv2.circle(img, pt, 3 * scale, (255, 255, 255), max(1, scale // 2))
-                cv2.putText(img, "none" if k is None or k < 0 else str(k), (pt[0] + 3 * scale, pt[1]),
-                            cv2.FONT_HERSHEY_SIMPLEX, 0.35 * scale, (255, 255, 255), 1)
-            else:
-                cv2.circle(img, pt, max(1, scale), palette[(j - 1) % len(palette)], -1)
-        caption = f"frame {f['frame']}: {sum(1 for x in by_frame[i] if x[2] == 0)} click(s) of the run"
-        tiles.append(f"<figure>{_img_tag(_png(img), caption)}<figcaption>{html.escape(caption)}</figcaption></figure>")
-    return tiles
-
-
-def _click_set_rows(record: dict) -> str:
-    sets = (record.get("click_sets") or {}).get("sets", [])
-    rows = []
-    for e in sets:
-        clicks = ", ".join(f"f{c[0]} ({c[1]:.0f},{c[2]:.0f})" for c in e.get("clicks", []))
-        rows.append(f"<tr><td>{e['set']}{' (run)' if e['set'] == 0 else ''}</td><td>{html.escape(clicks)}</td>"
-                    f"<td>{html.escape(str(e.get('click_clusters', '—')))}</td>"
-                    f"<td>{html.escape(str(e.get('selected', '—')))}</td><td>{e['miou']:.4f}</td></tr>")
-    return "".join(rows)
-
-
 def _model_line(record: dict) -> str:
     """The model's size, or what stands for it where the benchmark never saw the model."""
     if record.get("n_gaussians") is None:
@@ -186,10 +107,6 @@ def _seed_section(record: dict, run_dir: Path) -> str:
             "shown test views and, with one geometry, per gaussian; 1 = the same partition)</p>"
             "<table><tr><th>seed</th><th>run</th><th>mIoU</th><th>oracle</th><th>ceiling</th><th>clusters</th>"
             f"<th>chosen</th></tr>{rows}</table>")
-
-
-def _img_tag(data: bytes, alt: str) -> str:
-    return f'<img alt="{html.escape(alt)}" src="data:image/png;base64,{base64.b64encode(data).decode()}">'
 
 
 CLIP_FRAMES = 24  # test views in the report's clip, evenly spread in time
@@ -232,13 +149,13 @@ def _frame_tiles(record: dict, run_dir: Path) -> tuple[list[str], int]:
         pred = read_mask(pred_path) if pred_path is not None and pred_path.exists() else np.zeros_like(gt)
         if not Path(f["image"]).exists():
             missing_images += 1
-        data = _png(overlay(_read_rgb(Path(f["image"]), gt.shape), pred, gt))
+        data = png(overlay(read_rgb(Path(f["image"]), gt.shape), pred, gt))
         atomic_write_bytes(run_dir / "report" / f"overlay_{f['frame']}.png", data)
         iou = per_frame.get(f["frame"], {}).get("iou")
         caption = f"{f['frame']}  IoU {'n/a' if iou is None else f'{iou:.3f}'}"
         cluster_png = run_dir / "clusters" / f"{f['frame']}.png"
-        extra = _img_tag(cluster_png.read_bytes(), "clusters") if cluster_png.exists() else ""
-        tiles.append(f"<figure>{_img_tag(data, caption)}{extra}<figcaption>{html.escape(caption)}"
+        extra = img_tag(cluster_png.read_bytes(), "clusters") if cluster_png.exists() else ""
+        tiles.append(f"<figure>{img_tag(data, caption)}{extra}<figcaption>{html.escape(caption)}"
                      "</figcaption></figure>")
     return tiles, missing_images
 
@@ -302,11 +219,7 @@ def _method_sections(record: dict, run_dir: Path) -> str:
         f"<td>{s.get('peak_rss_mb', 0):.0f}</td><td>{'cached' if s.get('skipped') else 'run'}</td></tr>"
         for name, s in record.get("stages", {}).items()
     )
-    return f"""<h2>Prompts</h2><p>White rings: the run's clicks, labelled with the cluster each chose; dots: the other
-click sets (the same objects elsewhere in their first frames). Ground truth in blue.</p>
-{''.join(_click_tiles(record, record.get("frames", [])))}
-<table><tr><th>click set</th><th>clicks (frame (u,v))</th><th>cluster per click</th><th>chosen</th><th>mIoU</th></tr>
-{_click_set_rows(record)}</table>
+    return f"""{prompts_section(record)}
 <h2>Seeds</h2>{_seed_section(record, run_dir)}
 <h2>Stages</h2><table><tr><th>stage</th><th>seconds</th><th>peak RSS MiB</th><th></th></tr>{stage_rows}</table>
 <p>{_model_line(record)}</p>"""
@@ -341,7 +254,7 @@ pre{{background:#f6f6f6;padding:8px;overflow:auto;font-size:12px}}</style></head
 {_clip_section(record, run_dir)}
 <h2>Test views</h2><p>green: correct object pixels, red: false positives, blue: missed.</p>
 {''.join(tiles)}
-<h2>Per-frame scores</h2>{_img_tag(plot, 'per-frame IoU')}
+<h2>Per-frame scores</h2>{img_tag(plot, 'per-frame IoU')}
 {_method_sections(record, run_dir)}
 <h2>Config</h2><pre>{html.escape(json.dumps(record.get('config', {}), indent=2))}</pre>
 <h2>Versions</h2><pre>{html.escape(json.dumps(record.get('versions', {}), indent=2))}</pre>

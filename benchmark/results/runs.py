@@ -113,6 +113,7 @@ def protocol(record: dict) -> dict:
     prompts = (cfg.get("prompts") or {}).get("rule", "?") + (f", click {clicks}" if clicks else "")
     if "cgc" in mcfg:
         prompts += ", cgc patch query"
+    prompts += corrective_protocol(cfg, record.get("corrective"))
     official = (record.get("metrics") or {}).get("official") or {}
     syn = record.get("synthetic_scene")
     scene = {}
@@ -144,6 +145,21 @@ def protocol(record: dict) -> dict:
                 "features": f"the method's own (TOML sha256 {str(mcfg.get('toml_sha256', '?'))[:12]})",
                 "render": "the method's own"}
     return out
+
+
+def corrective_protocol(cfg: dict, corrective: dict | None) -> str:
+    """The robot user's part of a run's prompts label (benchmark.protocol.corrective): its
+    budget per first click and target, and "positive only" where a run's method took no negative
+    clicks (known from its record); nothing for the first clicks alone (records from before the
+    protocol among them)."""
+    prompts = cfg.get("prompts") or {}
+    per_object = prompts.get("corrections", 0)
+    if not per_object:
+        return ""
+    if "command" in (cfg.get("method") or {}):  # a command method runs once, on the first clicks
+        return ", first clicks only (the method runs once)"
+    polarity = ", positive only" if corrective is not None and not corrective.get("negatives") else ""
+    return f", corrective {per_object}/object to IoU {prompts.get('correction_target', '?')}{polarity}"
 
 
 def numerics_protocol(cfg: dict) -> str:

@@ -1,5 +1,6 @@
 """Click polarity at the benchmark's edges: the prompts file keeps a negative click's polarity,
-and a method without its own click selection takes positive clicks only."""
+a method that declares no negative clicks takes positive ones only, and one that does without a
+click selection of its own gets the benchmark's rule for clusters."""
 
 import pytest
 
@@ -32,3 +33,18 @@ def test_a_method_without_click_selection_takes_positive_clicks_only():
     prompts.clicks[1] = Click(1, 1, positive=False)
     with pytest.raises(MethodError, match="'plain' takes positive clicks only"):
         click_selection(method, None, None, prompts)
+
+
+def test_a_method_declaring_negative_clicks_has_them_remove_and_keep_out_its_clusters():
+    import types
+
+    from benchmark.methods import click_selection
+
+    method = types.SimpleNamespace(name="sets", negative_clicks=True, click_clusters=lambda f, s, p: [2, 5, 2, 5, 7])
+    polarity = [True, True, False, True, True]  # +2 +5 -2 then +5 again, +7
+    prompts = types.SimpleNamespace(clicks=[Click(i, i, positive=p) for i, p in enumerate(polarity)])
+    assert click_selection(method, None, None, prompts) == ([5, 7], [2, 5, 2, 5, 7])
+    polarity = [True, False, True]  # -5 before +5: kept out
+    prompts.clicks = [Click(i, i, positive=p) for i, p in enumerate(polarity)]
+    method.click_clusters = lambda f, s, p: [2, 5, 5]
+    assert click_selection(method, None, None, prompts)[0] == [2]

@@ -63,8 +63,13 @@ def test_a_wrong_first_click_is_undone_by_a_negative_one_and_the_budget_bounds_i
     first = [Click(20.5, 14.5, "v0", 0.0, 0)]  # on region 2: everything wrong
     clicks, curve = corrective_clicks(first, _region_predictor(labels), gt, budget=3, target=0.9)
     assert [c.positive for c in clicks] == [True, False, True] and curve == [0.0, 0.0, 1.0]
+    # a prediction no click changes: the second corrective click would repeat the first, so it stops
     never = corrective_clicks(first, lambda clicks: {0: np.zeros((H, W), bool)}, gt, budget=2, target=0.9)
-    assert len(never[0]) == 3 and never[1] == [0.0, 0.0, 0.0]
+    assert len(never[0]) == 2 and never[1] == [0.0, 0.0]
+    cols = np.arange(W)[None, :]  # each click adds a column of the object: the budget stops it
+    changing = corrective_clicks(first, lambda clicks: {0: gt[0] & (cols < 3 + len(clicks))}, gt, budget=2,
+                                 target=0.9)
+    assert len(changing[0]) == 3 and changing[1] == pytest.approx([1 / 7, 2 / 7, 3 / 7])
 
 
 def test_clicks_to_reach_counts_the_budget_plus_one_where_the_target_is_never_reached():

@@ -4,7 +4,8 @@ import pytest
 
 from benchmark.cli import main
 from benchmark.results import ResultsError, write_results
-from benchmark.results.leaderboard import build_tables, render, render_all
+from benchmark.results.leaderboard import build_tables
+from benchmark.results.leaderboard_render import render, render_all
 from benchmark.results.runs import RunError, find_runs, one_config_per_row, select_runs
 from tests.benchmark.results.helpers import config, record, write
 

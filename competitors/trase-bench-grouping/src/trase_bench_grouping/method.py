@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmark.methods import FittedModel, Method, MethodError, click_view
+from benchmark.methods import FittedModel, Method, MethodError, click_selection, click_view
 from trase_bench_grouping.settings import GG_PRESETS, HULLS, SA4D_PRESETS, GroupingSettings
 
 NO_TRACK = 0  # the tracked ids' class of pixels no track holds: a click on it selects nothing
@@ -142,6 +142,7 @@ class GaussianGrouping(Method):
 
     # -- segment: click -> class -> gaussians ------------------------------------------
     selects_clusters = True
+    negative_clicks = True  # a negative click removes the class it reads (benchmark.methods.click_selection)
 
     def click_clusters(self, fitted: FittedModel, scene, prompts) -> list[int]:
         """The class the classifier gives the identity rendered under each click (-1: a click
@@ -217,8 +218,7 @@ class GaussianGrouping(Method):
 
     def segment(self, fitted: FittedModel, scene, prompts) -> list[np.ndarray]:
         """One bool [H, W] mask per test view: the gaussians of the classes the clicks chose."""
-        per_click = self.click_clusters(fitted, scene, prompts)
-        classes = sorted({k for k in per_click if k >= 0})
+        classes, per_click = click_selection(self, fitted, scene, prompts)  # negative clicks remove
         fitted.stats["click_clusters"], fitted.stats["selected_clusters"] = per_click, classes
         return self.render_selection(fitted, scene, classes)
 

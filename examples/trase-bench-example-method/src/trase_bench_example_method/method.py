@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmark.methods import FittedModel, Method, MethodError, click_view
+from benchmark.methods import FittedModel, Method, MethodError, click_selection, click_view
 from lazyspecs.presets import MONOCULAR, MULTIVIEW, PresetTable
 
 
@@ -105,6 +105,9 @@ class ColourKMeans(Method):
     # segment() = click_clusters() then render_selection(); declaring both with
     # selects_clusters lets the benchmark render each other click set's clusters once
     selects_clusters = True
+    # negative_clicks: a negative click removes the cluster it reads and keeps it out
+    # (benchmark.methods.click_selection's rule for methods that select clusters)
+    negative_clicks = True
 
     def click_clusters(self, fitted: FittedModel, scene, prompts) -> list[int]:
         """The cluster rendered most under each click (-1: a click on no surface)."""
@@ -127,8 +130,7 @@ class ColourKMeans(Method):
         """One bool [H, W] mask per test view: the clusters the clicks chose."""
         if fitted.gaussians is None:
             raise MethodError("colour-kmeans needs the fitted model's geometry to segment")
-        per_click = self.click_clusters(fitted, scene, prompts)
-        clusters = sorted({k for k in per_click if k >= 0})
+        clusters, per_click = click_selection(self, fitted, scene, prompts)  # negative clicks remove
         fitted.stats["click_clusters"], fitted.stats["selected_clusters"] = per_click, clusters
         return self.render_selection(fitted, scene, clusters)
 

@@ -1,0 +1,101 @@
+"""The corrective protocol in a run's evaluation (benchmark.protocol.corrective): the robot
+user's clicks for one method and one set of first clicks, the score over every test frame
+after each click, and the clicks needed to reach an IoU (NoC@85, NoC@90).
+
+A method that selects clusters renders each selection once (a click that changes nothing costs
+a selection, not a render); any other method segments again for each click count.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from benchmark.protocol.corrective import clicks_to_reach, corrective_clicks
+from benchmark.scoring import score_masks
+
+NOC_TARGETS = (0.85, 0.90)  # NoC@85, NoC@90: the interactive-segmentation standard's two
+
+
+class Predictor:
+    """A method's masks for a list of clicks, at some or all test views; a method that selects
+    clusters renders each (views, clusters) pair once."""
+
+    def __init__(self, method, fitted, scene, prompts) -> None:
+        self.method, self.fitted, self.scene, self.prompts = method, fitted, scene, prompts
+        self.by_clusters = getattr(method, "selects_clusters", False) and fitted.gaussians is not None
+        self.rendered: dict[tuple, list[np.ndarray]] = {}
+
+    def masks(self, clicks, views: list[int] | None = None) -> tuple[list[np.ndarray], list[int] | None, list[int] | None]:
+        """(masks bool [H, W] of the test views ``views`` (None: all, in order), the clusters
+        selected, the cluster of each click; both None for a method that does not select
+        clusters)."""
+        from benchmark.methods import click_selection
+
+        scene = self.scene if views is None else dataclasses.replace(
+            self.scene, test=[self.scene.test[i] for i in views],
+            gt_masks=[self.scene.gt_masks[i] for i in views] if self.scene.gt_masks else [])
+        prompts = dataclasses.replace(self.prompts, clicks=list(clicks), alternatives=[])
+        if not self.by_clusters:
+            return self.method.segment(self.fitted, scene, prompts), None, None
+        selected, per_click = click_selection(self.method, self.fitted, scene, prompts)
+        key = (None if views is None else tuple(views), tuple(selected))
+        if key not in self.rendered:
+            self.rendered[key] = self.method.render_selection(self.fitted, scene, list(selected))
+        return self.rendered[key], list(selected), list(per_click)
+
+
+@dataclasses.dataclass
+class Corrected:
+    """One set of first clicks after the robot user."""
+
+    clicks: list  # trase.prompts.Click: the first clicks, then the corrective ones
+    n_first: int
+    budget: int  # the most corrective clicks it could have made
+    negatives: bool  # whether it could click negatively (the method's negative_clicks)
+
+
+def correct(predictor: Predictor, first: list, gts: list[np.ndarray], protocol) -> Corrected:
+    """The robot user from ``first`` (benchmark.protocol.corrective) with ``protocol``'s budget
+    per first click and target; its click frames' ground truth is the only truth it reads."""
+    negatives = bool(getattr(predictor.method, "negative_clicks", False))
+    frames = sorted({c.view_index for c in first})
+    budget = int(protocol.corrections) * len(first)
+
+    def predict(clicks) -> dict[int, np.ndarray]:
+        return dict(zip(frames, predictor.masks(clicks, frames)[0]))
+
+    clicks, _ = corrective_clicks(list(first), predict, {i: gts[i] for i in frames}, budget,
+                                  float(protocol.correction_target), negatives)
+    return Corrected(clicks, len(first), budget, negatives)
+
+
+def score_curve(predictor: Predictor, run: Corrected, names: list[str], stored: list[np.ndarray]) -> tuple[dict, tuple]:
+    """The official mIoU and mAcc over every test frame after each click count of ``run``
+    (``stored``: the ground truths as stored, as the official metric reads them), and NoC@85 /
+    NoC@90 from it: a sequence that never reaches a target counts its first clicks + budget + 1;
+    after the robot user stopped (its click frames reached the target) the score stays.
+    -> (that summary, the final clicks' (masks, clusters selected, cluster per click)), the
+    final clicks segmented last so that the method's stats are theirs."""
+    points, final = [], None
+    for n in range(run.n_first, len(run.clicks) + 1):
+        final = predictor.masks(run.clicks[:n])
+        s = score_masks(dict(zip(names, final[0])), dict(zip(names, stored)), "official")
+        points.append({"clicks": n, "miou": s.miou, "macc": s.macc})
+    mious = [p["miou"] for p in points]
+    mious += [mious[-1]] * (run.budget + 1 - len(mious))  # no more clicks: the score stays
+    noc = {f"noc@{round(t * 100)}": clicks_to_reach(mious, run.n_first, t, run.budget) for t in NOC_TARGETS}
+    summary = {"first_clicks": run.n_first, "budget": run.budget, "negatives": run.negatives,
+               "corrections": click_dicts(run.clicks[run.n_first:]), "curve": points, **noc}
+    return summary, final
+
+
+def click_dicts(clicks) -> list[dict]:
+    """Clicks as the results hold them (the prompts file's form)."""
+    from benchmark.protocol.prompts import click_dict
+
+    return [click_dict(c) for c in clicks]
+
+
+__all__ = ["NOC_TARGETS", "Corrected", "Predictor", "click_dicts", "correct", "score_curve"]
