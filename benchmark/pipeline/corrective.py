@@ -50,10 +50,15 @@ class Predictor:
 class Corrected:
     """One set of first clicks after the robot user."""
 
-    clicks: list  # trase.prompts.Click: the first clicks, then the corrective ones
+    clicks: list  # trase.prompts.Click: the first clicks, then the corrective ones kept
+    spent: list  # (Click, kept) per corrective click in order: the undone ones too
     n_first: int
     budget: int  # the most corrective clicks it could have made
     negatives: bool  # whether it could click negatively (the method's negative_clicks)
+
+    def kept_after(self, j: int) -> list:
+        """The clicks in force after the first ``j`` corrective clicks."""
+        return self.clicks[: self.n_first + sum(kept for _, kept in self.spent[:j])]
 
 
 def correct(predictor: Predictor, first: list, gts: list[np.ndarray], protocol) -> Corrected:
@@ -66,28 +71,34 @@ def correct(predictor: Predictor, first: list, gts: list[np.ndarray], protocol) 
     def predict(clicks) -> dict[int, np.ndarray]:
         return dict(zip(frames, predictor.masks(clicks, frames)[0]))
 
-    clicks, _ = corrective_clicks(list(first), predict, {i: gts[i] for i in frames}, budget,
-                                  float(protocol.correction_target), negatives)
-    return Corrected(clicks, len(first), budget, negatives)
+    robot = corrective_clicks(list(first), predict, {i: gts[i] for i in frames}, budget,
+                              float(protocol.correction_target), negatives)
+    return Corrected(robot.clicks, robot.spent, len(first), budget, negatives)
 
 
 def score_curve(predictor: Predictor, run: Corrected, names: list[str], stored: list[np.ndarray]) -> tuple[dict, tuple]:
-    """The official mIoU and mAcc over every test frame after each click count of ``run``
-    (``stored``: the ground truths as stored, as the official metric reads them), and NoC@85 /
-    NoC@90 from it: a sequence that never reaches a target counts its first clicks + budget + 1;
-    after the robot user stopped (its click frames reached the target) the score stays.
-    -> (that summary, the final clicks' (masks, clusters selected, cluster per click)), the
-    final clicks segmented last so that the method's stats are theirs."""
-    points, final = [], None
-    for n in range(run.n_first, len(run.clicks) + 1):
-        final = predictor.masks(run.clicks[:n])
-        s = score_masks(dict(zip(names, final[0])), dict(zip(names, stored)), "official")
-        points.append({"clicks": n, "miou": s.miou, "macc": s.macc})
+    """The official mIoU and mAcc over every test frame after the first clicks and after each
+    corrective click spent (an undone one leaves the score), with ``stored`` the ground truths as
+    stored (as the official metric reads them), and NoC@85 / NoC@90 from it: a sequence that
+    never reaches a target counts its first clicks + budget + 1; after the robot user stopped
+    the score stays. -> (that summary, the final clicks' (masks, clusters selected, cluster per
+    click)), the final clicks segmented last so that the method's stats are theirs."""
+    by_kept: dict[int, dict] = {}  # clicks in force -> their scores
+    for j in range(len(run.spent) + 1):
+        n = len(run.kept_after(j))
+        if n not in by_kept:
+            preds = predictor.masks(run.kept_after(j))[0]
+            s = score_masks(dict(zip(names, preds)), dict(zip(names, stored)), "official")
+            by_kept[n] = {"miou": s.miou, "macc": s.macc}
+    final = predictor.masks(run.clicks)
+    points = [{"clicks": run.n_first + j, **by_kept[len(run.kept_after(j))],
+               **({"undone": True} if j and not run.spent[j - 1][1] else {})} for j in range(len(run.spent) + 1)]
     mious = [p["miou"] for p in points]
     mious += [mious[-1]] * (run.budget + 1 - len(mious))  # no more clicks: the score stays
     noc = {f"noc@{round(t * 100)}": clicks_to_reach(mious, run.n_first, t, run.budget) for t in NOC_TARGETS}
     summary = {"first_clicks": run.n_first, "budget": run.budget, "negatives": run.negatives,
-               "corrections": click_dicts(run.clicks[run.n_first:]), "curve": points, **noc}
+               "corrections": click_dicts(run.clicks[run.n_first:]),
+               "undone": click_dicts([c for c, kept in run.spent if not kept]), "curve": points, **noc}
     return summary, final
 
 

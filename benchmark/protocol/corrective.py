@@ -4,8 +4,10 @@ maximum) of the largest error region of the click frames: positive where the obj
 negative where something else was selected. It stops when every click frame reaches the target
 IoU or the budget of extra clicks is spent, or when its next click would repeat its last one
 (that click changed nothing there; an earlier click may be repeated, as a positive click at a
-pixel whose cluster a negative click ruled out since picks another). Only the click frames' ground
-truth is read, as a person looks at the view they click in.
+pixel whose cluster a negative click ruled out since picks another). A click that makes the
+click frames worse is undone, as a person would undo it: it is spent, and its region is left
+alone after. Only the click frames' ground truth is read, as a person looks at the view they
+click in.
 
 The score after k clicks gives the curve; the number of clicks a sequence needs to reach an IoU
 (NoC@85, NoC@90) counts the budget's clicks + 1 where it never does, as the standard does.
@@ -13,6 +15,7 @@ The score after k clicks gives the curve; the number of clicks a sequence needs 
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Sequence
 
 import numpy as np
@@ -29,19 +32,25 @@ def iou(pred: np.ndarray, gt: np.ndarray) -> float:
     return 1.0 if union == 0 else float(np.logical_and(pred, gt).sum() / union)
 
 
+def _tried_in(region: np.ndarray, tried: list[Click], frame: int, positive: bool) -> bool:
+    """Whether a click of this polarity in this frame was tried and undone inside ``region``."""
+    return any(c.view_index == frame and c.positive == positive and region[int(c.v), int(c.u)] for c in tried)
+
+
 def next_click(preds: dict[int, np.ndarray], gts: dict[int, np.ndarray], frames: dict[int, tuple[str, float]],
-               negatives: bool = True) -> Click | None:
+               negatives: bool = True, undone: Sequence[Click] = ()) -> Click | None:
     """The click at the most interior pixel of the largest error region over the click frames
     (``frames``: view index -> (view name, time)); positive in a missed region (ground truth
     not predicted), negative in a wrongly predicted one (missed regions only where
-    ``negatives`` is False: a method without negative clicks). Ties: missed before wrong, then
-    the frames in order. None where no such error is left."""
+    ``negatives`` is False: a method without negative clicks). A region where a click of its
+    polarity was ``undone`` is left alone. Ties: missed before wrong, then the frames in order.
+    None where no such error is left."""
     best = None  # (area, order, click)
     for order, i in enumerate(sorted(frames)):
         pred, gt = np.asarray(preds[i], dtype=bool), np.asarray(gts[i], dtype=bool)
         errors = ((True, gt & ~pred), (False, pred & ~gt)) if negatives else ((True, gt & ~pred),)
         for positive, error in errors:
-            regions = mask_regions(error, min_area=1)
+            regions = [r for r in mask_regions(error, min_area=1) if not _tried_in(r[3], list(undone), i, positive)]
             if not regions:
                 continue
             area, u, v, _ = regions[0]
@@ -52,30 +61,51 @@ def next_click(preds: dict[int, np.ndarray], gts: dict[int, np.ndarray], frames:
     return None if best is None else best[1]
 
 
+@dataclasses.dataclass
+class RobotRun:
+    """What the robot user did from its first clicks."""
+
+    clicks: list[Click]  # the first clicks, then the corrective ones it kept
+    spent: list[tuple[Click, bool]]  # every corrective click in order, and whether it was kept
+    curve: list[float]  # the click frames' mean IoU after the first clicks and after each spent click
+
+
 def corrective_clicks(first: list[Click], predict: Callable[[list[Click]], dict[int, np.ndarray]],
-                      gts: dict[int, np.ndarray], budget: int, target: float,
-                      negatives: bool = True) -> tuple[list[Click], list[float]]:
-    """The first clicks, then corrective ones -> (every click in order, the click frames' mean IoU
-    after each click count, from len(first) on). ``predict``: clicks -> the predicted masks of
-    the click frames (view index -> bool [H, W]); ``gts``: their ground truth; ``budget``: the
-    most extra clicks; stops early once every click frame reaches ``target``."""
+                      gts: dict[int, np.ndarray], budget: int, target: float, negatives: bool = True) -> RobotRun:
+    """The first clicks, then corrective ones. ``predict``: clicks -> the predicted masks of the
+    click frames (view index -> bool [H, W]); ``gts``: their ground truth; ``budget``: the most
+    corrective clicks; ``negatives``: whether the method takes negative clicks (else only
+    missed regions get clicks). A click that lowers the click frames' mean IoU is undone, as a
+    person undoes it, and spent: the score stays and its region is left alone. Stops once every
+    click frame reaches ``target``, the budget is spent, no error is left to click, or the next
+    click would repeat the last kept one (it changed nothing there)."""
     if not first:
         raise ValueError("the robot user starts from at least one click")
     frames = {c.view_index: (c.view, c.time) for c in first}
     missing = sorted(set(frames) - set(gts))
     if missing:
         raise ValueError(f"no ground truth for the click frames {missing}")
-    clicks, curve = list(first), []
-    while True:
-        preds = predict(clicks)
-        ious = [iou(preds[i], gts[i]) for i in sorted(frames)]
-        curve.append(float(np.mean(ious)))
-        if min(ious) >= target or len(clicks) - len(first) >= budget:
-            return clicks, curve
-        click = next_click(preds, gts, frames, negatives)
-        if click is None or click == clicks[-1]:  # the last click again would change nothing: stop
-            return clicks, curve
-        clicks.append(click)
+
+    def score(preds) -> list[float]:
+        return [iou(preds[i], gts[i]) for i in sorted(frames)]
+
+    run = RobotRun(list(first), [], [])
+    preds = predict(run.clicks)
+    ious = score(preds)
+    run.curve.append(float(np.mean(ious)))
+    while min(ious) < target and len(run.spent) < budget:
+        click = next_click(preds, gts, frames, negatives, [c for c, kept in run.spent if not kept])
+        if click is None or click == run.clicks[-1]:
+            break
+        trial = predict([*run.clicks, click])
+        trial_ious = score(trial)
+        kept = float(np.mean(trial_ious)) >= run.curve[-1]
+        run.spent.append((click, kept))
+        if kept:
+            run.clicks.append(click)
+            preds, ious = trial, trial_ious
+        run.curve.append(float(np.mean(ious)))
+    return run
 
 
 def clicks_to_reach(curve: Sequence[float], first: int, target: float, budget: int) -> int:
@@ -87,4 +117,4 @@ def clicks_to_reach(curve: Sequence[float], first: int, target: float, budget: i
     return first + budget + 1
 
 
-__all__ = ["PROTOCOL_VERSION", "clicks_to_reach", "corrective_clicks", "iou", "next_click"]
+__all__ = ["PROTOCOL_VERSION", "RobotRun", "clicks_to_reach", "corrective_clicks", "iou", "next_click"]

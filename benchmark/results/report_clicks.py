@@ -18,8 +18,8 @@ PALETTE = [(255, 200, 0), (0, 220, 255), (255, 80, 200), (120, 255, 120), (255, 
 
 def _by_frame(record: dict) -> dict[int, list[tuple[dict, object, int]]]:
     """Per test frame: (click, its label, its kind) of the clicks made in it; kind 0 a first
-    click of the run (label: the cluster it chose), -1 a corrective one (label: its number in
-    the run's click order), j >= 1 click set j's first click."""
+    click of the run (label: the cluster it chose), -1 a corrective one kept (label: its number
+    in the run's click order), -2 one undone, j >= 1 click set j's first click."""
     prompts = record.get("prompts") or {}
     first = prompts.get("clicks", [])
     corrections = (record.get("corrective") or {}).get("corrections", [])
@@ -29,6 +29,8 @@ def _by_frame(record: dict) -> dict[int, list[tuple[dict, object, int]]]:
         by_frame.setdefault(int(c["view_index"]), []).append((c, k, 0))
     for n, c in enumerate(corrections, start=len(first) + 1):
         by_frame.setdefault(int(c["view_index"]), []).append((c, n, -1))
+    for c in (record.get("corrective") or {}).get("undone", []):
+        by_frame.setdefault(int(c["view_index"]), []).append((c, None, -2))
     for j, cs in enumerate(prompts.get("alternatives", []), start=1):
         for c in cs:
             by_frame.setdefault(int(c["view_index"]), []).append((c, None, j))
@@ -44,6 +46,8 @@ def _draw(img: np.ndarray, c: dict, label, kind: int, scale: int) -> None:
         cv2.circle(img, pt, 3 * scale, (255, 255, 255), max(1, scale // 2))
         cv2.putText(img, "none" if label is None or label < 0 else str(label), (pt[0] + 3 * scale, pt[1]),
                     *font, (255, 255, 255), 1)
+    elif kind == -2:  # undone: a grey cross
+        cv2.drawMarker(img, pt, (160, 160, 160), cv2.MARKER_TILTED_CROSS, 5 * scale, max(1, scale // 2))
     elif kind < 0:  # corrective: green ring positive, red ring negative, numbered in click order
         colour = (60, 255, 60) if c.get("positive", True) else (255, 60, 60)
         cv2.circle(img, pt, 3 * scale, colour, max(1, scale // 2))
@@ -71,7 +75,7 @@ def click_tiles(record: dict, frames: list[dict]) -> list[str]:
         img = cv2.resize(img, (gt.shape[1] * scale, gt.shape[0] * scale), interpolation=cv2.INTER_NEAREST)
         for c, label, kind in sorted(by_frame[i], key=lambda x: -x[2]):  # the run's own clicks on top
             _draw(img, c, label, kind, scale)
-        own = sum(1 for x in by_frame[i] if x[2] <= 0)
+        own = sum(1 for x in by_frame[i] if x[2] in (0, -1))
         caption = f"frame {f['frame']}: {own} click(s) of the run"
         tiles.append(f"<figure>{img_tag(png(img), caption)}<figcaption>{html.escape(caption)}</figcaption></figure>")
     return tiles
@@ -110,7 +114,9 @@ def _corrective_text(record: dict) -> str:
         return "<p>The run's score is its first clicks' (no corrective clicks).</p>"
     curve = c["curve"]
     polarity = "" if c.get("negatives") else " The method takes no negative clicks: positive corrections only."
-    text = (f"The robot user clicked {len(curve) - 1} more time(s) after the {c['first_clicks']} first click(s) "
+    undone = len(c.get("undone", []))
+    text = (f"The robot user clicked {len(curve) - 1} more time(s) after the {c['first_clicks']} first click(s), "
+            f"undoing {undone} that made its click frames worse "
             f"(budget {c['budget']}, stopping once every click frame reached IoU {c.get('target', '?')}): mIoU "
             f"{curve[0]['miou']:.4f} after the first clicks, {curve[-1]['miou']:.4f} after {curve[-1]['clicks']}; "
             f"NoC@85 {c['noc@85']}, NoC@90 {c['noc@90']}.{polarity}")
@@ -121,7 +127,8 @@ def prompts_section(record: dict) -> str:
     """The report's prompts section: the clicks on their frames, the corrective clicks' curve,
     every click set's clicks and score."""
     return f"""<h2>Prompts</h2><p>White rings: the run's first clicks, labelled with the cluster each chose;
-green / red rings: its corrective clicks, positive / negative, numbered in click order; dots: the other click
+green / red rings: its corrective clicks, positive / negative, numbered in click order; grey crosses: corrective
+clicks it undid (they made its click frames worse); dots: the other click
 sets (the same objects elsewhere in their first frames). Ground truth in blue.</p>
 {''.join(click_tiles(record, record.get("frames", [])))}
 {_corrective_text(record)}

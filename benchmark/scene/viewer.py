@@ -4,7 +4,9 @@ The browser shows what the project's rasterizer draws at the browser's camera (t
 kernels on a CPU; gsplat when the scene is put on a GPU, ``device``), sent as a background image; the scene itself never leaves
 the server, so a 2-core machine without a GPU serves it. Controls: orbit/fly with the mouse
 (viser's camera), a time slider and play, the render modes of ``trase.visualize``, the render
-height, click to add or remove the cluster under the cursor (the method's click rule), the
+height, click to add the cluster under the cursor (the method's click rule) or, in the "remove"
+mode, to give a negative click (the cluster is removed and kept out: a later click at a pixel
+where it blends with another picks the other), the
 edits of ``trase.edit`` with undo, and export of the edited scene as an edit folder.
 
 Rendering runs in one thread: camera moves and GUI changes only mark a client stale, and the
@@ -56,6 +58,8 @@ class SceneViewer:
         self.history = [folder.model]  # undo stack of EditableModels
         self.actions: list[dict] = []  # what each step of the history did
         self.clusters: set[int] = set()
+        self.ruled_out: set[int] = set()  # clusters negative clicks removed: later clicks never pick them
+        self.clicks: list[tuple[str, int]] = []  # (mode, cluster or -1) of each click handled
         self.device = device
         self.painter = Painter(folder.model, device=device)
         self._lock = threading.RLock()
@@ -109,8 +113,11 @@ class SceneViewer:
 
         return by_clusters(self.model, sorted(self.clusters))
 
-    def set_clusters(self, clusters: set[int]) -> None:
+    def set_clusters(self, clusters: set[int], ruled_out: set[int] | None = None) -> None:
+        """Select ``clusters``; ``ruled_out``: the negative clicks' clusters (None: none, as after
+        clear, a typed list or the run's selection)."""
         with self._lock:
+            self.ruled_out = set(ruled_out or ())
             n = self.model.n_clusters
             self.clusters = {int(k) for k in clusters if 0 <= int(k) < n}
             text = ",".join(map(str, sorted(self.clusters)))
@@ -237,7 +244,8 @@ class SceneViewer:
             self._stale.add(client_id)
 
     def _clicked(self, event) -> None:
-        """Add / remove the cluster under the click (the method's click rule)."""
+        """Add the cluster under the click (the method's click rule), or remove it and keep it out
+        (mode "remove": a negative click)."""
         from trase.edit import by_click
 
         mode = self.gui_click.value
@@ -247,12 +255,23 @@ class SceneViewer:
         with self._lock:
             cam = self.camera_of(event.client)
             u, v = event.screen_pos[0] * cam.width, event.screen_pos[1] * cam.height
-            k, _ = by_click(self.model, cam, u, v, rule=self.folder.click_rule)
+            # a negative click removes a selected cluster where one is under it (as
+            # trase.prompts.clicks_to_clusters); a positive one never picks a ruled-out cluster
+            others = set(range(self.model.n_clusters)) - self.clusters
+            exclude = self.ruled_out if mode == "add" else others if self.clusters else ()
+            k, _ = by_click(self.model, cam, u, v, rule=self.folder.click_rule, exclude=exclude)
+            if k < 0 and mode != "add" and self.clusters:
+                k, _ = by_click(self.model, cam, u, v, rule=self.folder.click_rule)
+        self.clicks.append((mode, k))
         if k < 0:
-            self._status("the click hit no surface")
+            self._status("the click hit no surface" + (" outside the clusters ruled out" if self.ruled_out else ""))
             return
-        self.set_clusters(self.clusters | {k} if mode == "add" else self.clusters - {k})
-        self._status(f"cluster {k} {'added' if mode == 'add' else 'removed'} in {1000 * (time.perf_counter() - t0):.0f} ms")
+        if mode == "add":
+            self.set_clusters(self.clusters | {k}, self.ruled_out)
+        else:  # a negative click
+            self.set_clusters(self.clusters - {k}, self.ruled_out | {k})
+        done = "added" if mode == "add" else "removed and kept out"
+        self._status(f"cluster {k} {done} in {1000 * (time.perf_counter() - t0):.0f} ms")
 
     def _status(self, note: str = "") -> None:
         m = self.model

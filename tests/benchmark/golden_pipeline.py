@@ -7,7 +7,7 @@ commit is checked on whatever machine runs the tests.
     python -m tests.benchmark.golden_pipeline --numerics native --json out.json   # measure natively
 
 Each case is one run (method, dataset, --set values); what is compared: the scores (v1,
-official, oracle, ceiling, click sets), the clusters chosen, the model's size and the checksums
+official, oracle, ceiling, click sets), the robot user's clicks and curve, the clusters chosen, the model's size and the checksums
 of the predicted masks and of the geometry. The recording lists the machines (CPU model,
 x86-64 levels) that gave it. Native mode is checked within a tolerance: golden_portable.py.
 """
@@ -63,11 +63,20 @@ def picked(r: dict) -> dict:
         "oracle_miou": (r.get("oracle") or {}).get("miou"),
         "ceiling_miou": (r.get("ceiling") or {}).get("miou"),
         "click_sets": [s["miou"] for s in cs.get("sets", [])],
+        "corrective": corrective_picked(r.get("corrective")),
         "n_gaussians": r["n_gaussians"], "n_clusters": r["n_clusters"],
         "selected_clusters": r["selected_clusters"], "click_clusters": r["click_clusters"],
         "test_psnr": r["stages"]["geometry"]["info"].get("test_psnr"),
         "pred_checksum": r["checksums"]["pred"], "geometry_checksum": r["geometry_checksum"],
     }
+
+
+def corrective_picked(c: dict | None) -> dict | None:
+    """The compared part of the robot user's record: its clicks and the score after each."""
+    if c is None:
+        return None
+    return {"corrections": [[k["view_index"], k["u"], k["v"], k.get("positive", True)] for k in c["corrections"]],
+            "curve": [p["miou"] for p in c["curve"]], "noc@85": c["noc@85"], "noc@90": c["noc@90"]}
 
 
 def measure(work: Path, cases=CASES, numerics_mode: str = "portable") -> dict:

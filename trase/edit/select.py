@@ -23,10 +23,12 @@ def by_clusters(model: EditableModel, clusters: Iterable[int], filtered: bool = 
 
 
 def by_click(model: EditableModel, camera: Camera, u: float, v: float, rule: str = "depth",
-             filtered: bool = True) -> tuple[int, np.ndarray]:
-    """(cluster, [N] bool) under pixel (u, v) of ``camera`` (pixel centres at c + 0.5);
-    cluster -1 and an empty selection where the click hits no surface."""
-    k = click_to_cluster(model.gaussians, model.deformation, camera, Click(u, v), model.labels, rule=rule)
+             filtered: bool = True, exclude=()) -> tuple[int, np.ndarray]:
+    """(cluster, [N] bool) under pixel (u, v) of ``camera`` (pixel centres at c + 0.5), never
+    one of ``exclude`` (clusters negative clicks ruled out: the rule picks its best among the
+    others); cluster -1 and an empty selection where the click hits no surface."""
+    k = click_to_cluster(model.gaussians, model.deformation, camera, Click(u, v), model.labels, rule=rule,
+                         exclude=tuple(exclude))
     return k, by_clusters(model, [k] if k >= 0 else [], filtered)
 
 

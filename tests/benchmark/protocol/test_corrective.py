@@ -51,7 +51,8 @@ def test_it_corrects_until_the_target_and_records_the_curve():
     labels[2:9, 3:10], labels[10:18, 12:28], labels[0:6, 20:30] = 1, 2, 3
     gt = {0: np.isin(labels, [1, 2])}
     first = [Click(6.5, 5.5, "v0", 0.0, 0)]  # on region 1 only
-    clicks, curve = corrective_clicks(first, _region_predictor(labels), gt, budget=3, target=0.9)
+    r = corrective_clicks(first, _region_predictor(labels), gt, budget=3, target=0.9)
+    clicks, curve = r.clicks, r.curve
     assert len(clicks) == 2 and clicks[1].positive and labels[int(clicks[1].v), int(clicks[1].u)] == 2
     assert curve[0] == pytest.approx(iou(labels == 1, gt[0])) and curve[1] == 1.0
 
@@ -61,15 +62,30 @@ def test_a_wrong_first_click_is_undone_by_a_negative_one_and_the_budget_bounds_i
     labels[2:9, 3:10], labels[10:18, 12:28] = 1, 2
     gt = {0: labels == 1}
     first = [Click(20.5, 14.5, "v0", 0.0, 0)]  # on region 2: everything wrong
-    clicks, curve = corrective_clicks(first, _region_predictor(labels), gt, budget=3, target=0.9)
+    r = corrective_clicks(first, _region_predictor(labels), gt, budget=3, target=0.9)
+    clicks, curve = r.clicks, r.curve
     assert [c.positive for c in clicks] == [True, False, True] and curve == [0.0, 0.0, 1.0]
     # a prediction no click changes: the second corrective click would repeat the first, so it stops
     never = corrective_clicks(first, lambda clicks: {0: np.zeros((H, W), bool)}, gt, budget=2, target=0.9)
-    assert len(never[0]) == 2 and never[1] == [0.0, 0.0]
+    assert len(never.clicks) == 2 and never.curve == [0.0, 0.0]
     cols = np.arange(W)[None, :]  # each click adds a column of the object: the budget stops it
     changing = corrective_clicks(first, lambda clicks: {0: gt[0] & (cols < 3 + len(clicks))}, gt, budget=2,
                                  target=0.9)
-    assert len(changing[0]) == 3 and changing[1] == pytest.approx([1 / 7, 2 / 7, 3 / 7])
+    assert len(changing.clicks) == 3 and changing.curve == pytest.approx([1 / 7, 2 / 7, 3 / 7])
+
+
+def test_a_click_that_makes_things_worse_is_undone_and_its_region_left_alone():
+    # region 2 straddles the object: 40 px inside it, 80 outside; the wrong part (80 px) is the
+    # largest error, but removing region 2 loses more than it gains: undone, then the missed
+    # region 3 (inside the object, 12 px) gets the next click
+    labels = np.zeros((H, W), np.int64)
+    labels[2:12, 2:6], labels[2:12, 6:18], labels[14:17, 2:6] = 1, 2, 3
+    gt = {0: np.isin(labels, [1, 3]) | ((labels == 2) & (np.arange(W)[None, :] < 10))}
+    first = [Click(3.5, 5.5, "v0", 0.0, 0), Click(12.5, 5.5, "v0", 0.0, 0)]  # regions 1 and 2
+    r = corrective_clicks(first, _region_predictor(labels), gt, budget=4, target=0.95)
+    assert [(kept, c.positive, int(labels[int(c.v), int(c.u)])) for c, kept in r.spent][:2] == [
+        (False, False, 2), (True, True, 3)]
+    assert r.clicks == [*first, r.spent[1][0]] and r.curve[1] == r.curve[0] < r.curve[2]
 
 
 def test_clicks_to_reach_counts_the_budget_plus_one_where_the_target_is_never_reached():

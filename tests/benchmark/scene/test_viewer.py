@@ -104,7 +104,8 @@ def test_selection_through_the_api_and_a_click_change_the_render(tiny_run, brows
         time.sleep(0.5)
         before_frame, before = viewer.last_frame.copy(), _shot(page)[CANVAS]
         viewer.gui_mode.value = "selection"
-        viewer.set_clusters(set(folder.selected))
+        everything = set(range(folder.model.n_clusters))  # the run's own may lie under the panel
+        viewer.set_clusters(everything)
         n = viewer.frames_drawn
         _wait_for(lambda: viewer.frames_drawn > n)
         time.sleep(0.5)
@@ -126,6 +127,15 @@ def test_selection_through_the_api_and_a_click_change_the_render(tiny_run, brows
         page.mouse.click(box["x"] + (c + 0.5) * box["width"] / w, box["y"] + (r + 0.5) * box["height"] / h)
         _wait_for(lambda: viewer.clusters != chosen)
         assert viewer.clusters < chosen
+        (out,) = chosen - viewer.clusters
+        assert viewer.ruled_out == {out}  # a negative click keeps its cluster out
+        # an add click at the same pixel picks another cluster (or none), never the ruled-out one
+        viewer.gui_click.value = "add"
+        time.sleep(0.6)  # not a double click
+        page.mouse.move(box["x"] + 2, box["y"] + 2)
+        page.mouse.click(box["x"] + (c + 0.5) * box["width"] / w, box["y"] + (r + 0.5) * box["height"] / h)
+        _wait_for(lambda: len(viewer.clicks) == 2)
+        assert viewer.clicks[1][1] != out and out not in viewer.clusters and viewer.ruled_out == {out}
         # the edits, export and undo
         assert viewer.export() is None  # nothing to export yet
         viewer.apply("remove")
