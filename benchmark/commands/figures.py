@@ -53,7 +53,6 @@ def figures(runs_dir, seeds, formats, geometries, collect_only, data_path, page,
         page_markers,
         read_figures,
         render_block,
-        render_methods_block,
         replace_block,
         write_json,
     )
@@ -72,7 +71,12 @@ def figures(runs_dir, seeds, formats, geometries, collect_only, data_path, page,
         data = merge(read_figures(Path(data_path)), data)
     write_json(Path(data_path), data)
     several = len({r.get("method", "trase") for r in data["rows"]}) > 1
-    click.echo(render_methods_block(data) if several else render_block(data))
+    if several:
+        from benchmark.results.figures_methods import render_methods_block
+
+        click.echo(render_methods_block(data))
+    else:
+        click.echo(render_block(data))
     click.echo(f"wrote {data_path}")
     if page:
         from benchmark.io import atomic_write_text

@@ -148,8 +148,8 @@ def geometry_checksum(gaussians) -> str:
 
 def seed_summary(records: list[dict]) -> dict:
     """Mean and sample std (ddof 1) over the seeds of one config of the official mIoU, the
-    oracle's and the geometry ceiling's mIoU, the click sets' median and worst, and the
-    clustering agreement (``seed_agreement``)."""
+    oracle's and the geometry ceiling's mIoU, the click sets' median and worst, the corrective
+    protocol's mIoU@1, NoC@85 and NoC@90, and the clustering agreement (``seed_agreement``)."""
     def stats(values) -> dict | None:
         v = np.array([x for x in values if x is not None], dtype=float)
         if not v.size:
@@ -168,6 +168,11 @@ def seed_summary(records: list[dict]) -> dict:
         "ceiling": stats(get(r, "ceiling", "miou") for r in records),
         "click_sets_median": stats(get(r, "click_sets", "median") for r in records),
         "click_sets_worst": stats(get(r, "click_sets", "worst") for r in records),
+        # the corrective protocol (benchmark.pipeline.corrective): the first clicks' score and the
+        # clicks needed to reach mIoU 0.85 / 0.90; None for runs of the first clicks alone
+        "miou_at_1": stats((get(r, "corrective", "curve") or [{}])[0].get("miou") for r in records),
+        "noc85": stats(get(r, "corrective", "noc@85") for r in records),
+        "noc90": stats(get(r, "corrective", "noc@90") for r in records),
         "agreement": seed_agreement(records),
     }
 

@@ -80,7 +80,8 @@ def _methods_data():
 
 
 def test_methods_block_puts_the_measured_beside_the_published_and_orders_both():
-    from benchmark.results.figures import METHODS_BEGIN, METHODS_END, page_markers, render_methods_block
+    from benchmark.results.figures import METHODS_BEGIN, METHODS_END, page_markers
+    from benchmark.results.figures_methods import render_methods_block
 
     block = render_methods_block(_methods_data())
     assert "| method | HyperNeRF | Neu3D |" in block  # only the formats measured
@@ -101,7 +102,8 @@ def test_methods_block_puts_the_measured_beside_the_published_and_orders_both():
 
 
 def test_competitors_page_methods_table_is_the_rendering_of_its_data_file():
-    from benchmark.results.figures import METHODS_BEGIN, METHODS_END, render_methods_block
+    from benchmark.results.figures import METHODS_BEGIN, METHODS_END
+    from benchmark.results.figures_methods import render_methods_block
 
     page = (ROOT / "docs" / "competitors.md").read_text()
     data = read_figures(ROOT / "docs" / "methods-figures.json")
@@ -111,7 +113,7 @@ def test_competitors_page_methods_table_is_the_rendering_of_its_data_file():
 
 
 def test_methods_block_gives_each_methods_feature_stage_on_the_default_scene():
-    from benchmark.results.figures import render_methods_block
+    from benchmark.results.figures_methods import render_methods_block
 
     data = _methods_data()
     assert "Feature stage" not in render_methods_block(data)  # data files from before these fields
@@ -127,7 +129,7 @@ def test_methods_block_gives_each_methods_feature_stage_on_the_default_scene():
 
 
 def test_methods_block_names_the_code_its_runs_were_computed_with():
-    from benchmark.results.figures import render_methods_block
+    from benchmark.results.figures_methods import render_methods_block
 
     data = _methods_data()
     data["run_commits"] = ["abc1234", "unrecorded"]
@@ -167,7 +169,8 @@ def _remeasured(data):
 
 
 def test_an_update_replaces_only_its_cells_and_marks_those_from_another_machine():
-    from benchmark.results.figures import merge, render_methods_block
+    from benchmark.results.figures import merge
+    from benchmark.results.figures_methods import render_methods_block
 
     old = _methods_data()
     old["machine"]["instruction_sets"] = ["torch AVX512, numba znver5"]

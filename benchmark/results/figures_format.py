@@ -1,0 +1,89 @@
+"""What the figures pages share: the formats and their names, the data file's schema, how a
+figure is written (mean ± std), and the marks of cells whose runs came from another instruction
+set than the rest (benchmark.results.figures, benchmark.results.figures_methods)."""
+
+from __future__ import annotations
+
+from benchmark.errors import UserError
+
+FORMATS = ("nerfds", "hypernerf", "neu3d", "immersive", "technicolor")
+GEOMETRIES = ("reconstruct", "ground-truth")
+NAMES = {"nerfds": "NeRF-DS", "hypernerf": "HyperNeRF", "neu3d": "Neu3D", "immersive": "Immersive",
+         "technicolor": "Technicolor"}
+SCHEMA = "trase-bench/figures/1"
+
+
+def ms(st: dict | None, digits: int = 3) -> str:
+    if not st:
+        return "—"
+    s = f"{st['mean']:.{digits}f}"
+    return s + (f" ± {st['std']:.{digits}f}" if st.get("std") is not None else "")
+
+
+def mean_std(values: list[float], digits: int = 2) -> str:
+    import numpy as np
+
+    if not values:
+        return "—"
+    v = np.asarray(values, float)
+    return f"{v.mean():.{digits}f}" + (f" ± {v.std(ddof=1):.{digits}f}" if v.size > 1 else "")
+
+
+def check_schema(data: dict) -> None:
+    if data.get("schema") != SCHEMA:
+        raise UserError(f"figures data: schema {data.get('schema')!r}, expected {SCHEMA}")
+
+
+def machine_line(data: dict) -> str:
+    """Where the figures were measured: cores, processor, the instruction sets of the runs."""
+    m = data["machine"]
+    isa = m.get("instruction_sets") or []
+    line = f"{m.get('cpus', '?')} CPU cores, {m.get('processor', '?')}"
+    if len(isa) == 1:
+        line += f"; {isa[0]}"
+    elif isa:
+        line += f"; runs from {len(isa)} instruction sets: " + " / ".join(isa)
+    return line
+
+
+MARKS = ("†", "‡", "§", "¶")
+
+
+def row_isa(row: dict, data: dict) -> tuple[str, ...]:
+    """The instruction sets of a row's runs (its file's for rows written before rows kept them)."""
+    return tuple(row.get("instruction_sets") or data["machine"].get("instruction_sets") or ())
+
+
+def isas_by_share(rows: list[dict], data: dict) -> list[tuple[str, ...]]:
+    """The rows' instruction sets, most cells first; on a tie the earlier measured first (rows
+    without a date are the oldest), so a re-measurement never unmarks what it is merged into."""
+    first = {}
+    for r in rows:
+        isa = row_isa(r, data)
+        first[isa] = min(first.get(isa, r.get("date") or ""), r.get("date") or "")
+    count = lambda isa: sum(row_isa(r, data) == isa for r in rows)
+    return sorted(first, key=lambda isa: (-count(isa), first[isa]))
+
+
+def isa_marks(rows: list[dict], data: dict) -> dict[tuple[str, ...], str]:
+    """A mark per instruction set other than the main one (``_isas_by_share``): cells of merged
+    re-measurements (``figures --update``) say that their runs came from another machine."""
+    others = isas_by_share(rows, data)[1:]
+    return {isa: MARKS[i % len(MARKS)] * (1 + i // len(MARKS)) for i, isa in enumerate(others)}
+
+
+def isa_note(rows: list[dict], data: dict, marks: dict) -> list[str]:
+    """A line per mark: the instruction set, commits and dates of the marked cells' runs."""
+    if not marks:
+        return []
+    name = lambda isa: " / ".join(isa) or "unrecorded"
+    main = isas_by_share(rows, data)[0]
+    out = []
+    for isa, mark in marks.items():
+        mine = [r for r in rows if row_isa(r, data) == isa]
+        commits = sorted({c for r in mine for c in r.get("run_commits") or []} - {"unrecorded"})
+        dates = sorted({r["date"] for r in mine if r.get("date")})
+        out.append(f"{mark} runs computed with {name(isa)}"
+                   + (f", the code of commit {', '.join(f'`{c}`' for c in commits)}" if commits else "")
+                   + (f", on {', '.join(dates)}" if dates else "") + f"; the unmarked cells' with {name(main)}.")
+    return out
