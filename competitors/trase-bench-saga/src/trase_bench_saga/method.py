@@ -90,6 +90,7 @@ class SagaMethod(Method):
                            gaussians, deformation)
 
     selects_clusters = False  # a click selects gaussians by affinity, not clusters
+    negative_clicks = False  # the selection is a union of affinity queries: positive clicks only
 
     def _gates(self, fitted: FittedModel) -> np.ndarray:
         from trase_bench_saga.objective import gate_from_dict
