@@ -74,6 +74,7 @@ class Table:
     notes: list[str] = dataclasses.field(default_factory=list)
     columns: tuple[str, ...] = ("mIoU", "mAcc")  # per group
     lower_is_better: tuple[str, ...] = ()  # columns whose best is the least (clicks)
+    timed: bool = True  # a seconds-per-sequence column
 
     def column(self, i: int) -> str:
         """The name of cell i's column."""
@@ -299,7 +300,7 @@ def clicks_table(df: pd.DataFrame, variant: str, dataset: str | None = None) -> 
         row = _row(method, "measured", sub, *_measured(spans_of(sub), CLICK_COLUMNS, ()), legend=legend)
         rows.append(row._replace(seconds=None))
     notes = legend.notes() + [CLICK_NOTE] + ([SPREAD_NOTE] if _any_seeds(rows) else [])
-    return Table(title, groups, _sorted(rows), notes, CLICK_NAMES, CLICK_NAMES[1:])
+    return Table(title, groups, _sorted(rows), notes, CLICK_NAMES, CLICK_NAMES[1:], timed=False)
 
 
 def _value(col: pd.Series) -> float | None:

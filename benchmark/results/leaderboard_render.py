@@ -34,8 +34,13 @@ def render(table: Table, fmt: str) -> str:
     return {"markdown": _markdown, "latex": _latex, "csv": _csv, "html": _html}[fmt](table)
 
 
-def _cells(table: Table, bold: callable, pm: str = "±", approx: str = "≈") -> list[tuple[str, list[str], str]]:
-    """(label, cell texts, time text [, seeds text]) per row: the mean (bold if best), ± its
+def _tail_head(t: Table) -> list[str]:
+    """The columns after the cells: seconds per sequence (a timed table) and seeds."""
+    return (["s/seq"] if t.timed else []) + (["seeds"] if t.has_seeds() else [])
+
+
+def _cells(table: Table, bold: callable, pm: str = "±", approx: str = "≈") -> list[tuple[str, list[str], list[str]]]:
+    """(label, cell texts, [time text,] [seeds text]) per row: the mean (bold if best), ± its
     spread, ≈ when within the spread of the best, the v1 metric where it differs."""
     best = table.best()
     seeds_col = table.has_seeds()
@@ -54,35 +59,36 @@ def _cells(table: Table, bold: callable, pm: str = "±", approx: str = "≈") ->
             if v is not None and v1[i] is not None and _fmt(v1[i]) != _fmt(v):
                 t += f" (v1 {_fmt(v1[i])})"
             txt.append(t)
-        entry = (row.label, txt, _fmt_time(row.seconds))
+        tail = [_fmt_time(row.seconds)] if table.timed else []
         if seeds_col:
-            entry += ("—" if row.seeds is None else str(row.seeds),)
-        out.append(entry)
+            tail.append("—" if row.seeds is None else str(row.seeds))
+        out.append((row.label, txt, tail))
     return out
 
 
 def _markdown(t: Table) -> str:
-    head = ["method"] + [f"{g} {c}" for g in t.groups for c in t.columns] + ["s/seq"] + (["seeds"] if t.has_seeds() else [])
+    head = ["method"] + [f"{g} {c}" for g in t.groups for c in t.columns] + _tail_head(t)
     lines = [f"### {t.title}", "", "| " + " | ".join(head) + " |",
              "|" + "|".join(["---"] + ["---:"] * (len(head) - 1)) + "|"]
-    for label, cells, secs, *seeds in _cells(t, lambda s: f"**{s}**"):
-        lines.append("| " + " | ".join([label] + cells + [secs] + seeds) + " |")
+    for label, cells, tail in _cells(t, lambda s: f"**{s}**"):
+        lines.append("| " + " | ".join([label] + cells + tail) + " |")
     lines += [""] + [f"- {n}" for n in t.notes]
     return "\n".join(lines).rstrip() + "\n"
 
 
 def _latex(t: Table) -> str:
     esc = lambda s: s.replace("_", r"\_").replace("%", r"\%")
-    extra = t.has_seeds()
+    tail = _tail_head(t)
+    top = {"s/seq": "Time", "seeds": "Seeds"}
     lines = [r"\begin{table}[t]", r"\centering", r"\caption{" + esc(t.title) + "}",
-             r"\begin{tabular}{l" + "c" * len(t.columns) * len(t.groups) + "r" + ("r" if extra else "") + "}",
+             r"\begin{tabular}{l" + "c" * len(t.columns) * len(t.groups) + "r" * len(tail) + "}",
              r"\toprule",
-             "Method & " + " & ".join(rf"\multicolumn{{{len(t.columns)}}}{{c}}{{" + esc(g) + "}" for g in t.groups)
-             + r" & Time" + (" & Seeds" if extra else "") + r" \\",
-             " & " + " & ".join([" & ".join(t.columns)] * len(t.groups)) + r" & s/seq" + (" & " if extra else "")
+             "Method & " + " & ".join([rf"\multicolumn{{{len(t.columns)}}}{{c}}{{" + esc(g) + "}" for g in t.groups]
+                                      + [top[c] for c in tail]) + r" \\",
+             " & " + " & ".join([" & ".join(t.columns)] * len(t.groups) + [c if c == "s/seq" else "" for c in tail])
              + r" \\", r"\midrule"]
-    for label, cells, secs, *seeds in _cells(t, lambda s: r"\textbf{" + s + "}", pm=r"$\pm$", approx=r"$\approx$"):
-        lines.append(" & ".join([esc(label)] + cells + [secs] + seeds) + r" \\")
+    for label, cells, row_tail in _cells(t, lambda s: r"\textbf{" + s + "}", pm=r"$\pm$", approx=r"$\approx$"):
+        lines.append(" & ".join([esc(label)] + cells + row_tail) + r" \\")
     lines += [r"\bottomrule", r"\end{tabular}"]
     if t.notes:  # protocol footnotes and the metric note
         lines += [r"\par\footnotesize"] + [esc(n) + r"\\" for n in t.notes]
@@ -103,7 +109,8 @@ def _csv(t: Table) -> str:
                 row[name], row[f"{name}_std"] = r.cells[k * i + j], spread[k * i + j]
                 if v1[k * i + j] is not None or c in ("mIoU", "mAcc"):
                     row[f"{name}_v1"] = v1[k * i + j]
-        row["seconds_per_sequence"] = r.seconds
+        if t.timed:
+            row["seconds_per_sequence"] = r.seconds
         row["seeds"] = r.seeds
         row["protocol"] = r.protocol
         rows.append(row)
@@ -114,18 +121,16 @@ def _csv(t: Table) -> str:
 
 def _html(t: Table) -> str:
     e = html.escape
-    extra = t.has_seeds()
     head = "".join(f'<th colspan="{len(t.columns)}">{e(g)}</th>' for g in t.groups)
     sub = "".join("".join(f"<th>{e(c)}</th>" for c in t.columns) for _ in t.groups)
     body = "".join(
-        "<tr><td>" + e(label) + "</td>" + "".join(f"<td>{c}</td>" for c in cells)
-        + f"<td>{secs}</td>" + "".join(f"<td>{x}</td>" for x in seeds) + "</tr>"
-        for label, cells, secs, *seeds in _cells(t, lambda s: f"<b>{s}</b>")
+        "<tr><td>" + e(label) + "</td>" + "".join(f"<td>{c}</td>" for c in cells + tail) + "</tr>"
+        for label, cells, tail in _cells(t, lambda s: f"<b>{s}</b>")
     )
     notes = "".join(f"<li>{e(n)}</li>" for n in t.notes)
-    seeds_head = "<th rowspan=2>seeds</th>" if extra else ""
+    tail_head = "".join(f"<th rowspan=2>{e(c)}</th>" for c in _tail_head(t))
     return (f"<h3>{e(t.title)}</h3><table><thead><tr><th rowspan=2>method</th>{head}"
-            f"<th>s/seq</th>{seeds_head}</tr><tr>{sub}<th></th></tr></thead><tbody>{body}</tbody></table>"
+            f"{tail_head}</tr><tr>{sub}</tr></thead><tbody>{body}</tbody></table>"
             + (f"<ul>{notes}</ul>" if notes else "") + "\n")
 
 

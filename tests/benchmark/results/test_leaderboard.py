@@ -224,3 +224,27 @@ def test_portable_and_native_numerics_are_labelled_and_never_share_a_row(tmp_pat
     assert len(groups) == 2  # two configs: two rows wherever both are shown, never one mean
     rec = json.loads(next(tmp_path.rglob("results.json")).read_text())
     assert rec["machine"]["numerics"]["mode"] in ("portable", "native") and rec["machine"]["numerics"]["cpu_model"]
+
+
+def _corrective(miou_at_1: float, noc85: int, noc90: int) -> dict:
+    return {"first_clicks": 2, "budget": 6, "negatives": True, "corrections": [], "undone": [],
+            "curve": [{"clicks": 2, "miou": miou_at_1, "macc": 0.9}], "noc@85": noc85, "noc@90": noc90}
+
+
+def test_runs_of_the_corrective_protocol_get_a_clicks_table_where_fewer_clicks_are_best(tmp_path):
+    a = record("trase", "hypernerf", "synthetic", 0.9, 0.99) | {"corrective": _corrective(0.12, 3, 9)}
+    b = record("cgc", "hypernerf", "synthetic", 0.8, 0.98) | {"corrective": _corrective(0.50, 5, 7)}
+    write(tmp_path, a)
+    write(tmp_path, b)
+    write(tmp_path, record("saga", "hypernerf", "synthetic", 0.7, 0.97))  # first clicks alone: no row
+    tables = build_tables(_main_runs(tmp_path), "synthetic")
+    clicks = [t for t in tables if t.columns == ("mIoU@1", "NoC@85", "NoC@90")]
+    assert [t.title.split(" (")[0] for t in clicks] == ["Clicks", "HyperNeRF-Mask clicks per sequence"]
+    assert [r.label.split(" ")[0] for r in clicks[0].rows] == ["cgc", "trase"]
+    assert clicks[0].best() == [0.5, 3.0, 7.0]  # mIoU@1 the most, clicks the fewest
+    md = render(clicks[0], "markdown")
+    assert "| method | HyperNeRF-Mask mIoU@1 | HyperNeRF-Mask NoC@85 | HyperNeRF-Mask NoC@90 |" in md
+    assert "**3.00**" in md and "**0.5000**" in md and "s/seq" not in md
+    assert "<th rowspan=2>s/seq</th>" not in render(clicks[0], "html")
+    assert "seconds_per_sequence" not in render(clicks[0], "csv")
+    assert "s/seq" in render(tables[0], "markdown") and "<th rowspan=2>s/seq</th>" in render(tables[0], "html")
