@@ -4,6 +4,7 @@ rerun of a finished config renders nothing."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -11,8 +12,9 @@ import numpy as np
 from benchmark.cache import StageRecord
 from benchmark.io import atomic_directory
 from benchmark.pipeline.context import SequenceRun, jsonable
-from benchmark.pipeline.prompts import load_prompts
+from benchmark.pipeline.prompts import PROMPTS_FILE, load_prompts
 from benchmark.scoring import metric_version, read_mask, read_official_ground_truth, score_masks
+from trase.io import atomic_write_text
 
 OUTPUT_DIRS = ("pred", "clusters", "command")  # copied into the run's directory, where the stage has them
 N_SHOWN = 8  # test views rendered with cluster colours (and cluster id maps for benchmark.results.stability)
@@ -130,6 +132,9 @@ def evaluate(method, fitted, scene, prompts, directory: Path, protocol) -> dict:
     first = {"set": 0, "clicks": _click_list(prompts.clicks), "miou": official.miou}
     if corrective is not None:
         first["corrections"] = corrective["corrections"]
+        # the run's clicks as a prompts file: the first ones, then the robot user's
+        atomic_write_text(directory / PROMPTS_FILE, json.dumps(
+            prompts.to_dict() | {k: corrective[k] for k in ("corrections", "undone")}, indent=1))
     if per_click is not None:
         first |= {"click_clusters": list(per_click), "selected": selected}
     out = {
@@ -192,9 +197,12 @@ def run(ctx: SequenceRun) -> list[StageRecord]:
 
 def copy_outputs(rec: StageRecord, run_dir: Path) -> None:
     """The evaluation's pictures and predicted masks into the run's directory (each directory
-    replaced whole, never half-written)."""
+    replaced whole, never half-written), and its prompts.json: the first clicks and the robot
+    user's."""
     import shutil
 
+    if (rec.path / PROMPTS_FILE).is_file():  # the corrective protocol's clicks
+        atomic_write_text(run_dir / PROMPTS_FILE, (rec.path / PROMPTS_FILE).read_text())
     for name in OUTPUT_DIRS:
         if not (rec.path / name).is_dir():  # clusters: not of a command method; command: only of one
             continue

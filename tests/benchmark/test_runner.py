@@ -1,5 +1,6 @@
 """End-to-end: the whole pipeline on a tiny synthetic scene, results file, cache reuse, leaderboard."""
 
+import json
 
 import pytest
 
@@ -56,6 +57,14 @@ def test_pipeline_end_to_end(data_root, tmp_path, capsys):
     assert r["config"]["method"]["features"]["iterations"] == 40
     assert r["seeds"]["features"] == 0 and len(r["checksums"]["pred"]) == 16
     assert r["prompts"]["clicks"] and r["prompts"]["source"] == "gt-first-appearance"
+    # the corrective protocol: its curve starts at the first clicks, its clicks in the run's prompts.json
+    c = r["corrective"]
+    assert c["curve"][0]["clicks"] == c["first_clicks"] == len(r["prompts"]["clicks"]) and c["negatives"] is True
+    assert len(c["curve"]) == 1 + len(c["corrections"]) + len(c["undone"]) <= 1 + c["budget"]
+    assert c["first_clicks"] <= c["noc@85"] <= c["noc@90"] <= c["first_clicks"] + c["budget"] + 1
+    assert r["metrics"]["official"]["miou"] == c["curve"][-1]["miou"]
+    saved = json.loads((path.parent / "prompts.json").read_text())
+    assert saved["clicks"] == r["prompts"]["clicks"] and saved["corrections"] == c["corrections"]
     assert (path.parent / "pred" / "00000.png").exists()
     # synthetic scene: the geometry's ceiling (truth-labelled gaussians) is reported beside the score;
     # with the ground-truth geometry it is near perfect
