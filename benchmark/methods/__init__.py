@@ -171,8 +171,9 @@ class Method:
     needs_tracks: bool = False
     # True: the method takes negative clicks (a click's ``positive`` False removes what it
     # points at); the benchmark's corrective clicks then include negative ones. False: positive
-    # corrections only, and the run's protocol label says so
-    negative_clicks: bool = False
+    # corrections only, and the run's protocol label says so. None (undeclared): True for a
+    # method with a click_selection of its own (takes_negative_clicks)
+    negative_clicks: bool | None = None
 
     def settings_class(self) -> type:
         if self.presets is None:
@@ -229,13 +230,22 @@ class Method:
         return None
 
 
+def takes_negative_clicks(method) -> bool:
+    """Whether a method takes negative clicks: it declares ``negative_clicks``, or (a method
+    written before the declaration) has a ``click_selection`` of its own and declares nothing."""
+    declared = getattr(method, "negative_clicks", None)
+    if declared is None:
+        return getattr(method, "click_selection", None) is not None
+    return bool(declared)
+
+
 def click_selection(method, fitted, scene, prompts) -> tuple[list[int], list[int]]:
     """(the clusters selected, the cluster of each click in order) of a method that selects
     clusters: its own ``click_selection`` where it has one, else the clusters of its clicks
     (``click_clusters``) taken in order, a positive click's added unless a negative click
     removed it before, a negative click's removed and kept out. Negative clicks reach only a
     method that declares them (``negative_clicks``)."""
-    if any(not c.positive for c in prompts.clicks) and not getattr(method, "negative_clicks", False):
+    if any(not c.positive for c in prompts.clicks) and not takes_negative_clicks(method):
         raise MethodError(f"method {method.name!r} takes positive clicks only (it declares no negative_clicks)")
     own = getattr(method, "click_selection", None)
     if own is not None:
@@ -267,4 +277,4 @@ def click_view(scene, prompts, click):
 
 
 __all__ = ["ENTRY_POINT_GROUP", "METHODS", "FittedModel", "Method", "MethodError", "check_method_class",
-           "click_selection", "click_view", "get_method", "register_method"]
+           "click_selection", "click_view", "get_method", "register_method", "takes_negative_clicks"]

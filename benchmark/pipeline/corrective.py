@@ -19,31 +19,49 @@ NOC_TARGETS = (0.85, 0.90)  # NoC@85, NoC@90: the interactive-segmentation stand
 
 
 class Predictor:
-    """A method's masks for a list of clicks, at some or all test views; a method that selects
-    clusters renders each (views, clusters) pair once."""
+    """A method's masks for a list of clicks, at some or all test views. A method that selects
+    clusters renders each (views, clusters) pair once; renders of every test view are kept only
+    when asked (``remember``: the click sets' final selections), so that a long sequence's curve
+    does not hold a render per click."""
 
     def __init__(self, method, fitted, scene, prompts) -> None:
         self.method, self.fitted, self.scene, self.prompts = method, fitted, scene, prompts
         self.by_clusters = getattr(method, "selects_clusters", False) and fitted.gaussians is not None
         self.rendered: dict[tuple, list[np.ndarray]] = {}
 
-    def masks(self, clicks, views: list[int] | None = None) -> tuple[list[np.ndarray], list[int] | None, list[int] | None]:
+    def masks(self, clicks, views: list[int] | None = None,
+              remember: bool = True) -> tuple[list[np.ndarray], list[int] | None, list[int] | None]:
         """(masks bool [H, W] of the test views ``views`` (None: all, in order), the clusters
         selected, the cluster of each click; both None for a method that does not select
         clusters)."""
         from benchmark.methods import click_selection
 
+        test = self.scene.test if views is None else [self.scene.test[i] for i in views]
         scene = self.scene if views is None else dataclasses.replace(
-            self.scene, test=[self.scene.test[i] for i in views],
-            gt_masks=[self.scene.gt_masks[i] for i in views] if self.scene.gt_masks else [])
+            self.scene, test=test, gt_masks=[self.scene.gt_masks[i] for i in views] if self.scene.gt_masks else [])
         prompts = dataclasses.replace(self.prompts, clicks=list(clicks), alternatives=[])
         if not self.by_clusters:
-            return self.method.segment(self.fitted, scene, prompts), None, None
+            return self._checked(self.method.segment(self.fitted, scene, prompts), test), None, None
         selected, per_click = click_selection(self.method, self.fitted, scene, prompts)
         key = (None if views is None else tuple(views), tuple(selected))
-        if key not in self.rendered:
-            self.rendered[key] = self.method.render_selection(self.fitted, scene, list(selected))
-        return self.rendered[key], list(selected), list(per_click)
+        masks = self.rendered.get(key)
+        if masks is None:
+            masks = self._checked(self.method.render_selection(self.fitted, scene, list(selected)), test)
+            if remember or views is not None:
+                self.rendered[key] = masks
+        return masks, list(selected), list(per_click)
+
+    def _checked(self, masks: list, views: list) -> list[np.ndarray]:
+        """The method's masks, one bool [H, W] per view at the view's size, or a MethodError."""
+        from benchmark.methods import MethodError
+
+        if len(masks) != len(views):
+            raise MethodError(f"{self.method.name} gave {len(masks)} masks for {len(views)} test views")
+        for m, v in zip(masks, views):
+            if np.shape(m) != (v.camera.height, v.camera.width):
+                raise MethodError(f"{self.method.name} gave a {np.shape(m)} mask for test view {v.name} "
+                                  f"({v.camera.height} x {v.camera.width})")
+        return [np.asarray(m, dtype=bool) for m in masks]
 
 
 @dataclasses.dataclass
@@ -64,7 +82,9 @@ class Corrected:
 def correct(predictor: Predictor, first: list, gts: list[np.ndarray], protocol) -> Corrected:
     """The robot user from ``first`` (benchmark.protocol.corrective) with ``protocol``'s budget
     per first click and target; its click frames' ground truth is the only truth it reads."""
-    negatives = bool(getattr(predictor.method, "negative_clicks", False))
+    from benchmark.methods import takes_negative_clicks
+
+    negatives = takes_negative_clicks(predictor.method)
     frames = sorted({c.view_index for c in first})
     budget = int(protocol.corrections) * len(first)
 
@@ -86,19 +106,22 @@ def score_curve(predictor: Predictor, run: Corrected, names: list[str], stored: 
     by_kept: dict[int, dict] = {}  # clicks in force -> their scores
     for j in range(len(run.spent) + 1):
         n = len(run.kept_after(j))
-        if n not in by_kept:
-            preds = predictor.masks(run.kept_after(j))[0]
+        if n not in by_kept and n != len(run.clicks):
+            preds = predictor.masks(run.kept_after(j), remember=False)[0]
             s = score_masks(dict(zip(names, preds)), dict(zip(names, stored)), "official")
             by_kept[n] = {"miou": s.miou, "macc": s.macc}
-    final = predictor.masks(run.clicks)
+    final = predictor.masks(run.clicks)  # last: the method's stats are the final clicks'
+    s = score_masks(dict(zip(names, final[0])), dict(zip(names, stored)), "official")
+    by_kept[len(run.clicks)] = {"miou": s.miou, "macc": s.macc}
     points = [{"clicks": run.n_first + j, **by_kept[len(run.kept_after(j))],
                **({"undone": True} if j and not run.spent[j - 1][1] else {})} for j in range(len(run.spent) + 1)]
     mious = [p["miou"] for p in points]
     mious += [mious[-1]] * (run.budget + 1 - len(mious))  # no more clicks: the score stays
     noc = {f"noc@{round(t * 100)}": clicks_to_reach(mious, run.n_first, t, run.budget) for t in NOC_TARGETS}
+    numbered = [click_dicts([c])[0] | {"n": run.n_first + j + 1} for j, (c, _) in enumerate(run.spent)]
     summary = {"first_clicks": run.n_first, "budget": run.budget, "negatives": run.negatives,
-               "corrections": click_dicts(run.clicks[run.n_first:]),
-               "undone": click_dicts([c for c, kept in run.spent if not kept]), "curve": points, **noc}
+               "corrections": [d for d, (_, kept) in zip(numbered, run.spent) if kept],
+               "undone": [d for d, (_, kept) in zip(numbered, run.spent) if not kept], "curve": points, **noc}
     return summary, final
 
 

@@ -1,12 +1,11 @@
 """The robot user of interactive segmentation (RITM's, SimpleClick's, SAM's evaluation): after
 the first clicks, each next click goes to the most interior pixel (the distance-transform
 maximum) of the largest error region of the click frames: positive where the object was missed,
-negative where something else was selected. It stops when every click frame reaches the target
-IoU or the budget of extra clicks is spent, or when its next click would repeat its last one
-(that click changed nothing there; an earlier click may be repeated, as a positive click at a
-pixel whose cluster a negative click ruled out since picks another). A click that makes the
-click frames worse is undone, as a person would undo it: it is spent, and its region is left
-alone after. Only the click frames' ground truth is read, as a person looks at the view they
+negative where something else was selected. A click that makes the click frames worse, or
+changes nothing in them, is undone, as a person would undo it: it is spent, and its region is
+left alone after. It stops
+when every click frame reaches the target IoU, the budget of extra clicks is spent, or no error
+is left to click. Only the click frames' ground truth is read, as a person looks at the view they
 click in.
 
 The score after k clicks gives the curve; the number of clicks a sequence needs to reach an IoU
@@ -23,7 +22,10 @@ import numpy as np
 from benchmark.protocol.prompts import mask_regions
 from trase.prompts import Click
 
-PROTOCOL_VERSION = 1  # in the evaluate stage's key: another robot user makes other clicks
+# in the evaluate stage's key: another robot user, or another rule for what a click selects
+# (trase.prompts.clicks_to_clusters, benchmark.methods.click_selection), makes other clicks.
+# 2: a click that changes nothing is undone, not kept (the robot goes on elsewhere)
+PROTOCOL_VERSION = 2
 
 
 def iou(pred: np.ndarray, gt: np.ndarray) -> float:
@@ -75,10 +77,11 @@ def corrective_clicks(first: list[Click], predict: Callable[[list[Click]], dict[
     """The first clicks, then corrective ones. ``predict``: clicks -> the predicted masks of the
     click frames (view index -> bool [H, W]); ``gts``: their ground truth; ``budget``: the most
     corrective clicks; ``negatives``: whether the method takes negative clicks (else only
-    missed regions get clicks). A click that lowers the click frames' mean IoU is undone, as a
-    person undoes it, and spent: the score stays and its region is left alone. Stops once every
-    click frame reaches ``target``, the budget is spent, no error is left to click, or the next
-    click would repeat the last kept one (it changed nothing there)."""
+    missed regions get clicks). A click that lowers the click frames' mean IoU, or changes nothing
+    in them, is undone, as a person undoes it, and spent: the score stays and its region is left
+    alone.
+    Stops once every click frame reaches ``target``, the budget is spent or no error is left to
+    click."""
     if not first:
         raise ValueError("the robot user starts from at least one click")
     frames = {c.view_index: (c.view, c.time) for c in first}
@@ -95,11 +98,12 @@ def corrective_clicks(first: list[Click], predict: Callable[[list[Click]], dict[
     run.curve.append(float(np.mean(ious)))
     while min(ious) < target and len(run.spent) < budget:
         click = next_click(preds, gts, frames, negatives, [c for c, kept in run.spent if not kept])
-        if click is None or click == run.clicks[-1]:
+        if click is None:
             break
         trial = predict([*run.clicks, click])
         trial_ious = score(trial)
-        kept = float(np.mean(trial_ious)) >= run.curve[-1]
+        better, same = float(np.mean(trial_ious)) - run.curve[-1], all(np.array_equal(trial[i], preds[i]) for i in frames)
+        kept = better > 0 or (better == 0 and not same)  # worse, or no change at all: undone
         run.spent.append((click, kept))
         if kept:
             run.clicks.append(click)

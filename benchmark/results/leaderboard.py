@@ -102,7 +102,7 @@ def within_spread(value: float | None, best: float | None, spreads) -> bool:
     spreads = [x for x in spreads if x is not None and not math.isnan(x)]
     if value is None or best is None or value == best or not spreads:
         return False
-    return best - value < max(spreads)
+    return abs(best - value) < max(spreads)  # the best is the most, or the least (clicks)
 
 
 # -- data ------------------------------------------------------------------------------------

@@ -18,8 +18,8 @@ PALETTE = [(255, 200, 0), (0, 220, 255), (255, 80, 200), (120, 255, 120), (255, 
 
 def _by_frame(record: dict) -> dict[int, list[tuple[dict, object, int]]]:
     """Per test frame: (click, its label, its kind) of the clicks made in it; kind 0 a first
-    click of the run (label: the cluster it chose), -1 a corrective one kept (label: its number
-    in the run's click order), -2 one undone, j >= 1 click set j's first click."""
+    click of the run (label: the cluster it chose), -1 a corrective one kept, -2 one undone
+    (label: its number among the clicks spent, the curve's x), j >= 1 click set j's first click."""
     prompts = record.get("prompts") or {}
     first = prompts.get("clicks", [])
     corrections = (record.get("corrective") or {}).get("corrections", [])
@@ -27,10 +27,10 @@ def _by_frame(record: dict) -> dict[int, list[tuple[dict, object, int]]]:
     by_frame: dict[int, list] = {}
     for c, k in zip(first, chosen):
         by_frame.setdefault(int(c["view_index"]), []).append((c, k, 0))
-    for n, c in enumerate(corrections, start=len(first) + 1):
-        by_frame.setdefault(int(c["view_index"]), []).append((c, n, -1))
+    for n, c in enumerate(corrections, start=len(first) + 1):  # "n": the click's number among those spent
+        by_frame.setdefault(int(c["view_index"]), []).append((c, c.get("n", n), -1))
     for c in (record.get("corrective") or {}).get("undone", []):
-        by_frame.setdefault(int(c["view_index"]), []).append((c, None, -2))
+        by_frame.setdefault(int(c["view_index"]), []).append((c, c.get("n"), -2))
     for j, cs in enumerate(prompts.get("alternatives", []), start=1):
         for c in cs:
             by_frame.setdefault(int(c["view_index"]), []).append((c, None, j))
@@ -46,8 +46,9 @@ def _draw(img: np.ndarray, c: dict, label, kind: int, scale: int) -> None:
         cv2.circle(img, pt, 3 * scale, (255, 255, 255), max(1, scale // 2))
         cv2.putText(img, "none" if label is None or label < 0 else str(label), (pt[0] + 3 * scale, pt[1]),
                     *font, (255, 255, 255), 1)
-    elif kind == -2:  # undone: a grey cross
+    elif kind == -2:  # undone: a grey cross, numbered
         cv2.drawMarker(img, pt, (160, 160, 160), cv2.MARKER_TILTED_CROSS, 5 * scale, max(1, scale // 2))
+        cv2.putText(img, "" if label is None else str(label), (pt[0] + 3 * scale, pt[1]), *font, (160, 160, 160), 1)
     elif kind < 0:  # corrective: green ring positive, red ring negative, numbered in click order
         colour = (60, 255, 60) if c.get("positive", True) else (255, 60, 60)
         cv2.circle(img, pt, 3 * scale, colour, max(1, scale // 2))
@@ -116,7 +117,7 @@ def _corrective_text(record: dict) -> str:
     polarity = "" if c.get("negatives") else " The method takes no negative clicks: positive corrections only."
     undone = len(c.get("undone", []))
     text = (f"The robot user clicked {len(curve) - 1} more time(s) after the {c['first_clicks']} first click(s), "
-            f"undoing {undone} that made its click frames worse "
+            f"undoing {undone} that made its click frames worse or changed nothing "
             f"(budget {c['budget']}, stopping once every click frame reached IoU {c.get('target', '?')}): mIoU "
             f"{curve[0]['miou']:.4f} after the first clicks, {curve[-1]['miou']:.4f} after {curve[-1]['clicks']}; "
             f"NoC@85 {c['noc@85']}, NoC@90 {c['noc@90']}.{polarity}")
@@ -127,8 +128,8 @@ def prompts_section(record: dict) -> str:
     """The report's prompts section: the clicks on their frames, the corrective clicks' curve,
     every click set's clicks and score."""
     return f"""<h2>Prompts</h2><p>White rings: the run's first clicks, labelled with the cluster each chose;
-green / red rings: its corrective clicks, positive / negative, numbered in click order; grey crosses: corrective
-clicks it undid (they made its click frames worse); dots: the other click
+green / red rings: its corrective clicks, positive / negative, numbered as the plot counts clicks; grey crosses:
+corrective clicks it undid (they made its click frames worse or changed nothing); dots: the other click
 sets (the same objects elsewhere in their first frames). Ground truth in blue.</p>
 {''.join(click_tiles(record, record.get("frames", [])))}
 {_corrective_text(record)}

@@ -258,10 +258,10 @@ class SceneViewer:
             # a negative click removes a selected cluster where one is under it (as
             # trase.prompts.clicks_to_clusters); a positive one never picks a ruled-out cluster
             others = set(range(self.model.n_clusters)) - self.clusters
-            exclude = self.ruled_out if mode == "add" else others if self.clusters else ()
+            exclude = others if mode != "add" and self.clusters else self.ruled_out
             k, _ = by_click(self.model, cam, u, v, rule=self.folder.click_rule, exclude=exclude)
-            if k < 0 and mode != "add" and self.clusters:
-                k, _ = by_click(self.model, cam, u, v, rule=self.folder.click_rule)
+            if k < 0 and mode != "add" and self.clusters:  # none selected there: the rule's choice among the rest
+                k, _ = by_click(self.model, cam, u, v, rule=self.folder.click_rule, exclude=self.ruled_out)
         self.clicks.append((mode, k))
         if k < 0:
             self._status("the click hit no surface" + (" outside the clusters ruled out" if self.ruled_out else ""))

@@ -48,3 +48,13 @@ def test_a_method_declaring_negative_clicks_has_them_remove_and_keep_out_its_clu
     prompts.clicks = [Click(i, i, positive=p) for i, p in enumerate(polarity)]
     method.click_clusters = lambda f, s, p: [2, 5, 5]
     assert click_selection(method, None, None, prompts)[0] == [2]
+
+
+def test_a_method_with_its_own_click_selection_and_no_declaration_takes_negative_clicks():
+    import types
+
+    from benchmark.methods import takes_negative_clicks
+
+    assert takes_negative_clicks(types.SimpleNamespace(click_selection=lambda *a: ([], [])))
+    assert not takes_negative_clicks(types.SimpleNamespace(click_selection=lambda *a: ([], []), negative_clicks=False))
+    assert not takes_negative_clicks(types.SimpleNamespace())

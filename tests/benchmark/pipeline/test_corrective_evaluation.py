@@ -52,7 +52,8 @@ def _run(labels: np.ndarray, negative_clicks: bool, corrections: int = 3):
 
     method = LabelMethod(labels, negative_clicks)
     fitted = types.SimpleNamespace(gaussians=object(), stats={})
-    scene = Scene([types.SimpleNamespace(name="f0"), types.SimpleNamespace(name="f1")], ["gt0", "gt1"])
+    camera = types.SimpleNamespace(height=8, width=8)
+    scene = Scene([types.SimpleNamespace(name=n, camera=camera) for n in ("f0", "f1")], ["gt0", "gt1"])
     first = [Click(1.5, 3.5, "f0", 0.0, 0)] if labels is SPLIT else [Click(3.5, 3.5, "f0", 0.0, 0)]
     predictor = Predictor(method, fitted, scene, BenchmarkPrompts(0, "f0", 0.0, first, "test"))
     run = correct(predictor, first, [GT, GT], PromptProtocol(corrections=corrections, correction_target=0.9))
@@ -71,10 +72,12 @@ def test_a_missed_part_gets_a_positive_click_and_noc_counts_the_clicks_to_reach_
 def test_the_wall_gets_a_negative_click_and_a_later_click_on_it_cannot_bring_it_back():
     _, run, summary, (_, selected, per_click) = _run(WALL, negative_clicks=True)
     # the wall (10 px, 4 inside) -> the object's missed part (+1) -> the wall outside (-3) -> the
-    # wall's inside part, where the first click was: now ruled out, it chooses nothing; budget spent
-    assert [c.positive for c in run.clicks] == [True, True, False, True] and run.clicks[3] == run.clicks[0]
-    assert per_click == [3, 1, 3, 3] and selected == [1]
+    # wall's inside part, where the first click was: the wall is ruled out, the click chooses
+    # nothing and changes nothing: undone; budget spent
+    assert [c.positive for c in run.clicks] == [True, True, False] and [k for _, k in run.spent] == [True, True, False]
+    assert run.spent[2][0] == run.clicks[0] and per_click == [3, 1, 3] and selected == [1]
     assert [round(p["miou"], 3) for p in summary["curve"]] == [0.133, 0.8, 0.833, 0.833]
+    assert summary["curve"][3]["undone"] and [c["n"] for c in summary["undone"]] == [4]
     assert summary["noc@85"] == summary["noc@90"] == 1 + 3 + 1  # never reached: first + budget + 1
     assert [c["positive"] for c in summary["corrections"] if "positive" in c] == [False]
 
@@ -97,3 +100,15 @@ def test_the_protocols_settings_are_checked():
         PromptProtocol(corrections=-1)
     with pytest.raises(ConfigError, match="correction_target=1.5"):
         PromptProtocol(correction_target=1.5)
+
+
+def test_masks_of_another_count_or_size_are_named_errors():
+    from benchmark.methods import MethodError
+    from benchmark.protocol.prompts import BenchmarkPrompts
+
+    method = LabelMethod(SPLIT, negative_clicks=True)
+    camera = types.SimpleNamespace(height=6, width=8)  # the method renders 8 x 8
+    scene = Scene([types.SimpleNamespace(name="f0", camera=camera)], ["gt0"])
+    prompts = BenchmarkPrompts(0, "f0", 0.0, [Click(1.5, 3.5, "f0", 0.0, 0)], "test")
+    with pytest.raises(MethodError, match=r"labels gave a \(8, 8\) mask for test view f0 \(6 x 8\)"):
+        Predictor(method, types.SimpleNamespace(gaussians=object(), stats={}), scene, prompts).masks(prompts.clicks)

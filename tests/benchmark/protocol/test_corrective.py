@@ -65,9 +65,9 @@ def test_a_wrong_first_click_is_undone_by_a_negative_one_and_the_budget_bounds_i
     r = corrective_clicks(first, _region_predictor(labels), gt, budget=3, target=0.9)
     clicks, curve = r.clicks, r.curve
     assert [c.positive for c in clicks] == [True, False, True] and curve == [0.0, 0.0, 1.0]
-    # a prediction no click changes: the second corrective click would repeat the first, so it stops
+    # a prediction no click changes: the click is undone, its region left alone; nothing else to click
     never = corrective_clicks(first, lambda clicks: {0: np.zeros((H, W), bool)}, gt, budget=2, target=0.9)
-    assert len(never.clicks) == 2 and never.curve == [0.0, 0.0]
+    assert never.clicks == first and [kept for _, kept in never.spent] == [False] and never.curve == [0.0, 0.0]
     cols = np.arange(W)[None, :]  # each click adds a column of the object: the budget stops it
     changing = corrective_clicks(first, lambda clicks: {0: gt[0] & (cols < 3 + len(clicks))}, gt, budget=2,
                                  target=0.9)

@@ -248,3 +248,10 @@ def test_runs_of_the_corrective_protocol_get_a_clicks_table_where_fewer_clicks_a
     assert "<th rowspan=2>s/seq</th>" not in render(clicks[0], "html")
     assert "seconds_per_sequence" not in render(clicks[0], "csv")
     assert "s/seq" in render(tables[0], "markdown") and "<th rowspan=2>s/seq</th>" in render(tables[0], "html")
+
+
+def test_within_the_spread_of_the_best_counts_both_ways():
+    from benchmark.results.leaderboard import within_spread
+
+    assert within_spread(0.80, 0.82, [0.05]) and not within_spread(0.70, 0.82, [0.05])
+    assert within_spread(4.2, 4.0, [0.5]) and not within_spread(7.0, 4.0, [0.1])  # clicks: the least is best
