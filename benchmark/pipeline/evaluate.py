@@ -171,7 +171,8 @@ def corrective_key(protocol) -> dict:
     if protocol.corrections == 0:
         return {}
     return {"corrective": {"version": PROTOCOL_VERSION, "corrections": int(protocol.corrections),
-                           "target": float(protocol.correction_target)}}
+                           "target": float(protocol.correction_target),
+                           **({"min_gain": float(protocol.correction_min_gain)} if protocol.correction_min_gain else {})}}
 
 
 def run(ctx: SequenceRun) -> list[StageRecord]:

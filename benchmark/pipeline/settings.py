@@ -98,7 +98,8 @@ AS_BEFORE = {
     "deform_scale_rule": ("clamp", ("deform_scale_rule",)),  # the CPU presets' scale rule, the only one before
     "near_plane": (0.01, ("near_plane",)),  # the rasterizer's near plane, the only one before
     "numerics": ("native", ("numerics",)),  # each library's own kernels for this processor (benchmark.numerics)
-    "corrections": (0, ("corrections", "correction_target")),  # the first clicks alone (the single-click protocol)
+    "corrections": (0, ("corrections", "correction_target", "correction_min_gain")),
+    "correction_min_gain": (0.0, ("correction_min_gain",)),  # any gain in the click frames keeps a click  # the first clicks alone (the single-click protocol)
 }
 
 
@@ -160,11 +161,14 @@ class PromptProtocol:
     # first clicks alone (the single-click protocol)
     corrections: int = 3
     correction_target: float = 0.9
+    correction_min_gain: float = 0.0  # a click that raises the click frames' mean IoU by less is undone
 
     def __post_init__(self) -> None:
         if not isinstance(self.corrections, int) or isinstance(self.corrections, bool) or self.corrections < 0:
             raise ConfigError(f"--set prompts.corrections={self.corrections!r}: a whole number >= 0 "
                               "(0: the first clicks alone)")
+        if not 0.0 <= float(self.correction_min_gain) < 1.0:
+            raise ConfigError(f"--set prompts.correction_min_gain={self.correction_min_gain!r}: an IoU gain in [0, 1)")
         if not 0.0 < float(self.correction_target) <= 1.0:
             raise ConfigError(f"--set prompts.correction_target={self.correction_target!r}: an IoU in (0, 1]")
 

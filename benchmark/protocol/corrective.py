@@ -73,7 +73,8 @@ class RobotRun:
 
 
 def corrective_clicks(first: list[Click], predict: Callable[[list[Click]], dict[int, np.ndarray]],
-                      gts: dict[int, np.ndarray], budget: int, target: float, negatives: bool = True) -> RobotRun:
+                      gts: dict[int, np.ndarray], budget: int, target: float, negatives: bool = True,
+                      min_gain: float = 0.0) -> RobotRun:
     """The first clicks, then corrective ones. ``predict``: clicks -> the predicted masks of the
     click frames (view index -> bool [H, W]); ``gts``: their ground truth; ``budget``: the most
     corrective clicks; ``negatives``: whether the method takes negative clicks (else only
@@ -103,7 +104,7 @@ def corrective_clicks(first: list[Click], predict: Callable[[list[Click]], dict[
         trial = predict([*run.clicks, click])
         trial_ious = score(trial)
         better, same = float(np.mean(trial_ious)) - run.curve[-1], all(np.array_equal(trial[i], preds[i]) for i in frames)
-        kept = better > 0 or (better == 0 and not same)  # worse, or no change at all: undone
+        kept = better > min_gain or (better == min_gain == 0 and not same)  # worse, or no change: undone
         run.spent.append((click, kept))
         if kept:
             run.clicks.append(click)

@@ -94,3 +94,14 @@ def test_clicks_to_reach_counts_the_budget_plus_one_where_the_target_is_never_re
     assert clicks_to_reach([0.5, 0.6], first=2, target=0.85, budget=3) == 6
     with pytest.raises(ValueError, match="at least one click"):
         corrective_clicks([], lambda c: {}, {}, budget=1, target=0.9)
+
+
+def test_a_click_that_gains_less_than_the_minimum_is_undone():
+    labels = np.zeros((H, W), np.int64)
+    labels[2:12, 2:12], labels[2:3, 12:14] = 1, 2  # region 2: 2 px of the object
+    gt = {0: np.isin(labels, [1, 2])}
+    first = [Click(6.5, 6.5, "v0", 0.0, 0)]
+    kept = corrective_clicks(first, _region_predictor(labels), gt, budget=2, target=1.0)
+    assert [k for _, k in kept.spent] == [True] and kept.curve[-1] == 1.0
+    strict = corrective_clicks(first, _region_predictor(labels), gt, budget=2, target=1.0, min_gain=0.05)
+    assert [k for _, k in strict.spent] == [False] and strict.clicks == first
