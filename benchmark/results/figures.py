@@ -24,6 +24,7 @@ from benchmark.results.figures_format import (
     GEOMETRIES,
     NAMES,
     SCHEMA,
+    SINGLE_CLICK_NOTE,
     check_schema,
     isa_marks,
     isa_note,
@@ -172,12 +173,15 @@ def render_block(data: dict) -> str:
         geo = "reconstructed" if row["geometry"] == "reconstruct" else "ground truth"
         ag = (s.get("agreement") or {}).get("pixel_ari")
         psnr = mean_std(row["test_psnr"]) if row["geometry"] == "reconstruct" else "—"
+        single = "°" if not s.get("noc85") else ""  # runs of the first clicks alone
         lines.append(
             f"| {names.get(row['format'], row['format'])} | {geo} | {psnr} | {ms(s['ceiling'])} | "
-            f"{ms(s['oracle'])} | **{ms(s['miou'])}**{marks.get(row_isa(row, data), '')} | {ms(s.get('miou_at_1'))} | "
+            f"{ms(s['oracle'])} | **{ms(s['miou'])}**{single}{marks.get(row_isa(row, data), '')} | {ms(s.get('miou_at_1'))} | "
             f"{ms(s.get('noc85'), 1)} / {ms(s.get('noc90'), 1)} | {ms(s['click_sets_median'])} / "
             f"{ms(s['click_sets_worst'])} | {'—' if ag is None else f'{ag:.3f}'} | {len(s['seeds'])} |")
     note = isa_note(mine, data, marks)
+    if any(not r["summary"].get("noc85") for r in mine):
+        note.append(SINGLE_CLICK_NOTE)
     return "\n".join(lines + ([""] + note if note else [])) + "\n"
 
 

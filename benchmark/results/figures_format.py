@@ -11,6 +11,8 @@ GEOMETRIES = ("reconstruct", "ground-truth")
 NAMES = {"nerfds": "NeRF-DS", "hypernerf": "HyperNeRF", "neu3d": "Neu3D", "immersive": "Immersive",
          "technicolor": "Technicolor"}
 SCHEMA = "trase-bench/figures/1"
+SINGLE_CLICK_NOTE = ("° runs of the first clicks alone (made before the corrective protocol, or with "
+                     "`prompts.corrections=0`): their mIoU is the single-click score.")
 
 
 def ms(st: dict | None, digits: int = 3) -> str:

@@ -9,6 +9,7 @@ from benchmark.results.figures_format import (
     FORMATS,
     GEOMETRIES,
     NAMES,
+    SINGLE_CLICK_NOTE,
     check_schema,
     isa_marks,
     isa_note,
@@ -68,10 +69,13 @@ def render_methods_block(data: dict) -> str:
                     cells.append("—")
                     continue
                 s, n = r["summary"], len(r["summary"]["seeds"])
-                cells.append(ms(s["miou"]) + (f" ({n})" if n < 3 else "") + marks.get(row_isa(r, data), ""))
+                single = "°" if not s.get("noc85") else ""  # runs of the first clicks alone
+                cells.append(ms(s["miou"]) + single + (f" ({n})" if n < 3 else "") + marks.get(row_isa(r, data), ""))
             lines.append(f"| {m} | " + " | ".join(cells) + " |")
         lines.append("")
     note = isa_note(rows, data, marks)
+    if any(not r["summary"].get("noc85") for r in rows):
+        note = [*note, SINGLE_CLICK_NOTE]
     lines += note + [""] if note else []
     pub = published_averages()
     pub_methods = list(dict.fromkeys([m for m in methods if any((m, f) in pub for f in formats)]
@@ -105,9 +109,10 @@ def _clicks_lines(by: dict, methods: list[str], formats: list[str]) -> list[str]
         rows = [m for m in methods if any((by.get((m, f, geo)) or {}).get("summary", {}).get("noc85") for f in formats)]
         if not rows:
             continue
-        lines += ["", f"**Clicks, {'reconstructed' if geo == 'reconstruct' else 'ground-truth'} geometry** "
-                  "(mIoU@1: the first clicks alone; NoC@85 / NoC@90: clicks to reach that mIoU, the first "
-                  "clicks + budget + 1 where never; means over the seeds)", "",
+        title = (f"**Clicks, {'reconstructed' if geo == 'reconstruct' else 'ground-truth'} geometry** "
+                 "(mIoU@1: the first clicks alone; NoC@85 / NoC@90: clicks to reach that mIoU, the first "
+                 "clicks + budget + 1 where never; means over the seeds)")
+        lines += ["", title, "",
                   "| method | " + " | ".join(NAMES[f] for f in formats) + " |", "|---|" + "---|" * len(formats)]
         for m in rows:
             cells = []

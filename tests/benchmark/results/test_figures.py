@@ -23,6 +23,7 @@ def _data():
     st = lambda m, s: {"mean": m, "std": s, "n": 3}
     summary = {"seeds": [0, 1, 2], "miou": st(0.9, 0.01), "oracle": st(0.91, 0.01), "ceiling": st(0.92, 0.0),
                "click_sets_median": st(0.88, 0.02), "click_sets_worst": st(0.5, 0.1),
+               "miou_at_1": st(0.6, 0.2), "noc85": st(3.0, 0.0), "noc90": st(4.0, 1.0),
                "agreement": {"pixel_ari": 0.95, "gaussian_ari": None, "pairs": []}}
     return {"schema": SCHEMA, "commit": "abc1234", "date": "2026-11-24", "machine": {"cpus": 2, "processor": "x86_64"},
             "rows": [{"format": "hypernerf", "geometry": "reconstruct", "summary": summary,
@@ -32,7 +33,13 @@ def _data():
 def test_block_renders_mean_and_spread_and_replaces_only_itself():
     block = render_block(_data())
     assert "| HyperNeRF | reconstructed | 27.00 ± 0.20 | 0.920 ± 0.000 | 0.910 ± 0.010 | **0.900 ± 0.010** |" in block
-    assert "0.880 ± 0.020 / 0.500 ± 0.100 | 0.950 | 3 |" in block and "commit `abc1234`" in block
+    assert "| 0.600 ± 0.200 | 3.0 ± 0.0 / 4.0 ± 1.0 | 0.880 ± 0.020 / 0.500 ± 0.100 | 0.950 | 3 |" in block
+    assert "commit `abc1234`" in block and "°" not in block
+    single = _data()
+    for k in ("miou_at_1", "noc85", "noc90"):  # a row of runs of the first clicks alone
+        del single["rows"][0]["summary"][k]
+    block1 = render_block(single)
+    assert "**0.900 ± 0.010**° | — | — / — |" in block1 and block1.rstrip().endswith("the single-click score.")
     text = f"intro\n{BEGIN}\nold\n{END}\nrest\n"
     new = replace_block(text, block)
     assert new.startswith("intro\n") and new.endswith(f"{END}\nrest\n") and page_block(new) == block
