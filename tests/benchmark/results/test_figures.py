@@ -237,3 +237,20 @@ def test_trases_figures_block_marks_its_cells_from_another_machine_too():
     # a tie (one cell of each): the earlier measurement stays unmarked, the re-measured cell is marked
     tie = merge(dict(old, rows=old["rows"][:1] + [dict(old["rows"][0], format="neu3d")]), new)
     assert "| HyperNeRF | reconstructed | 27.00 ± 0.20 | 0.920 ± 0.000 | 0.910 ± 0.010 | **0.900 ± 0.010**† |" in render_block(tie)
+
+
+def test_methods_block_gives_the_clicks_of_the_methods_measured_under_the_corrective_protocol():
+    from benchmark.results.figures_methods import render_methods_block
+
+    data = _methods_data()
+    for r in data["rows"]:  # rows of the first clicks alone
+        r["summary"] = {k: v for k, v in r["summary"].items() if k not in ("miou_at_1", "noc85", "noc90")}
+    assert "**Clicks" not in render_methods_block(data)
+    st = lambda m, s: {"mean": m, "std": s, "n": 3}
+    for r in data["rows"]:
+        if r["method"] == "saga" and r["format"] == "hypernerf":
+            r["summary"] |= {"miou_at_1": st(0.4, 0.1), "noc85": st(5.0, 1.0), "noc90": st(7.0, 0.0)}
+    block = render_methods_block(data)
+    part = block.split("**Clicks, reconstructed geometry**")[1].split("**")[0]
+    assert "| saga | 0.400 ± 0.100; 5.0 ± 1.0 / 7.0 ± 0.0 |" in part and "| trase |" not in part
+    assert "0.766" in block and "°" in block.split("**Clicks")[0]  # the other cells: first clicks alone
