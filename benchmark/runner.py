@@ -20,7 +20,7 @@ from benchmark.cache import PlanCache, StageCache, StageRecord, config_hash
 from benchmark.config import ConfigError, parse_overrides
 from benchmark.errors import UserError
 from benchmark.io import sha256_files
-from benchmark.pipeline import ceiling, evaluate, fit, geometry, masks, prompts, tracks
+from benchmark.pipeline import ceiling, command, evaluate, fit, geometry, masks, prompts, tracks
 from benchmark.pipeline.context import SequenceRun, render_near, scene_fingerprint
 from benchmark.pipeline.record import build_record
 from benchmark.pipeline.settings import RunSettings, run_settings
@@ -32,11 +32,15 @@ from benchmark.results.runs import check_free, run_dir, run_info, run_name
 STAGES = (masks.run, geometry.run, tracks.run, fit.run, prompts.run, evaluate.run, ceiling.run)
 
 
+# a method in its own environment (benchmark.methods.command): the benchmark's masks and prompts,
+# the method's input folder, the command, the scores (benchmark.pipeline.command)
+COMMAND_STAGES = (masks.run, prompts.run, command.inputs, command.run, command.evaluate)
+STAGE_PLANS = {"benchmark": STAGES, "command": COMMAND_STAGES}
+
+
 def stages_of(method) -> tuple:
-    """The method's own stages where it has them (a command method: benchmark.methods.command),
-    else STAGES."""
-    own = getattr(method, "pipeline_stages", None)
-    return tuple(own()) if own is not None else STAGES
+    """The stages of the method's plan (``Method.stage_plan``; a command method's: "command")."""
+    return STAGE_PLANS[getattr(method, "stage_plan", "benchmark")]
 
 
 @dataclasses.dataclass

@@ -174,6 +174,9 @@ class Method:
     # corrections only, and the run's protocol label says so. None (undeclared): True for a
     # method with a click_selection of its own (takes_negative_clicks)
     negative_clicks: bool | None = None
+    # which stages its runs take (benchmark.runner.STAGE_PLANS): "benchmark" (masks, geometry,
+    # features and fit, prompts, evaluate, ceiling) or "command" (a method in its own environment)
+    stage_plan: str = "benchmark"
 
     def settings_class(self) -> type:
         if self.presets is None:

@@ -159,7 +159,7 @@ def uses_placeholder(settings: CommandSettings, name: str) -> bool:
 
 class CommandMethod(Method):
     """A method defined by a command line in a TOML file (module docstring). Its stages are
-    the benchmark's masks and prompts, then its own (``pipeline_stages``): no reconstruction,
+    the benchmark's masks and prompts, then its own (``stage_plan``): no reconstruction,
     no features here; the command does what it does in its own environment."""
 
     FEATURE_FIELDS = ()
@@ -191,12 +191,9 @@ class CommandMethod(Method):
         if not settings.command or not all(isinstance(a, str) and a for a in settings.command):
             raise ConfigError(f"method.command={settings.command!r}: a non-empty list of strings")
 
-    def pipeline_stages(self) -> tuple:
-        """The stages of a run (benchmark.runner): the benchmark's masks and prompts, the
-        method's input folder, the command, the scores."""
-        from benchmark.pipeline import command, masks, prompts
-
-        return (masks.run, prompts.run, command.inputs, command.run, command.evaluate)
+    # the stages of its runs (benchmark.runner.STAGE_PLANS): the benchmark's masks and prompts,
+    # the method's input folder, the command, the scores
+    stage_plan = "command"
 
     def learn(self, *args, **kwargs):
         raise CommandError(f"{self.path}: a command method runs only through `trase-bench run` "

@@ -232,7 +232,8 @@ def test_seeds_are_runs_side_by_side_and_one_leaderboard_row(data_root, tmp_path
     assert sets["sets"][0]["miou"] == a["metrics"]["official"]["miou"]
     assert sets["sets"][0]["selected"] == a["selected_clusters"]
     assert sets["sets"][0]["click_clusters"] == a["click_clusters"]
-    assert len(a["click_clusters"]) == len(a["prompts"]["clicks"])
+    # one cluster per click in force: the first clicks and the robot user's kept ones
+    assert len(a["click_clusters"]) == len(a["prompts"]["clicks"]) + len(a["corrective"]["corrections"])
     assert sets["worst"] <= sets["median"] <= sets["best"]
     # clustering agreement between the seeds: same (ground-truth) geometry, so per gaussian too
     assert a["geometry_checksum"] == b["geometry_checksum"]
