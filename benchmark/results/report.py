@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import base64
 import html
-import io
 import json
 from pathlib import Path
 
@@ -23,32 +22,24 @@ from benchmark.errors import UserError
 from benchmark.io import atomic_write_bytes, atomic_write_text
 from benchmark.results.record import load_results
 from benchmark.results.report_clicks import prompts_section
-from benchmark.results.report_images import MAX_FRAMES_SHOWN, img_tag, overlay, png, read_rgb
+from benchmark.results.report_images import (
+    MAX_FRAMES_SHOWN,
+    img_tag,
+    overlay,
+    png,
+    read_rgb,
+    score_plot,
+)
 from benchmark.results.runs import protocol, protocol_label
 from benchmark.scoring import read_mask
 
 
 def _iou_plot(record: dict) -> bytes:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     frames = record.get("per_frame", [])
     iou = [np.nan if f["iou"] is None else f["iou"] for f in frames]
     acc = [f["acc"] for f in frames]
-    fig, ax = plt.subplots(figsize=(7, 2.6), dpi=100)
-    ax.plot(iou, marker="o", ms=3, label="IoU")
-    ax.plot(acc, marker=".", ms=3, label="accuracy", alpha=0.7)
-    ax.set_ylim(0, 1.02)
-    ax.set_xlabel("test frame")
-    ax.legend(loc="lower left")
-    ax.grid(alpha=0.3)
-    fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png")
-    plt.close(fig)
-    return buf.getvalue()
+    return score_plot(range(len(frames)), [("IoU", iou, "o", 3, 1.0), ("accuracy", acc, ".", 3, 0.7)],
+                      "test frame", (7, 2.6), "lower left")
 
 
 def _fmt(x) -> str:

@@ -5,12 +5,18 @@ and every click set's clicks and score."""
 from __future__ import annotations
 
 import html
-import io
 from pathlib import Path
 
 import numpy as np
 
-from benchmark.results.report_images import MAX_FRAMES_SHOWN, img_tag, overlay, png, read_rgb
+from benchmark.results.report_images import (
+    MAX_FRAMES_SHOWN,
+    img_tag,
+    overlay,
+    png,
+    read_rgb,
+    score_plot,
+)
 from benchmark.scoring import read_mask
 
 PALETTE = [(255, 200, 0), (0, 220, 255), (255, 80, 200), (120, 255, 120), (255, 140, 60)]  # other click sets
@@ -85,28 +91,11 @@ def click_tiles(record: dict, frames: list[dict]) -> list[str]:
 def clicks_plot(corrective: dict) -> bytes:
     """The official mIoU and mAcc over the test frames against the number of clicks, the
     targets of NoC@85 and NoC@90 dashed."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     curve = corrective["curve"]
     n = [p["clicks"] for p in curve]
-    fig, ax = plt.subplots(figsize=(5, 2.6), dpi=100)
-    ax.plot(n, [p["miou"] for p in curve], marker="o", ms=4, label="mIoU")
-    ax.plot(n, [p["macc"] for p in curve], marker=".", ms=3, label="mAcc", alpha=0.7)
-    for t in (0.85, 0.90):
-        ax.axhline(t, ls="--", lw=0.8, color="grey")
-    ax.set_xticks(range(n[0], corrective["first_clicks"] + corrective["budget"] + 1))
-    ax.set_ylim(0, 1.02)
-    ax.set_xlabel("clicks")
-    ax.legend(loc="lower right")
-    ax.grid(alpha=0.3)
-    fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png")
-    plt.close(fig)
-    return buf.getvalue()
+    series = [("mIoU", [p["miou"] for p in curve], "o", 4, 1.0), ("mAcc", [p["macc"] for p in curve], ".", 3, 0.7)]
+    return score_plot(n, series, "clicks", (5, 2.6), "lower right", hlines=(0.85, 0.90),
+                      xticks=range(n[0], corrective["first_clicks"] + corrective["budget"] + 1))
 
 
 def _corrective_text(record: dict) -> str:

@@ -44,3 +44,33 @@ def png(rgb: np.ndarray) -> bytes:
 
 def img_tag(data: bytes, alt: str) -> str:
     return f'<img alt="{html.escape(alt)}" src="data:image/png;base64,{base64.b64encode(data).decode()}">'
+
+
+def score_plot(x, series: list[tuple], xlabel: str, size: tuple[float, float], legend: str,
+               hlines=(), xticks=None) -> bytes:
+    """A PNG of scores in [0, 1] against ``x``: ``series`` (label, values, marker, size, alpha),
+    dashed ``hlines``, the report's axes and grid."""
+    import io
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=size, dpi=100)
+    for label, values, marker, ms, alpha in series:
+        ax.plot(x, values, marker=marker, ms=ms, label=label, alpha=alpha)
+    for t in hlines:
+        ax.axhline(t, ls="--", lw=0.8, color="grey")
+    if xticks is not None:
+        ax.set_xticks(xticks)
+    ax.set_ylim(0, 1.02)
+    ax.set_xlabel(xlabel)
+    ax.legend(loc=legend)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png")
+    plt.close(fig)
+    return buf.getvalue()
+
