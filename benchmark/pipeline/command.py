@@ -112,7 +112,7 @@ def evaluate(ctx: SequenceRun) -> list[StageRecord]:
     """The command's masks scored like any run's (benchmark.pipeline.evaluate's info, with no
     gaussians, clusters, click sets or oracle: the method's model is its own)."""
     from benchmark.methods.command_io import frame_names, read_outputs
-    from benchmark.pipeline.evaluate import METRICS_KEY, score_predictions
+    from benchmark.pipeline.evaluate import METRICS_KEY, read_ground_truths, score_predictions
 
     cmd_rec = ctx.records["command"]
     cfg = {"method": ctx.method.name, "kind": "command"}
@@ -127,7 +127,7 @@ def evaluate(ctx: SequenceRun) -> list[StageRecord]:
                 cv2.imwrite(str(p / f"{n}.png"), m.astype(np.uint8) * 255)
         with atomic_directory(d / "command") as c:
             shutil.copyfile(cmd_rec.path / LOG, c / LOG)
-        _, v1, official = score_predictions(names, preds, scene.gt_masks)
+        v1, official = score_predictions(names, preds, *read_ground_truths(scene.gt_masks))
         return jsonable({
             "v1": v1.to_dict(),
             "official": official.to_dict(),

@@ -68,23 +68,26 @@ def score_click_sets(predictor, prompts, gts: list[np.ndarray], names: list[str]
 METRICS_KEY = {"metrics": [metric_version("v1"), metric_version("official")]}
 
 
-def score_predictions(names: list[str], preds: list, gt_paths: list[Path]):
-    """Masks [H, W] bool of the test frames ``names`` against their ground-truth files ->
-    (the binarised ground truths, v1 scores, official scores). The official metric reads the
-    ground truth as stored, as the public script does (its accuracy compares a 0/1 prediction
-    with the stored values; its IoU equals the binarised one's)."""
-    gts = [read_mask(p) for p in gt_paths]
-    stored = [read_official_ground_truth(p) for p in gt_paths]
+def read_ground_truths(gt_paths: list[Path]) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """The test frames' ground truths, each read once -> (binarised bool [H, W], as stored). The
+    official metric reads them as stored, as the public script does (its accuracy compares a
+    0/1 prediction with the stored values; its IoU equals the binarised one's)."""
+    return [read_mask(p) for p in gt_paths], [read_official_ground_truth(p) for p in gt_paths]
+
+
+def score_predictions(names: list[str], preds: list, gts: list[np.ndarray], stored: list[np.ndarray]):
+    """Masks [H, W] bool of the test frames ``names`` against their ground truths
+    (``read_ground_truths``) -> (v1 scores, official scores)."""
     by_name = dict(zip(names, preds))
-    return gts, score_masks(by_name, dict(zip(names, gts)), "v1"), score_masks(by_name, dict(zip(names, stored)), "official")
+    return score_masks(by_name, dict(zip(names, gts)), "v1"), score_masks(by_name, dict(zip(names, stored)), "official")
 
 
-def segment_prompts(method, fitted, scene, prompts, protocol, gts: list[np.ndarray], names: list[str]):
+def segment_prompts(method, fitted, scene, prompts, protocol, gts: list[np.ndarray], stored: list[np.ndarray],
+                    names: list[str]):
     """The run's masks at every test view under the prompt protocol -> (predictor, masks,
     clusters selected, cluster per click, the corrective summary or None). The first clicks
     alone where the protocol does not correct (``prompts.corrections`` 0)."""
     from benchmark.pipeline.corrective import Predictor, correct, score_curve
-    from benchmark.scoring import read_official_ground_truth
 
     predictor = Predictor(method, fitted, scene, prompts)
     if protocol.corrections == 0:
@@ -94,7 +97,6 @@ def segment_prompts(method, fitted, scene, prompts, protocol, gts: list[np.ndarr
             predictor.rendered[(None, tuple(selected))] = preds
         return predictor, preds, selected, fitted.stats.get("click_clusters"), None
     run = correct(predictor, list(prompts.clicks), gts, protocol)
-    stored = [read_official_ground_truth(p) for p in scene.gt_masks]
     summary, (preds, selected, per_click) = score_curve(predictor, run, names, stored)
     summary["target"] = float(protocol.correction_target)
     if selected is None:  # a method that does not select clusters records its own
@@ -113,12 +115,12 @@ def evaluate(method, fitted, scene, prompts, directory: Path, protocol) -> dict:
     from trase.checkpoint import model_storage
 
     names = [f"{i:05d}" for i in range(len(scene.test))]
-    gts = [read_mask(p) for p in scene.gt_masks]
+    gts, stored = read_ground_truths(scene.gt_masks)
     predictor, preds, selected, per_click, corrective = segment_prompts(method, fitted, scene, prompts, protocol,
-                                                                        gts, names)
+                                                                        gts, stored, names)
     if len(preds) != len(scene.test):
         raise RuntimeError(f"{method.name}.segment returned {len(preds)} masks for {len(scene.test)} test views")
-    gts, v1, official = score_predictions(names, preds, scene.gt_masks)
+    v1, official = score_predictions(names, preds, gts, stored)
     with atomic_directory(directory / "pred") as d:
         for n, m in zip(names, preds):
             cv2.imwrite(str(d / f"{n}.png"), m.astype(np.uint8) * 255)
