@@ -12,7 +12,7 @@ import dataclasses
 
 import numpy as np
 
-from benchmark.protocol.corrective import clicks_to_reach, corrective_clicks
+from benchmark.protocol.corrective import check_frames, clicks_to_reach, corrective_clicks
 from benchmark.scoring import score_masks
 
 NOC_TARGETS = (0.85, 0.90)  # NoC@85, NoC@90: the interactive-segmentation standard's two
@@ -73,6 +73,7 @@ class Corrected:
     n_first: int
     budget: int  # the most corrective clicks it could have made
     negatives: bool  # whether it could click negatively (the method's negative_clicks)
+    watched: list = dataclasses.field(default_factory=list)  # the check frames' test view indices
 
     def kept_after(self, j: int) -> list:
         """The clicks in force after the first ``j`` corrective clicks."""
@@ -81,11 +82,14 @@ class Corrected:
 
 def correct(predictor: Predictor, first: list, gts: list[np.ndarray], protocol) -> Corrected:
     """The robot user from ``first`` (benchmark.protocol.corrective) with ``protocol``'s budget
-    per first click and target; its click frames' ground truth is the only truth it reads."""
+    per first click, target and check frames; the click and check frames' ground truth is the
+    only truth it reads."""
     from benchmark.methods import takes_negative_clicks
 
     negatives = takes_negative_clicks(predictor.method)
-    frames = sorted({c.view_index for c in first})
+    clicked = sorted({c.view_index for c in first})
+    checks = check_frames(len(gts), clicked, int(protocol.correction_check_frames))
+    frames = sorted({*clicked, *checks})
     budget = int(protocol.corrections) * len(first)
 
     def predict(clicks) -> dict[int, np.ndarray]:
@@ -93,7 +97,7 @@ def correct(predictor: Predictor, first: list, gts: list[np.ndarray], protocol) 
 
     robot = corrective_clicks(list(first), predict, {i: gts[i] for i in frames}, budget,
                               float(protocol.correction_target), negatives, float(protocol.correction_min_gain))
-    return Corrected(robot.clicks, robot.spent, len(first), budget, negatives)
+    return Corrected(robot.clicks, robot.spent, len(first), budget, negatives, checks)
 
 
 def score_curve(predictor: Predictor, run: Corrected, names: list[str], stored: list[np.ndarray]) -> tuple[dict, tuple]:
@@ -120,6 +124,7 @@ def score_curve(predictor: Predictor, run: Corrected, names: list[str], stored: 
     noc = {f"noc@{round(t * 100)}": clicks_to_reach(mious, run.n_first, t, run.budget) for t in NOC_TARGETS}
     numbered = [click_dicts([c])[0] | {"n": run.n_first + j + 1} for j, (c, _) in enumerate(run.spent)]
     summary = {"first_clicks": run.n_first, "budget": run.budget, "negatives": run.negatives,
+               "check_frames": [predictor.scene.test[i].name for i in run.watched],
                "corrections": [d for d, (_, kept) in zip(numbered, run.spent) if kept],
                "undone": [d for d, (_, kept) in zip(numbered, run.spent) if not kept], "curve": points, **noc}
     return summary, final

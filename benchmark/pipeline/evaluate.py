@@ -174,6 +174,7 @@ def corrective_key(protocol) -> dict:
         return {}
     return {"corrective": {"version": PROTOCOL_VERSION, "corrections": int(protocol.corrections),
                            "target": float(protocol.correction_target),
+                           "check_frames": int(protocol.correction_check_frames),
                            **({"min_gain": float(protocol.correction_min_gain)} if protocol.correction_min_gain else {})}}
 
 

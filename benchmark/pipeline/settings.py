@@ -98,8 +98,9 @@ AS_BEFORE = {
     "deform_scale_rule": ("clamp", ("deform_scale_rule",)),  # the CPU presets' scale rule, the only one before
     "near_plane": (0.01, ("near_plane",)),  # the rasterizer's near plane, the only one before
     "numerics": ("native", ("numerics",)),  # each library's own kernels for this processor (benchmark.numerics)
-    "corrections": (0, ("corrections", "correction_target", "correction_min_gain")),
-    "correction_min_gain": (0.0, ("correction_min_gain",)),  # any gain in the click frames keeps a click  # the first clicks alone (the single-click protocol)
+    # the first clicks alone (the single-click protocol)
+    "corrections": (0, ("corrections", "correction_target", "correction_min_gain", "correction_check_frames")),
+    "correction_min_gain": (0.0, ("correction_min_gain",)),  # any gain in the watched frames keeps a click
 }
 
 
@@ -161,12 +162,19 @@ class PromptProtocol:
     # first clicks alone (the single-click protocol)
     corrections: int = 3
     correction_target: float = 0.9
-    correction_min_gain: float = 0.0  # a click that raises the click frames' mean IoU by less is undone
+    correction_min_gain: float = 0.0  # a click that raises the watched frames' mean IoU by less is undone
+    # test frames spread over the sequence that the robot watches besides its click frames: a click
+    # is judged by the mean IoU over both (0: the click frames alone)
+    correction_check_frames: int = 2
 
     def __post_init__(self) -> None:
         if not isinstance(self.corrections, int) or isinstance(self.corrections, bool) or self.corrections < 0:
             raise ConfigError(f"--set prompts.corrections={self.corrections!r}: a whole number >= 0 "
                               "(0: the first clicks alone)")
+        if (not isinstance(self.correction_check_frames, int) or isinstance(self.correction_check_frames, bool)
+                or self.correction_check_frames < 0):
+            raise ConfigError(f"--set prompts.correction_check_frames={self.correction_check_frames!r}: a whole "
+                              "number >= 0 (0: the click frames alone)")
         if not 0.0 <= float(self.correction_min_gain) < 1.0:
             raise ConfigError(f"--set prompts.correction_min_gain={self.correction_min_gain!r}: an IoU gain in [0, 1)")
         if not 0.0 < float(self.correction_target) <= 1.0:

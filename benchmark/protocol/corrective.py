@@ -1,12 +1,13 @@
 """The robot user of interactive segmentation (RITM's, SimpleClick's, SAM's evaluation): after
 the first clicks, each next click goes to the most interior pixel (the distance-transform
 maximum) of the largest error region of the click frames: positive where the object was missed,
-negative where something else was selected. A click that makes the click frames worse, or
-changes nothing in them, is undone, as a person would undo it: it is spent, and its region is
-left alone after. It stops
-when every click frame reaches the target IoU, the budget of extra clicks is spent, or no error
-is left to click. Only the click frames' ground truth is read, as a person looks at the view they
-click in.
+negative where something else was selected. A person who clicks in one view also watches the
+selection play through the sequence; the robot does so in a few check frames (test frames spread
+evenly over the sequence): a click that makes the click and check frames worse, or changes
+nothing in them, is undone, as a person would undo it: it is spent, and its region is left alone
+after. It stops when every click frame reaches the target IoU, the budget of extra clicks is
+spent, or no error is left to click. Only the click and check frames' ground truth is read, as a
+person looks at the views they click in and watch.
 
 The score after k clicks gives the curve; the number of clicks a sequence needs to reach an IoU
 (NoC@85, NoC@90) counts the budget's clicks + 1 where it never does, as the standard does.
@@ -25,7 +26,9 @@ from trase.prompts import Click
 # in the evaluate stage's key: another robot user, or another rule for what a click selects
 # (trase.prompts.clicks_to_clusters, benchmark.methods.click_selection), makes other clicks.
 # 2: a click that changes nothing is undone, not kept (the robot goes on elsewhere)
-PROTOCOL_VERSION = 2
+# 3: a click is judged on the check frames too (a click that helps its view and costs the rest of
+# the sequence is undone)
+PROTOCOL_VERSION = 3
 
 
 def iou(pred: np.ndarray, gt: np.ndarray) -> float:
@@ -63,53 +66,66 @@ def next_click(preds: dict[int, np.ndarray], gts: dict[int, np.ndarray], frames:
     return None if best is None else best[1]
 
 
+def check_frames(n_views: int, click_frames: Sequence[int], count: int) -> list[int]:
+    """``count`` test frames (of ``n_views``) spread evenly over the sequence, none of them a click
+    frame: the frames the robot user watches besides those it clicks in. Fewer where the
+    sequence has no more frames."""
+    free = [i for i in range(n_views) if i not in set(click_frames)]
+    if count <= 0 or not free:
+        return []
+    picks = np.linspace(0, len(free) - 1, count + 2)[1:-1] if count < len(free) else np.arange(len(free))
+    return sorted({free[int(round(p))] for p in picks})
+
+
 @dataclasses.dataclass
 class RobotRun:
     """What the robot user did from its first clicks."""
 
     clicks: list[Click]  # the first clicks, then the corrective ones it kept
     spent: list[tuple[Click, bool]]  # every corrective click in order, and whether it was kept
-    curve: list[float]  # the click frames' mean IoU after the first clicks and after each spent click
+    curve: list[float]  # the click and check frames' mean IoU after the first clicks and after each spent click
 
 
 def corrective_clicks(first: list[Click], predict: Callable[[list[Click]], dict[int, np.ndarray]],
                       gts: dict[int, np.ndarray], budget: int, target: float, negatives: bool = True,
                       min_gain: float = 0.0) -> RobotRun:
     """The first clicks, then corrective ones. ``predict``: clicks -> the predicted masks of the
-    click frames (view index -> bool [H, W]); ``gts``: their ground truth; ``budget``: the most
-    corrective clicks; ``negatives``: whether the method takes negative clicks (else only
-    missed regions get clicks). A click that lowers the click frames' mean IoU, or changes nothing
-    in them, is undone, as a person undoes it, and spent: the score stays and its region is left
-    alone.
-    Stops once every click frame reaches ``target``, the budget is spent or no error is left to
-    click."""
+    frames of ``gts`` (view index -> bool [H, W]); ``gts``: the ground truth of the click frames
+    (those of ``first``) and of any check frames; ``budget``: the most corrective clicks;
+    ``negatives``: whether the method takes negative clicks (else only missed regions get
+    clicks). Clicks go to the click frames only. A click that does not raise the mean IoU over
+    all of ``gts``' frames by more than ``min_gain``, or changes nothing in them, is undone, as a
+    person undoes it, and spent: the score stays and its region is left alone. Stops once every
+    click frame reaches ``target``, the budget is spent or no error is left to click."""
     if not first:
         raise ValueError("the robot user starts from at least one click")
     frames = {c.view_index: (c.view, c.time) for c in first}
     missing = sorted(set(frames) - set(gts))
     if missing:
         raise ValueError(f"no ground truth for the click frames {missing}")
+    watched = sorted(gts)
 
-    def score(preds) -> list[float]:
-        return [iou(preds[i], gts[i]) for i in sorted(frames)]
+    def score(preds) -> dict[int, float]:
+        return {i: iou(preds[i], gts[i]) for i in watched}
 
     run = RobotRun(list(first), [], [])
     preds = predict(run.clicks)
     ious = score(preds)
-    run.curve.append(float(np.mean(ious)))
-    while min(ious) < target and len(run.spent) < budget:
+    run.curve.append(float(np.mean(list(ious.values()))))
+    while min(ious[i] for i in frames) < target and len(run.spent) < budget:
         click = next_click(preds, gts, frames, negatives, [c for c, kept in run.spent if not kept])
         if click is None:
             break
         trial = predict([*run.clicks, click])
         trial_ious = score(trial)
-        better, same = float(np.mean(trial_ious)) - run.curve[-1], all(np.array_equal(trial[i], preds[i]) for i in frames)
+        better = float(np.mean(list(trial_ious.values()))) - run.curve[-1]
+        same = all(np.array_equal(trial[i], preds[i]) for i in watched)
         kept = better > min_gain or (better == min_gain == 0 and not same)  # worse, or no change: undone
         run.spent.append((click, kept))
         if kept:
             run.clicks.append(click)
             preds, ious = trial, trial_ious
-        run.curve.append(float(np.mean(ious)))
+        run.curve.append(float(np.mean(list(ious.values()))))
     return run
 
 
@@ -122,4 +138,4 @@ def clicks_to_reach(curve: Sequence[float], first: int, target: float, budget: i
     return first + budget + 1
 
 
-__all__ = ["PROTOCOL_VERSION", "RobotRun", "clicks_to_reach", "corrective_clicks", "iou", "next_click"]
+__all__ = ["PROTOCOL_VERSION", "RobotRun", "check_frames", "clicks_to_reach", "corrective_clicks", "iou", "next_click"]

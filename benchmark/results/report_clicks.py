@@ -106,7 +106,7 @@ def _corrective_text(record: dict) -> str:
     polarity = "" if c.get("negatives") else " The method takes no negative clicks: positive corrections only."
     undone = len(c.get("undone", []))
     text = (f"The robot user clicked {len(curve) - 1} more time(s) after the {c['first_clicks']} first click(s), "
-            f"undoing {undone} that made its click frames worse or changed nothing "
+            f"undoing {undone} that made its click and check frames worse or changed nothing "
             f"(budget {c['budget']}, stopping once every click frame reached IoU {c.get('target', '?')}): mIoU "
             f"{curve[0]['miou']:.4f} after the first clicks, {curve[-1]['miou']:.4f} after {curve[-1]['clicks']}; "
             f"NoC@85 {c['noc@85']}, NoC@90 {c['noc@90']}.{polarity}")
@@ -118,7 +118,7 @@ def prompts_section(record: dict) -> str:
     every click set's clicks and score."""
     return f"""<h2>Prompts</h2><p>White rings: the run's first clicks, labelled with the cluster each chose;
 green / red rings: its corrective clicks, positive / negative, numbered as the plot counts clicks; grey crosses:
-corrective clicks it undid (they made its click frames worse or changed nothing); dots: the other click
+corrective clicks it undid (they made its click and check frames worse or changed nothing); dots: the other click
 sets (the same objects elsewhere in their first frames). Ground truth in blue.</p>
 {''.join(click_tiles(record, record.get("frames", [])))}
 {_corrective_text(record)}

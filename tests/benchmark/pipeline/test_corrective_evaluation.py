@@ -66,6 +66,7 @@ def test_a_missed_part_gets_a_positive_click_and_noc_counts_the_clicks_to_reach_
     assert per_click == [1, 2] and selected == [1, 2] and np.array_equal(preds[1], GT)
     assert [p["miou"] for p in summary["curve"]] == [0.5, 1.0]  # stopped: the click frame reached 0.9
     assert summary["noc@85"] == summary["noc@90"] == 2 and run.budget == 3
+    assert summary["check_frames"] == ["f1"]  # the one other test frame, watched beside the click frame
     assert method.renders == 2 + 2  # each selection once at the click frame, once at every frame
 
 
@@ -100,6 +101,8 @@ def test_the_protocols_settings_are_checked():
         PromptProtocol(corrections=-1)
     with pytest.raises(ConfigError, match="correction_target=1.5"):
         PromptProtocol(correction_target=1.5)
+    with pytest.raises(ConfigError, match="correction_check_frames=-2"):
+        PromptProtocol(correction_check_frames=-2)
 
 
 def test_masks_of_another_count_or_size_are_named_errors():

@@ -4,7 +4,7 @@ how many clicks a curve needs."""
 import numpy as np
 import pytest
 
-from benchmark.protocol.corrective import clicks_to_reach, corrective_clicks, iou, next_click
+from benchmark.protocol.corrective import check_frames, clicks_to_reach, corrective_clicks, iou, next_click
 from trase.prompts import Click
 
 H, W = 20, 30
@@ -105,3 +105,31 @@ def test_a_click_that_gains_less_than_the_minimum_is_undone():
     assert [k for _, k in kept.spent] == [True] and kept.curve[-1] == 1.0
     strict = corrective_clicks(first, _region_predictor(labels), gt, budget=2, target=1.0, min_gain=0.05)
     assert [k for _, k in strict.spent] == [False] and strict.clicks == first
+
+
+def test_check_frames_spread_over_the_sequence_and_skip_the_click_frames():
+    assert check_frames(50, [0], 2) == [17, 33]  # a third and two thirds of the 49 other frames
+    assert check_frames(10, [3], 1) == [5]
+    assert check_frames(3, [1], 5) == [0, 2]  # no more frames than the sequence has
+    assert check_frames(1, [0], 2) == [] and check_frames(50, [0], 0) == []
+
+
+def test_a_click_that_helps_its_frame_and_costs_a_check_frame_more_is_undone():
+    """Region 2 is the object in the click frame (0) but covers background in check frame 5: a
+    person watching frame 5 would undo the click; the click frame alone would keep it."""
+    labels = np.zeros((H, W), np.int64)
+    labels[2:9, 3:10], labels[10:12, 12:15] = 1, 2
+    labels_later = labels.copy()
+    labels_later[10:20, 0:30] = 2  # in frame 5 region 2 is a wall of 300 px
+    gt = {0: np.isin(labels, [1, 2]), 5: labels_later == 1}
+
+    def predict(clicks):
+        chosen = {int(labels[int(c.v), int(c.u)]) for c in clicks} - {0}
+        return {0: np.isin(labels, sorted(chosen)), 5: np.isin(labels_later, sorted(chosen))}
+
+    first = [Click(6.5, 5.5, "v0", 0.0, 0)]
+    alone = corrective_clicks(first, lambda c: {0: predict(c)[0]}, {0: gt[0]}, budget=1, target=1.0)
+    assert [k for _, k in alone.spent] == [True]  # the click frame alone keeps it
+    watched = corrective_clicks(first, predict, gt, budget=1, target=1.0)
+    assert [k for _, k in watched.spent] == [False] and watched.clicks == first
+    assert watched.curve[1] == watched.curve[0] < 1.0  # the undone click leaves the mean IoU of both frames
