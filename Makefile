@@ -1,12 +1,15 @@
-# `make test` (the fast suite), `make test-all` (with the slow end-to-end tests; what CI runs)
-# and `make demo`. Each sets up .venv on first use.
+# `make test` (the fast suite), `make test-all` (with the slow end-to-end tests; what CI runs),
+# `make demo` and `make docs` (the documentation site, built strictly into build/site). Each sets
+# up .venv on first use.
 PYTHON ?= python3
 VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.trase-bench-installed
 TORCH_PIN := torch==2.13.0
 
-.PHONY: test test-all demo venv clean
+DOCS_STAMP := $(VENV)/.trase-bench-docs-installed
+
+.PHONY: test test-all demo docs venv clean
 
 venv: $(STAMP)
 
@@ -35,6 +38,14 @@ test-all: $(STAMP)
 demo: $(STAMP)
 	$(VENV)/bin/trase-bench run --method trase --dataset hypernerf --runs runs
 	$(VENV)/bin/trase-bench leaderboard --runs runs --variant synthetic
+
+$(DOCS_STAMP): pyproject.toml $(STAMP)
+	$(PY) -m pip install --quiet -e ".[docs]"
+	@touch $(DOCS_STAMP)
+
+# strict: a broken link, a missing anchor or a page that does not build fails the build
+docs: $(DOCS_STAMP)
+	DISABLE_MKDOCS_2_WARNING=true $(VENV)/bin/mkdocs build --strict
 
 clean:
 	rm -rf $(VENV) build *.egg-info

@@ -50,8 +50,9 @@ SAM_CHECKPOINTS = {
 
 def weights_dir() -> Path:
     """$TRASE_BENCH_CACHE/weights, else ~/.cache/trase-bench/weights."""
-    base = os.environ.get("TRASE_BENCH_CACHE") or str(Path.home() / ".cache" / "trase-bench")
-    return Path(base) / "weights"
+    import cachedir
+
+    return cachedir.subfolder("weights")
 
 
 def sha256_of(path: Path) -> str:

@@ -1,4 +1,5 @@
-"""Which cluster every click of a benchmark run chooses under each click rule (docs/cpu-constants.md).
+"""Which cluster every click of a benchmark run chooses under each click rule
+(docs/notes/cpu-constants.md).
 
 A run scores its clicks by one rule (``method.prompts.click_rule``); this resolves every click of
 its five click sets by each rule on the run's own features and clusters, without rendering. Where

@@ -9,7 +9,7 @@ each checkpoint, the deformation network's motion of every gaussian over ``--tim
 evenly spread over [0, 1] (``trase.static_gaussians.motion``, in the capture's units: the
 extent given as 1), and how many gaussians move more than each ``--above`` value. Why: static
 gaussians are measured from iteration 1600 on; a scene whose movers have not learned their
-motion by then loses them (docs/skip.md). With ``--scene`` (one per MODEL_DIR, read as
+motion by then loses them (docs/notes/skip.md). With ``--scene`` (one per MODEL_DIR, read as
 ``--dataset``): the PSNR of each training view rendered at its time (black background, as the
 cpu preset trains), its median, the worst and the times of the three worst: a motion not yet
 learned shows as a few times much worse than the rest; the time gap is

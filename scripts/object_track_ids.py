@@ -1,4 +1,4 @@
-"""Which track ids one object of a synthetic scene carries in each training view (docs/competitors.md).
+"""Which track ids one object of a synthetic scene carries in each training view (docs/notes/competitors.md).
 
 A classifier of identities (Gaussian Grouping, SA4D) learns what the ids say. This prints, for
 every training view in time order, the share of the object's pixels (instance maps) under its two

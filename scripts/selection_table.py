@@ -4,7 +4,7 @@ the official mIoU of each run, the mean over the formats, best first per method.
     python3 scripts/selection_table.py RUNS_DIR [--method M ...]
 
 RUNS_DIR holds runs made on the selection scenes (e.g. seed-1 scenes under --data-root, one
---name per setting, as docs/cpu-constants.md describes); a row lacking a format is ranked
+--name per setting, as docs/notes/cpu-constants.md describes); a row lacking a format is ranked
 after the complete ones and marked.
 """
 

@@ -1,11 +1,12 @@
-"""The README and docs/ say only what the code has: their links resolve, and the README's
-library tour imports."""
+"""The README and docs/ say only what the code has: their links resolve, the library guide's
+imports run, and the README's results table is the rendering of the figures data."""
 
+import json
 import re
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
 
 
 def test_relative_links_resolve():
@@ -19,10 +20,23 @@ def test_relative_links_resolve():
     assert not broken, broken
 
 
-def test_readme_library_tour_imports():
-    text = (ROOT / "README.md").read_text()
+def test_the_library_guides_imports_run():
+    text = (ROOT / "docs" / "library.md").read_text()
     blocks = re.findall(r"```python\n(.*?)```", text, flags=re.S)
-    assert blocks, "the README's library tour is missing"
+    assert blocks, "the library guide's code is missing"
     for block in blocks:
         imports = "\n".join(line.split("#")[0] for line in block.splitlines() if line.startswith("from "))
-        exec(compile(imports, "README.md", "exec"), {})
+        exec(compile(imports, "docs/library.md", "exec"), {})
+
+
+def test_the_readmes_results_table_is_the_rendering_of_the_figures_data():
+    from benchmark.results.figures import page_block
+    from benchmark.results.figures_summary import SUMMARY_BEGIN, SUMMARY_END, render_summary_block
+
+    data = json.loads((ROOT / "docs" / "figures.json").read_text())
+    block = page_block((ROOT / "README.md").read_text(), "README.md", (SUMMARY_BEGIN, SUMMARY_END))
+    assert block == render_summary_block(data), "README.md: run trase-bench figures --from-data --write-page README.md"
+
+
+def test_the_readme_is_short():
+    assert len((ROOT / "README.md").read_text().splitlines()) <= 130

@@ -40,7 +40,7 @@ def offset_scales(scales: torch.Tensor, d_scale: torch.Tensor, rule: str = "mirr
     drives below zero vanishes at that time and gets no gradient to come back; on a GPU run of
     the paper preset the network parked 1% or more of the gaussians so (offsets of hundreds of
     units, scales at the floor) by iteration 5500 and the loss rose from 0.02 to 0.11
-    (docs/gpu.md). Both floor at MIN_SCALE."""
+    (docs/notes/gpu.md). Both floor at MIN_SCALE."""
     s = scales + d_scale
     if rule == "mirror":
         s = s.abs()

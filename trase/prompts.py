@@ -37,7 +37,7 @@ from trase.render import pixel_weights, rasterize
 
 CLICK_RULES = ("depth", "weight", "feature", "front")
 # the "front" rule's least share of the window's weight: the only share tried that chose no
-# occluder on the selection scenes (0.2-0.33 did; docs/cpu-constants.md, "The click rule")
+# occluder on the selection scenes (0.2-0.33 did; docs/notes/cpu-constants.md, "The click rule")
 FRONT_SHARE = 0.4
 MASK_RULES = ("cover", "share")
 MASK_MIN_COVER = 0.7  # Gaussian Grouping's intersection-over-area threshold of its mask prompt
@@ -123,12 +123,12 @@ def click_to_cluster(gaussians, deformation, camera: Camera, click: Click, label
     the 2D masks) is compared by cosine with each cluster's mean feature; the nearest cluster
     wins. Why: where an object's gaussians are semi-transparent the weight under the cursor
     can be mostly the background's, while the rendered feature is the object's
-    (docs/cpu-constants.md, "The click rule", has the measurements).
+    (docs/notes/cpu-constants.md, "The click rule", has the measurements).
     ``rule="front"``: of the clusters holding at least ``front_share`` of the window's weight,
     the one nearest the camera (the weight-averaged depth of its gaussians there). Why: a
     person clicks what is in front; where a semi-transparent object blends with the wall
     behind it, the wall can hold more of the weight and of the rendered feature than the
-    object (docs/cpu-constants.md, "The click rule")."""
+    object (docs/notes/cpu-constants.md, "The click rule")."""
     if rule not in CLICK_RULES:
         raise PromptError(f"unknown click rule {rule!r}; choose one of {', '.join(CLICK_RULES)}")
     if rule == "feature" and features is None:

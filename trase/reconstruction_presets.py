@@ -59,7 +59,7 @@ RECONSTRUCTION_PRESETS.declare("paper", help="the public TRASE code's settings (
 # raised in inverse proportion to it, so densification stops at the same footprint in pixels;
 # every benchmark at its published resolution keeps 0.0002 (a deviation only where the public
 # code never ran). Measured on that scene: 17.2k gaussians at iteration 1400 instead of 35.5k
-# (CPU), but still 163k by iteration 8730 on an H100 (docs/gpu.md): it slows the growth, it
+# (CPU), but still 163k by iteration 8730 on an H100 (docs/notes/gpu.md): it slows the growth, it
 # does not bound it.
 PAPER_SMALLEST_IMAGE_SIZE = 360.0  # sqrt(W H) of NeRF-DS's 2x images (480x270)
 
@@ -103,7 +103,7 @@ RECONSTRUCTION_PRESETS.declare("cpu-v1", tier="cpu", help=CPU_V1_HELP, values={
     "deform_zero_init": True,
     # the rule every cpu preset was tuned and measured with (a negative s + d_scale floored, the
     # gaussian gone at that time); the public code's "mirror" keeps a gradient on it, and a GPU
-    # run of the paper preset collapsed without it (docs/gpu.md). Not yet measured on the cpu
+    # run of the paper preset collapsed without it (docs/notes/gpu.md). Not yet measured on the cpu
     # presets: their figures stay as they are until it is
     "deform_scale_rule": "clamp",
     # the near plane every cpu preset was measured with (the public rasterizer's is 0.2)

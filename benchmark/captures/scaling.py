@@ -33,8 +33,9 @@ SCALED_VERSION = 1  # part of every cached file's key: a change of the method re
 
 def cache_root() -> Path:
     """Where scaled copies go: $TRASE_BENCH_CACHE/scaled, else ~/.cache/trase-bench/scaled."""
-    base = os.environ.get("TRASE_BENCH_CACHE") or str(Path.home() / ".cache" / "trase-bench")
-    return Path(base) / "scaled"
+    import cachedir
+
+    return cachedir.subfolder("scaled")
 
 
 def target_size(width: int, height: int, factor: float) -> tuple[int, int]:

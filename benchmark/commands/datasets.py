@@ -13,7 +13,8 @@ from benchmark.methods.trase_presets import trase_settings
 @click.command()
 @click.option("--json", "as_json", is_flag=True, help="Print the registry as JSON.")
 def datasets(as_json: bool) -> None:
-    """List the five *-Mask benchmarks: sequences, split, resolution, frames, method defaults."""
+    """List the five *-Mask benchmarks: sequences, split, resolution, frames, method defaults,
+    and the built-in synthetic sequences every benchmark has without real data."""
     if as_json:
         click.echo(json.dumps({k: s.to_dict() for k, s in DATASETS.items()}, indent=2))
         return
@@ -24,6 +25,7 @@ def datasets(as_json: bool) -> None:
         for s in DATASETS.values():
             click.echo(f"{s.key} ({s.display_name}): {', '.join(s.sequences)}")
             click.echo(f"  split: {s.split}")
+        click.echo(builtin_sequences())
         return
     times = sorted({s.time_rule for s in DATASETS.values()})
     table = Table(title="trase-bench datasets", show_lines=True,
@@ -48,4 +50,17 @@ def datasets(as_json: bool) -> None:
         kind = "monocular" if s.monocular else "multi-view"
         table.add_row(f"{s.key}\n{s.display_name}\n{s.format}, {kind}", "\n".join(s.sequences),
                       s.split, f"{res}\n{frames}", defaults)
-    Console().print(table)
+    # a pipe or a file gets the whole table, not a terminal's 80 columns
+    console = Console() if Console().is_terminal else Console(width=200)
+    console.print(table)
+    console.print(builtin_sequences())
+
+
+def builtin_sequences() -> str:
+    """The synthetic sequences, one per size and difficulty, that each benchmark runs without data."""
+    from benchmark.datasets.synthetic import DIFFICULTIES, SIZE_NAMES
+    from benchmark.datasets.synthetic.generate import sequence_name
+
+    names = ", ".join(sequence_name(size, d) for d in DIFFICULTIES for size in SIZE_NAMES)
+    return (f"built-in synthetic sequences of every benchmark (generated on first use, no data needed): {names}; "
+            "`trase-bench synth --size tiny|small|medium` writes one anywhere")

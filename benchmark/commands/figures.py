@@ -21,6 +21,9 @@ from benchmark.commands import old_spelling
 @click.option("--geometry", "geometries", multiple=True, type=click.Choice(["reconstruct", "ground-truth"]),
               help="Only this geometry source (repeatable; default both).")
 @click.option("--collect-only", is_flag=True, help="Summarise the runs already under --runs; run nothing.")
+@click.option("--from-data", is_flag=True,
+              help="Only write --write-page from the --data file as it is: run and summarise nothing "
+                   "(a page's block after a change of its rendering; README.md's results table).")
 @click.option("--data", "data_path", type=click.Path(dir_okay=False), default="docs/figures.json", show_default=True,
               help="The summary written (and read by --write-page).")
 @click.option("--write-page", "page", type=click.Path(dir_okay=False), default=None, is_flag=False,
@@ -33,7 +36,8 @@ from benchmark.commands import old_spelling
                    "some methods, formats or geometries) and keep the others; cells whose runs came from another "
                    "instruction set than most are marked on the page.")
 @click.option("--quiet", is_flag=True, help="No progress output.")
-def figures(runs_dir, seeds, formats, geometries, collect_only, data_path, page, methods, update, quiet) -> None:
+def figures(runs_dir, seeds, formats, geometries, collect_only, from_data, data_path, page, methods, update,
+            quiet) -> None:
     """Run trase (or each --method) on the five built-in formats (reconstructed and ground-truth
     geometry, each for --seeds run seeds), summarise mean ± std over seeds into --data with the
     commit and machine, print the table, and with --write-page put it into the page's block
@@ -50,13 +54,16 @@ def figures(runs_dir, seeds, formats, geometries, collect_only, data_path, page,
         GEOMETRIES,
         collect,
         merge,
-        page_markers,
         read_figures,
         render_block,
-        replace_block,
         write_json,
     )
 
+    if from_data:
+        if not page:
+            raise UserError("--from-data writes a page from --data: give --write-page PAGE")
+        write_page(Path(page), read_figures(Path(data_path)))
+        return
     formats = tuple(formats) or FORMATS
     geometries = tuple(geometries) or GEOMETRIES
     methods = tuple(methods) or ("trase",)
@@ -79,10 +86,15 @@ def figures(runs_dir, seeds, formats, geometries, collect_only, data_path, page,
         click.echo(render_block(data))
     click.echo(f"wrote {data_path}")
     if page:
-        from benchmark.io import atomic_write_text
+        write_page(Path(page), data)
 
-        path = Path(page)
-        text = path.read_text()
-        markers, render = page_markers(text)
-        atomic_write_text(path, replace_block(text, render(data), str(path), markers))
-        click.echo(f"wrote the figures block of {path}")
+
+def write_page(path: Path, data: dict) -> None:
+    """Rewrite the block ``path`` holds (benchmark.results.figures.page_markers) from ``data``."""
+    from benchmark.io import atomic_write_text
+    from benchmark.results.figures import page_markers, replace_block
+
+    text = path.read_text()
+    markers, render = page_markers(text)
+    atomic_write_text(path, replace_block(text, render(data), str(path), markers))
+    click.echo(f"wrote the figures block of {path}")

@@ -50,7 +50,10 @@ def leaderboard(runs_dir: str, run_dirs: tuple[str, ...], kinds: tuple[str, ...]
             raise click.UsageError("--kind chooses runs under --runs; with --run the runs are given")
         records = [load_run(Path(p)) for p in run_dirs]
     else:
-        records = select_runs(find_runs(Path(runs_dir), warn=warn), kinds or TABLE_KINDS)
+        found = find_runs(Path(runs_dir), warn=warn)
+        records = select_runs(found, kinds or TABLE_KINDS)
+        if not kinds:
+            note_left_out(found, records, warn)
     records = one_config_per_row(records)
     variants = ("synthetic", "real") if variant == "all" else (variant,)
     text = render_all(records, fmt, variants=variants, published=not no_published)
@@ -64,3 +67,13 @@ def leaderboard(runs_dir: str, run_dirs: tuple[str, ...], kinds: tuple[str, ...]
         click.echo(f"wrote {out}")
     else:
         click.echo(text, nl=False)
+
+
+def note_left_out(found: list[dict], shown: list[dict], warn) -> None:
+    """A note naming the methods whose runs under --runs the default tables leave out (runs
+    made with --set: kind "run"), and how to show them."""
+    shown_methods = {r["method"] for r in shown}
+    left = sorted({r["method"] for r in found if r["run"]["kind"] == "run"} - shown_methods)
+    if left:
+        warn(f"note: not shown, every run made with --set (kind run): {', '.join(left)}; "
+             "--kind run shows them, `trase-bench runs` lists them")

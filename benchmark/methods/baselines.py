@@ -41,8 +41,8 @@ BASELINE_METHODS = ("trase-hard", "trase-all", "cgc", "opengaussian")
 # trase-hard's own cpu choices: its features (hard mining) cluster otherwise than TRASE's, and
 # with TRASE's clustering (min_cluster_size 50 over every gaussian) its click on the benchmark's
 # HyperNeRF-format scene chose a background-sized cluster (mIoU 0.13, oracle 0.64). Chosen the way
-# TRASE's were (docs/cpu-constants.md, "The ablation methods' own settings"): on the seed-1 scenes
-# of the five formats, ground-truth geometry, by the mean official mIoU over a grid of
+# TRASE's were (docs/notes/cpu-constants.md, "The ablation methods' own settings"): on the
+# seed-1 scenes of the five formats, ground-truth geometry, by the mean official mIoU over a grid of
 # min_cluster_size {25, 50, 100} x filter {0.6, 0.7, 0.8} (and the click rule "weight" at filter
 # 0.7, which chose as "feature" did): 25 and 0.6, mean 0.388 (0.8: 0.388 too, 0.3879 against
 # 0.3882; TRASE's 50 and 0.7: 0.186). The features' learning rate was not searched again.
@@ -94,9 +94,9 @@ CGC_PRESETS.declare("cpu", FULL_FEATURE_SCHEDULE, filter_threshold=None)
 # cgc's own cpu threshold, per rig: chosen on the seed-1 selection scenes with reconstructed
 # geometry (the main protocol's), by the mean official mIoU of each rig's formats over {0.6, 0.7,
 # 0.8, 0.9}, a value replacing the public code's 0.7 only when better by more than 0.005
-# (docs/cpu-constants.md): the monocular ones (NeRF-DS, HyperNeRF) 0.6; the multi-view ones keep
-# 0.7 (mean 0.935; 0.9: 0.879). A first grid on ground-truth geometry had chosen 0.9 for the
-# multi-view rigs, where CGC's features are sharper than on the geometry the benchmark scores
+# (docs/notes/cpu-constants.md): the monocular ones (NeRF-DS, HyperNeRF) 0.6; the multi-view
+# ones keep 0.7 (mean 0.935; 0.9: 0.879). A first grid on ground-truth geometry had chosen 0.9 for
+# the multi-view rigs, where CGC's features are sharper than on the geometry the benchmark scores
 CGC_PRESETS.declare("cpu", {"cgc.threshold": 0.6}, when=MONOCULAR)
 
 OPENGAUSSIAN_PRESETS = TRASE_PRESETS.extended("opengaussian")

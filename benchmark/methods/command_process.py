@@ -9,6 +9,7 @@ import os
 import shlex
 import signal
 import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -41,9 +42,22 @@ class Finished:
         return f"exit status {self.status}" if self.status else ""
 
 
+def toolkit_bin_dirs() -> set[Path]:
+    """The toolkit's virtual environment's executables folders (none where the toolkit runs
+    from a system interpreter): an activated environment puts its ``python3`` first on PATH,
+    and a method's ``python3`` must not be the toolkit's."""
+    prefixes = [sys.prefix] if sys.prefix != sys.base_prefix else []
+    prefixes += [os.environ["VIRTUAL_ENV"]] if os.environ.get("VIRTUAL_ENV") else []
+    return {(Path(p) / "bin").resolve() for p in prefixes}
+
+
 def command_env(extra: dict[str, str]) -> dict[str, str]:
-    """This process's environment without NOT_INHERITED, plus ``extra``."""
+    """This process's environment without NOT_INHERITED and without the toolkit's environment's
+    executables on PATH, plus ``extra`` (a TOML's [env], which may set them on purpose)."""
     env = {k: v for k, v in os.environ.items() if k not in NOT_INHERITED}
+    hidden = toolkit_bin_dirs()
+    if "PATH" in env:
+        env["PATH"] = os.pathsep.join(d for d in env["PATH"].split(os.pathsep) if d and Path(d).resolve() not in hidden)
     return env | dict(extra)
 
 
@@ -104,4 +118,4 @@ def _signal_group(pgid: int, sig: int) -> None:
         pass
 
 
-__all__ = ["NOT_INHERITED", "Finished", "command_env", "run_logged"]
+__all__ = ["NOT_INHERITED", "Finished", "command_env", "run_logged", "toolkit_bin_dirs"]

@@ -4,7 +4,7 @@ data (lazyspecs.presets), each value with the benchmark or rig it applies to and
 ``paper``: the paper's Sec. 4 and its public code's configs (Np and M' by rig, the similarity
 filter's threshold per benchmark, HDBSCAN's min_cluster_size 10). ``cpu``: the feature preset
 ``cpu`` (trase.feature_config) and the constants below, chosen on scenes the benchmark never
-reports (docs/cpu-constants.md). A capture of one's own takes its rig's Np / M' and 0.9, the
+reports (docs/notes/cpu-constants.md). A capture of one's own takes its rig's Np / M' and 0.9, the
 threshold of two of the five benchmarks (HyperNeRF, Technicolor) and their median.
 
     TRASE_PRESETS.resolve("cpu", Context(dataset="hypernerf")).config   # a TraseSettings
@@ -23,7 +23,7 @@ from trase.reconstruction_presets import CPU_MAX_GAUSSIANS
 # The benchmark's click rule under every preset (trase.prompts.CLICK_RULES). "feature" asks
 # which cluster the feature rendered under the click belongs to, the query of feature-field
 # click prompts (as DGD's and SAGA's), matched to TRASE's clusters instead of thresholded.
-# Chosen on selection scenes (seed 1-3, never the benchmark's seed 0; docs/cpu-constants.md,
+# Chosen on selection scenes (seed 1-3, never the benchmark's seed 0; docs/notes/cpu-constants.md,
 # "The click rule"): where "weight" chose a wall behind a semi-transparent ring (0.116, oracle
 # 0.898) "feature" reached the oracle; every other scene chose the same clusters by both.
 CLICK_RULE = "feature"
@@ -109,17 +109,18 @@ TRASE_PRESETS.declare("cpu", {"features.n_pixels": CPU_MAX_PIXELS})
 # 0.58). The value: chosen on scenes the benchmark never reports (the synthetic scenes of seed 1
 # of all five formats, ground-truth geometry), the argmax of the mean mIoU over a grid of feature
 # lr {0.025, 0.05, 0.1} x filter {0.6, 0.7, 0.8, 0.9} x min_cluster_size {10, 25, 50}
-# (docs/cpu-constants.md): lr 0.1, filter 0.7, min_cluster_size 25 on a 5000 sample, mean 0.9437;
-# the previous constants (lr 0.05, filter 0.8, 25, set on the seed-0 scenes' test views) rank
-# 6th at 0.9427. The top eight settings lie within 0.0012: min_cluster_size is the setting that
-# matters (50 on a 5000 sample lost the Immersive ball to a larger cluster; 10 split objects).
+# (docs/notes/cpu-constants.md): lr 0.1, filter 0.7, min_cluster_size 25 on a 5000 sample,
+# mean 0.9437; the previous constants (lr 0.05, filter 0.8, 25, set on the seed-0 scenes' test
+# views) rank 6th at 0.9427. The top eight settings lie within 0.0012: min_cluster_size is the
+# setting that matters (50 on a 5000 sample lost the Immersive ball to a larger cluster; 10 split
+# objects).
 TRASE_PRESETS.declare("cpu", filter_threshold=0.7)
 # HDBSCAN over every gaussian of a cpu-preset geometry (at most CPU_MAX_GAUSSIANS), not 2% with
 # a 5000 floor, with min_cluster_size 50. Why: with a 5000-point sample, min_cluster_size 25 asks
 # an object for ~75 gaussians; a small one falls below it, joins a larger cluster, and the
 # similarity filter then drops it (the built-in HyperNeRF scene written as a COLMAP capture: its
 # ball, 72 gaussians, 58 of them in a 627-gaussian cluster; IoU of its click 0.001, 0.909
-# clustering all of them). On the seed-1 scenes (docs/cpu-constants.md, "Clustering every
+# clustering all of them). On the seed-1 scenes (docs/notes/cpu-constants.md, "Clustering every
 # gaussian") 25 on a 5000 sample (the grid's choice above) and 50 on all gaussians tie (mean
 # 0.9214 against 0.9213 over the five reconstructed and the two monocular ground-truth
 # geometries, every scene within 0.001); 25 on all gaussians split an object on the NeRF-DS
@@ -132,15 +133,15 @@ TRASE_PRESETS.declare("cpu", {"clustering.min_sample": CPU_MAX_GAUSSIANS, "clust
 # of 14% (HyperNeRF format) and 40% (NeRF-DS) of the objects' pixels under "alone", 4% and 16%
 # under "visible"; the method's mIoU 0.687 -> 0.792 (NeRF-DS format), 0.841 -> 0.890
 # (HyperNeRF). On multi-view rigs "visible" did not help (Neu3D 0.907 -> 0.908, Immersive 0.950
-# -> 0.938, Technicolor 0.970 -> 0.964), so they keep the paper's rule (docs/cpu-constants.md,
+# -> 0.938, Technicolor 0.970 -> 0.964), so they keep the paper's rule (docs/notes/cpu-constants.md,
 # "The render rule").
 TRASE_PRESETS.declare("cpu", when=MONOCULAR, render_rule="visible")
 # The feature stage stops once converged (trase.convergence): every 250 steps the objective's
 # loss on the training views held out for it (every 10th), on fixed samples; two checks in a row
 # without a fall of 1% of the first check's loss end it (the 3000 steps above stay the cap).
-# Chosen on the seed-1 scenes of the five formats, ground-truth geometry (docs/skip.md, "Stages
-# that stop when converged"): it stopped at 1000-1500 steps, the stage took 0.34-0.56x of its
-# time, and mIoU moved by -0.0033 to +0.0000 against the full 3000 steps. The reconstruction
+# Chosen on the seed-1 scenes of the five formats, ground-truth geometry (docs/notes/skip.md,
+# "Stages that stop when converged"): it stopped at 1000-1500 steps, the stage took 0.34-0.56x of
+# its time, and mIoU moved by -0.0033 to +0.0000 against the full 3000 steps. The reconstruction
 # keeps its schedule: its held-out PSNR still rises at 4000 iterations.
 TRASE_PRESETS.declare("cpu", {"features.stop_interval": 250, "features.stop_patience": 2,
                               "features.stop_min_delta": 0.01})

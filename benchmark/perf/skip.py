@@ -28,8 +28,8 @@ from pathlib import Path
 from benchmark.perf.common import load_average, table, versions
 
 DATASETS = ["nerfds", "hypernerf", "neu3d", "immersive", "technicolor"]
-STATIC_THRESHOLD = 0.01  # chosen on the seed-1 selection scene of the HyperNeRF format (docs/skip.md)
-STATIC_TIME_GAP = 5.0  # dB; chosen on the seed-2 and seed-3 selection scenes of that format (docs/skip.md)
+STATIC_THRESHOLD = 0.01  # chosen on the seed-1 selection scene of the HyperNeRF format (docs/notes/skip.md)
+STATIC_TIME_GAP = 5.0  # dB; chosen on the seed-2 and seed-3 selection scenes of that format (docs/notes/skip.md)
 STATIC_HOLD_ERROR = 0.2  # above the gap, hold back only what draws pixels off by this; chosen on the same scenes
 STOP_INTERVAL = 250  # steps between the stopping checks (the quick suite's tiny schedule: QUICK_STOP_INTERVAL)
 RUNS_FILE = "skip-runs.jsonl"  # in the out-dir: a line per finished run or fit, written as each ends

@@ -157,7 +157,7 @@ def render_block(data: dict) -> str:
     check_schema(data)
     names, where = NAMES, machine_line(data)
     lines = [
-        (f"Measured at commit `{data['commit']}` on {data['date']} ({where}), `trase-bench figures` (the "
+        (f"Measured on {data['date']} ({where}; the code's commit is in the data file), `trase-bench figures` (the "
          "main protocol of each format, official metric; mean ± standard deviation over the run seeds, "
          "seeds counted in the last column; mIoU after the robot user's corrections, mIoU@1 after the first "
          "clicks alone, NoC: clicks to reach mIoU 0.85 / 0.90, first clicks + budget + 1 where never):"),
@@ -212,8 +212,12 @@ def page_block(text: str, where: str = PAGE, markers: tuple[str, str] = (BEGIN, 
 
 
 def page_markers(text: str) -> tuple[tuple[str, str], object]:
-    """Which block a page holds, and the function rendering it: the methods table's markers
-    (several methods side by side) or trase's figures block."""
+    """Which block a page holds, and the function rendering it: the README's results table,
+    the methods table's markers (several methods side by side) or trase's figures block."""
+    from benchmark.results.figures_summary import SUMMARY_BEGIN, SUMMARY_END, render_summary_block
+
+    if SUMMARY_BEGIN in text:
+        return (SUMMARY_BEGIN, SUMMARY_END), render_summary_block
     if METHODS_BEGIN in text:
         from benchmark.results.figures_methods import render_methods_block
 

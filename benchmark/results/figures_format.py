@@ -75,7 +75,8 @@ def isa_marks(rows: list[dict], data: dict) -> dict[tuple[str, ...], str]:
 
 
 def isa_note(rows: list[dict], data: dict, marks: dict) -> list[str]:
-    """A line per mark: the instruction set, commits and dates of the marked cells' runs."""
+    """A line per mark: the instruction set and dates of the marked cells' runs (their code's
+    commits are in the data file)."""
     if not marks:
         return []
     name = lambda isa: " / ".join(isa) or "unrecorded"
@@ -83,9 +84,7 @@ def isa_note(rows: list[dict], data: dict, marks: dict) -> list[str]:
     out = []
     for isa, mark in marks.items():
         mine = [r for r in rows if row_isa(r, data) == isa]
-        commits = sorted({c for r in mine for c in r.get("run_commits") or []} - {"unrecorded"})
         dates = sorted({r["date"] for r in mine if r.get("date")})
         out.append(f"{mark} runs computed with {name(isa)}"
-                   + (f", the code of commit {', '.join(f'`{c}`' for c in commits)}" if commits else "")
                    + (f", on {', '.join(dates)}" if dates else "") + f"; the unmarked cells' with {name(main)}.")
     return out

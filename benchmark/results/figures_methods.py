@@ -43,15 +43,8 @@ def render_methods_block(data: dict) -> str:
     methods = list(dict.fromkeys(r.get("method", "trase") for r in rows))
     formats = [f for f in FORMATS if any(r["format"] == f for r in rows)]
     by = {(r.get("method", "trase"), r["format"], r["geometry"]): r for r in rows}
-    code = data.get("run_commits")
-    made = ""
-    if code:
-        made = (" from runs computed with the code of commit " + ", ".join(f"`{c}`" for c in code if c != "unrecorded")
-                + (" and runs that do not record it (made before results recorded their commit)"
-                   if "unrecorded" in code else "")) if any(c != "unrecorded" for c in code) else (
-            " from runs that do not record their code's commit (made before results recorded it)")
     marks = isa_marks(rows, data)
-    lines = [(f"Summarised at commit `{data['commit']}` on {data['date']} ({machine_line(data)}){made}, `trase-bench figures "
+    lines = [(f"Summarised on {data['date']} ({machine_line(data)}; each run's code commit is in the data file), `trase-bench figures "
              "--method ...` on the built-in synthetic scenes (each method's main protocol and defaults, "
              "official metric): mIoU, mean ± standard deviation over the run seeds; (n): the number of seeds "
              "where fewer than three."), ""]

@@ -159,7 +159,9 @@ def corrective_protocol(cfg: dict, corrective: dict | None) -> str:
     if "command" in (cfg.get("method") or {}):  # a command method runs once, on the first clicks
         return ", first clicks only (the method runs once)"
     polarity = ", positive only" if corrective is not None and not corrective.get("negatives") else ""
-    return f", corrective {per_object}/object to IoU {prompts.get('correction_target', '?')}{polarity}"
+    checks = prompts.get("correction_check_frames", 0)  # absent: records of protocol 2, click frames alone
+    watched = f" watching {checks} check frames" if checks else ""
+    return f", corrective {per_object}/object to IoU {prompts.get('correction_target', '?')}{watched}{polarity}"
 
 
 def numerics_protocol(cfg: dict) -> str:

@@ -29,7 +29,7 @@ def measure(work: Path) -> dict:
     from tests.benchmark.golden_pipeline import picked
 
     drop = {numerics.ENV_MODE, *numerics.PORTABLE_ENV}
-    env = {k: v for k, v in os.environ.items() if k not in drop} | {"TRASE_CACHE": str(work / "cache"),
+    env = {k: v for k, v in os.environ.items() if k not in drop} | {"TRASE_BENCH_CACHE": str(work / "cache"),
                                                                     "PYTHONPATH": str(ROOT)}
     proc = subprocess.run([sys.executable, "-m", "benchmark.cli", *DEMO], cwd=work, env=env, capture_output=True,
                           text=True, timeout=3600, check=False)

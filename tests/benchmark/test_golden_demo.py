@@ -11,9 +11,10 @@ from tests.benchmark.golden_demo import DEMO, differences, measure, recording
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def test_the_readme_quotes_the_recorded_demo_line():
+def test_the_readme_and_the_quickstart_quote_the_recorded_demo_line():
     line = recording()["figures"]["line"]
-    assert line in (ROOT / "README.md").read_text(), f"README.md does not show the demo's recorded line: {line}"
+    for page in ("README.md", "docs/quickstart.md"):
+        assert line in (ROOT / page).read_text(), f"{page} does not show the demo's recorded line: {line}"
 
 
 def test_the_recording_is_of_the_makefiles_demo_run():

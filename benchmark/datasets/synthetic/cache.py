@@ -1,7 +1,7 @@
 """The embedded default: real data when it is there, else a cached synthetic scene.
 
 Cache layout: ``<cache>/<dataset>/v<GENERATOR_VERSION>/<sequence>/`` with ``<cache>`` =
-``$TRASE_CACHE/synthetic`` or ``~/.cache/trase-bench/synthetic``: a new generator version never
+``$TRASE_BENCH_CACHE/synthetic`` (default ``~/.cache/trase-bench/synthetic``): a new generator version never
 reuses (nor deletes, under a running job) the scenes of an older one. A scene is generated into a temporary sibling directory
 and renamed into place when complete, so an interrupted run never leaves a half scene that a
 later run would trust; concurrent generators race harmlessly (the loser's copy is removed).
@@ -29,10 +29,9 @@ from .generate import (
 
 
 def default_cache_dir() -> Path:
-    env = os.environ.get("TRASE_CACHE")
-    if env:
-        return Path(env).expanduser() / "synthetic"
-    return Path.home() / ".cache" / "trase-bench" / "synthetic"
+    import cachedir
+
+    return cachedir.subfolder("synthetic")
 
 
 def _is_complete(scene_dir: Path) -> bool:

@@ -380,13 +380,13 @@ def test_ensure_synthetic_refuses_other_generator_version(tmp_path):
 
 
 def test_ensure_synthetic_uses_trase_cache(tmp_path, monkeypatch):
-    monkeypatch.setenv("TRASE_CACHE", str(tmp_path))
+    monkeypatch.setenv("TRASE_BENCH_CACHE", str(tmp_path))
     p = ensure_synthetic("hypernerf", size=SIZE)
     assert p == tmp_path / "synthetic" / "hypernerf" / f"v{GENERATOR_VERSION}" / SEQ
 
 
 def test_find_or_generate(tmp_path, monkeypatch):
-    monkeypatch.setenv("TRASE_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setenv("TRASE_BENCH_CACHE", str(tmp_path / "cache"))
     monkeypatch.delenv("TRASE_DATA", raising=False)
     # no real data: the synthetic default
     d, variant = find_or_generate("hypernerf", "synthetic-tiny", tmp_path / "data")
@@ -501,7 +501,7 @@ def test_sequence_names_carry_size_and_difficulty():
 
 
 def test_find_or_generate_the_hard_variant(tmp_path, monkeypatch):
-    monkeypatch.setenv("TRASE_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setenv("TRASE_BENCH_CACHE", str(tmp_path / "cache"))
     monkeypatch.delenv("TRASE_DATA", raising=False)
     d, variant = find_or_generate("hypernerf", "synthetic-tiny-hard", None)
     assert variant == "synthetic" and d.name == "synthetic-tiny-hard"

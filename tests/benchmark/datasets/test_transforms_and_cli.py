@@ -87,8 +87,9 @@ def test_cli_datasets_json(capsys):
 def test_cli_datasets_table(capsys):
     assert main(["datasets"]) == 0
     out = capsys.readouterr().out
-    for name in ("NeRF-DS-Mask", "sear_steak", "camera_0001", "Theater"):
+    for name in ("NeRF-DS-Mask", "sear_steak", "camera_0001", "Theater", "synthetic-tiny", "synthetic-medium-hard"):
         assert name in out
+    assert "densify" in out and "warm-up" in out  # the last column, whole when not printed to a terminal
 
 
 def test_cli_prepare_and_bad_input(tmp_path, capsys):

@@ -92,3 +92,25 @@ def test_a_program_that_cannot_start(tmp_path):
     script.write_text("#!/bin/sh\n")
     done = run_logged([str(script)], tmp_path, command_env({}), 30, tmp_path / "log")
     assert "Permission denied" in done.problem(30)  # no execute bit: not even root may run it
+
+
+def test_a_method_launched_from_the_activated_toolkit_cannot_import_it(tmp_path, monkeypatch):
+    """An activated environment puts the toolkit's python3 first on PATH; the method's
+    ``python3`` is then another interpreter (the system's here), which cannot import the toolkit."""
+    import shutil
+
+    venv_bin = Path(sys.prefix) / "bin"
+    monkeypatch.setenv("PATH", f"{venv_bin}:{command_process.os.environ.get('PATH', '')}")
+    monkeypatch.setenv("VIRTUAL_ENV", sys.prefix)
+    monkeypatch.delenv("PYTHONPATH", raising=False)
+    env = command_env({})
+    if sys.prefix == sys.base_prefix:  # the toolkit runs from a system interpreter: nothing to hide
+        assert env["PATH"].startswith(str(venv_bin))
+        return
+    assert venv_bin.resolve() not in {Path(d).resolve() for d in env["PATH"].split(":") if d}
+    python3 = shutil.which("python3", path=env["PATH"])
+    if python3 is None:
+        return  # no other python3 on this machine: the method names its own interpreter
+    log = tmp_path / "log"
+    done = run_logged([python3, "-c", "import benchmark"], tmp_path, env, 30, log)
+    assert not done.ok and "No module named 'benchmark'" in log.read_text()

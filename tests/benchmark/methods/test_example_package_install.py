@@ -47,7 +47,7 @@ def test_example_package_installs_lists_runs_and_ranks(tmp_path):
     t0 = time.perf_counter()
     bin_dir = _fresh_env(tmp_path / "venv")
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV", "PYTHONHOME")}
-    env |= {"TRASE_CACHE": str(tmp_path / "cache"), "TRASE_PRECOMPILE": "0", "PIP_DISABLE_PIP_VERSION_CHECK": "1",
+    env |= {"TRASE_BENCH_CACHE": str(tmp_path / "cache"), "TRASE_PRECOMPILE": "0", "PIP_DISABLE_PIP_VERSION_CHECK": "1",
             "PIP_NO_INPUT": "1", "PATH": f"{bin_dir}{os.pathsep}{env.get('PATH', '')}"}
     example = shutil.copytree(EXAMPLE, tmp_path / "example")  # pip builds in the source folder: a copy
     _run([bin_dir / "python", "-m", "pip", "install", "--quiet", "--no-deps", "--no-build-isolation", "--no-index",

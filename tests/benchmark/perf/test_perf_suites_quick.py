@@ -12,7 +12,7 @@ from benchmark.perf import SUITES
 def test_all_suites_quick(tmp_path, monkeypatch, capsys):
     from benchmark.perf import raster
 
-    monkeypatch.setenv("TRASE_CACHE", str(tmp_path / "cache"))  # synthetic scenes generated here
+    monkeypatch.setenv("TRASE_BENCH_CACHE", str(tmp_path / "cache"))  # synthetic scenes generated here
     monkeypatch.delenv("TRASE_DNERF", raising=False)  # perf dnerf has its own test (test_dnerf_suite.py)
     monkeypatch.setattr(raster, "QUICK", [(150, 32, 24, 4, True)])  # raster's own test covers its sizes
     out = tmp_path / "perf.json"

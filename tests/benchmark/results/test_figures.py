@@ -34,7 +34,7 @@ def test_block_renders_mean_and_spread_and_replaces_only_itself():
     block = render_block(_data())
     assert "| HyperNeRF | reconstructed | 27.00 ± 0.20 | 0.920 ± 0.000 | 0.910 ± 0.010 | **0.900 ± 0.010** |" in block
     assert "| 0.600 ± 0.200 | 3.0 ± 0.0 / 4.0 ± 1.0 | 0.880 ± 0.020 / 0.500 ± 0.100 | 0.950 | 3 |" in block
-    assert "commit `abc1234`" in block and "°" not in block
+    assert "abc1234" not in block and "Measured on 2026-11-24" in block and "°" not in block  # the commit: data only
     single = _data()
     for k in ("miou_at_1", "noc85", "noc90"):  # a row of runs of the first clicks alone
         del single["rows"][0]["summary"][k]
@@ -135,16 +135,14 @@ def test_methods_block_gives_each_methods_feature_stage_on_the_default_scene():
     assert "| trase |" not in part and "| cgc |" not in part
 
 
-def test_methods_block_names_the_code_its_runs_were_computed_with():
+def test_methods_block_leaves_the_code_commits_to_the_data_file():
     from benchmark.results.figures_methods import render_methods_block
 
     data = _methods_data()
     data["run_commits"] = ["abc1234", "unrecorded"]
     head = render_methods_block(data).splitlines()[0]
-    assert head.startswith("Summarised at commit `abc1234`") and "computed with the code of commit `abc1234`" in head
-    assert "do not record it" in head
-    data["run_commits"] = ["unrecorded"]
-    assert "from runs that do not record their code's commit" in render_methods_block(data).splitlines()[0]
+    assert head.startswith(f"Summarised on {data['date']}") and "abc1234" not in head
+    assert "each run's code commit is in the data file" in head
 
 
 def test_a_results_record_names_its_code_commit():
@@ -192,7 +190,7 @@ def test_an_update_replaces_only_its_cells_and_marks_those_from_another_machine(
     assert "| cgc | 0.500 ± 0.020† | 0.700 (1) |" in block  # the re-measured cell, marked
     assert "| opengaussian | 0.500 ± 0.020† | — |" in block
     assert "| trase | 0.900 ± 0.010 | 0.900 ± 0.010 |" in block  # kept, unmarked
-    assert ("† runs computed with torch AVX2, numba znver3, the code of commit `def5678`, on 2026-11-28; "
+    assert ("† runs computed with torch AVX2, numba znver3, on 2026-11-28; "
             "the unmarked cells' with torch AVX512, numba znver5.") in block
     assert "runs from 2 instruction sets" in block.splitlines()[0]
     # one machine: no marks, as before

@@ -255,3 +255,27 @@ def test_within_the_spread_of_the_best_counts_both_ways():
 
     assert within_spread(0.80, 0.82, [0.05]) and not within_spread(0.70, 0.82, [0.05])
     assert within_spread(4.2, 4.0, [0.5]) and not within_spread(7.0, 4.0, [0.1])  # clicks: the least is best
+
+
+def test_the_default_leaderboard_names_methods_it_leaves_out(tmp_path, capsys):
+    """A plugin run with --set (kind run) beside another method's main run: the default
+    tables show the main run and say which method they leave out and how to show it."""
+    write(tmp_path, record("trase", "hypernerf", "synthetic", 0.9, 0.99))
+    write(tmp_path, record("colour-kmeans", "hypernerf", "synthetic", 0.3, 0.9, cfg=config(filter_threshold=0.5),
+                           overrides=["geometry.source=ground-truth"]))
+    assert main(["leaderboard", "--runs", str(tmp_path), "--variant", "synthetic"]) == 0
+    out, err = capsys.readouterr()
+    assert "trase" in out and "colour-kmeans" not in out
+    assert "note: not shown, every run made with --set (kind run): colour-kmeans; --kind run shows them" in err
+    assert main(["leaderboard", "--runs", str(tmp_path), "--variant", "synthetic", "--kind", "run"]) == 0
+    assert "colour-kmeans" in capsys.readouterr().out
+
+
+def test_the_protocol_label_names_the_robot_users_budget_target_and_check_frames():
+    from benchmark.results.runs import corrective_protocol
+
+    cfg = {"prompts": {"corrections": 3, "correction_target": 0.9, "correction_check_frames": 2}}
+    assert corrective_protocol(cfg, {"negatives": True}) == ", corrective 3/object to IoU 0.9 watching 2 check frames"
+    cfg["prompts"]["correction_check_frames"] = 0  # the click frames alone
+    assert corrective_protocol(cfg, {"negatives": False}) == ", corrective 3/object to IoU 0.9, positive only"
+    assert corrective_protocol({"prompts": {"corrections": 0}}, None) == ""

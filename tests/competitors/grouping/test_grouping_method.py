@@ -57,7 +57,7 @@ def test_both_are_methods_with_presets():
     assert (sa.features.dim, sa.features.iterations, sa.features.reg3d_interval, sa.selection.hull) == (32, 5000, 1, "filter")
     assert SA4D().settings("paper", "neu3d").features.dim == 16
     assert GaussianGrouping().settings("cpu", "hypernerf").preset == "cpu"
-    # SA4D's cpu steps were chosen per kind of rig (docs/competitors.md, "cpu choices")
+    # SA4D's cpu steps were chosen per kind of rig (docs/notes/competitors.md, "cpu choices")
     assert [SA4D().settings("cpu", d).features.iterations for d in ("hypernerf", "nerfds", "neu3d", "technicolor")] \
         == [500, 500, 1000, 1000]
 

@@ -16,7 +16,7 @@ def test_gaussian_grouping_runs_the_tiny_scene(tmp_path, monkeypatch):
     from benchmark.results.runs import protocol
 
     t0 = time.perf_counter()
-    monkeypatch.setenv("TRASE_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setenv("TRASE_BENCH_CACHE", str(tmp_path / "cache"))
     runs = tmp_path / "runs"
     rc = main(["run", "--method", "gaussian-grouping", "--dataset", "hypernerf", "--sequence", "synthetic-tiny",
                "--runs", str(runs), "--set", "geometry.source=ground-truth", "--set", "preset=cpu",

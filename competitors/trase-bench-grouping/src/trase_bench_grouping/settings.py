@@ -1,7 +1,7 @@
 """Settings of ``gaussian-grouping`` and ``sa4d`` and their presets, each value with its source.
 
 ``paper``: the public code's defaults (lkeab/gaussian-grouping, guanjunwu/sa4d; file and line
-in docs/competitors.md). ``cpu``: minutes on two cores, chosen on the seed-1 synthetic scenes
+in docs/notes/competitors.md). ``cpu``: minutes on two cores, chosen on the seed-1 synthetic scenes
 (never the benchmark's seed-0 test views); the measurements beside each value.
 """
 
@@ -81,7 +81,7 @@ GG_PRESETS.declare("cpu", base="paper", help="minutes on two cores: fewer steps 
                    preset="cpu")
 # cpu: 500 steps of ~2000 sampled pixels (the public code: 30000 steps of whole images) at ten
 # times the public learning rates. Chosen on the seed-1 synthetic HyperNeRF-format scene with
-# ground-truth geometry (24k gaussians; docs/competitors.md, "cpu choices"): 500 steps 0.9274
+# ground-truth geometry (24k gaussians; docs/notes/competitors.md, "cpu choices"): 500 steps 0.9274
 # (geometry ceiling 0.9269), 2000 steps 0.9317 at four times the time; at the public rates
 # (0.0025 / 5e-4) 500 steps reach 0.6918 (worst click set 0.1225): too few steps for them.
 GG_PRESETS.declare("cpu", {"features.iterations": 500, "features.n_pixels": 2000, "features.lr": 0.025,
@@ -100,7 +100,7 @@ SA4D_PRESETS.declare("paper", {"features.dim": 32}, when=dataset("hypernerf"))
 SA4D_PRESETS.declare("cpu", base="paper", help="minutes on two cores: a narrower field, fewer steps, sampled pixels",
                      preset="cpu")
 # cpu: chosen on the seed-1 HyperNeRF- and NeRF-DS-format scenes with the main protocol's inputs
-# (reconstructed geometry, the classical tracker; docs/competitors.md, "cpu choices"): by the mean
+# (reconstructed geometry, the classical tracker; docs/notes/competitors.md, "cpu choices"): by the mean
 # over both scenes of the five click sets' mean mIoU, 500 steps 0.450 against 1000 steps 0.202 (the
 # value set before from one ground-truth run), 2000 steps 0.141, 250 steps below 500 on HyperNeRF;
 # a wider field, the public rates, 8000 pixels or the regulariser every step did not pass 500 steps

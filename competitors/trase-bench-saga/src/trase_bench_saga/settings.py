@@ -1,5 +1,5 @@
 """The method's settings and presets (``paper``: the public SAGA code's defaults; ``cpu``:
-minutes on two cores, chosen on selection scenes, docs/competitors.md).
+minutes on two cores, chosen on selection scenes, docs/notes/competitors.md).
 
 Sources of the ``paper`` values (github.com/Jumpat/SegAnyGAussians at 96e5021):
 ``arguments/__init__.py`` (feature_dim 32, feature_lr 0.0025, smooth_K 16, rfn 1.0,
@@ -87,7 +87,7 @@ SAGA_PRESETS = PresetTable("saga", SagaSettings, error=MethodError)
 SAGA_PRESETS.declare("paper", help="the public SAGA code's defaults (10000 steps, 1000 rays, scale 0.5, cosine 0.75)",
                      preset="paper")
 # cpu: chosen on the seed-1 synthetic scenes (HyperNeRF and Neu3D formats, ground-truth geometry;
-# docs/competitors.md has every measurement). 1500 steps on one thread at lr 0.05: the public
+# docs/notes/competitors.md has every measurement). 1500 steps on one thread at lr 0.05: the public
 # 0.0025 in 1500 steps left the features unformed (HyperNeRF s1: mIoU 0.653 against 0.901 at
 # 0.05, same inference). 500 rays: a step's pairs are [S, P, P] (10 x 1000^2 at the public 1000,
 # ~0.4 s per step on one core). The norm term on the sampled pixels: no full-view render.

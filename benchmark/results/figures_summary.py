@@ -1,0 +1,43 @@
+"""The README's one results table: this version's TRASE on each format's built-in synthetic
+scene (from the figures data) beside the paper's published TRASE on the real benchmark. The two
+are different data and not one comparison: the table says which is which."""
+
+from __future__ import annotations
+
+from benchmark.results.figures_format import NAMES
+
+SUMMARY_BEGIN = "<!-- SUMMARY:BEGIN (trase-bench figures --write-page README.md; do not edit by hand) -->"
+SUMMARY_END = "<!-- SUMMARY:END -->"
+
+
+def _cell(row: dict | None, key: str) -> str:
+    if row is None or not row["summary"].get(key):
+        return "—"
+    m = row["summary"][key]
+    return f"{m['mean']:.3f} ± {m['std']:.3f}"
+
+
+def published_miou() -> dict[str, float]:
+    """The paper's average mIoU of TRASE per benchmark (its Table 1)."""
+    from benchmark.results.leaderboard import published_frame
+
+    df = published_frame()
+    avg = df[(df["method"] == "trase") & (df["sequence"] == "_average")]
+    return {str(r.dataset): float(r.miou) for r in avg.itertuples()}
+
+
+def render_summary_block(data: dict) -> str:
+    """The table from a figures file (``docs/figures.json``) and the published numbers."""
+    rows = {r["format"]: r for r in data["rows"] if r.get("method", "trase") == "trase" and r["geometry"] == "reconstruct"}
+    published = published_miou()
+    lines = ["| format | built-in scene: mIoU | its oracle | seeds | real benchmark: published mIoU |",
+             "|---|---|---|---|---|"]
+    for key, name in NAMES.items():
+        row, pub = rows.get(key), published.get(key)
+        seeds = len(row["summary"]["seeds"]) if row else "—"
+        lines.append(f"| {name} | {_cell(row, 'miou')} | {_cell(row, 'oracle')} | {seeds} "
+                     f"| {'—' if pub is None else f'{pub:.3f}'} |")
+    return "\n".join(lines) + "\n"
+
+
+__all__ = ["SUMMARY_BEGIN", "SUMMARY_END", "published_miou", "render_summary_block"]

@@ -1,0 +1,49 @@
+"""Writes the docs site's settings reference (reference/settings.md) from the preset tables at
+build time (mkdocs-gen-files), so the numbers on the page are the code's: per run preset, every
+setting a benchmark's resolution sets away from its config class's default, per benchmark."""
+
+from __future__ import annotations
+
+import json
+
+import mkdocs_gen_files
+
+from benchmark.commands.presets import resolve_rows
+from benchmark.datasets import DATASETS
+from benchmark.pipeline.settings import GEOMETRY_PRESETS
+
+RUN_PRESETS = ("cpu", "paper")
+
+
+def preset_table(preset: str, keys: list[str]) -> list[str]:
+    """A markdown table: one row per setting the preset sets on some benchmark, one column per
+    benchmark, the value resolved there (blank: the class's default)."""
+    resolved = {k: {key: (v, src) for key, v, src in resolve_rows(k, "trase", preset, None, None, [])} for k in keys}
+    shown = sorted({key for rows in resolved.values() for key, (_, src) in rows.items() if not src.startswith("default (")})
+    lines = ["| setting | " + " | ".join(keys) + " |", "|---" * (len(keys) + 1) + "|"]
+    for key in shown:
+        cells = []
+        for k in keys:
+            value, src = resolved[k][key]
+            cells.append("" if src.startswith("default (") else f"`{json.dumps(value, default=str)}`")
+        lines.append(f"| `{key}` | " + " | ".join(cells) + " |")
+    return lines
+
+
+def page() -> str:
+    keys = list(DATASETS)
+    out = ["# Settings and presets", "",
+           "Generated from the preset tables when the site is built. A run resolves one preset "
+           "(`--set preset=NAME`; `auto`: `paper` where torch sees a GPU, `cpu` elsewhere) for its "
+           "benchmark; `--set KEY=VALUE` overrides any setting. A blank cell keeps the config "
+           "class's default. `trase-bench presets --preset P --dataset D` prints the same with the "
+           "file and line that declared each value; the guide is [Presets](../settings.md).", ""]
+    out += ["## The presets", "", "| preset | what it is |", "|---|---|"]
+    out += [f"| `{p.name}` | {p.help}{f' (from `{p.base}`)' if p.base else ''} |" for p in GEOMETRY_PRESETS]
+    for preset in RUN_PRESETS:
+        out += ["", f"## `{preset}`: settings away from the defaults", "", *preset_table(preset, keys)]
+    return "\n".join(out) + "\n"
+
+
+with mkdocs_gen_files.open("reference/settings.md", "w") as f:
+    f.write(page())
