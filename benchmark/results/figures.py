@@ -157,7 +157,7 @@ def render_block(data: dict) -> str:
     check_schema(data)
     names, where = NAMES, machine_line(data)
     lines = [
-        (f"Measured on {data['date']} ({where}; the code's commit is in the data file), `trase-bench figures` (the "
+        (f"Measured on {data['date']} ({where}), `trase-bench figures` (the "
          "main protocol of each format, official metric; mean ± standard deviation over the run seeds, "
          "seeds counted in the last column; mIoU after the robot user's corrections, mIoU@1 after the first "
          "clicks alone, NoC: clicks to reach mIoU 0.85 / 0.90, first clicks + budget + 1 where never):"),
