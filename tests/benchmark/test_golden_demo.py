@@ -17,6 +17,14 @@ def test_the_readme_and_the_quickstart_quote_the_recorded_demo_line():
         assert line in (ROOT / page).read_text(), f"{page} does not show the demo's recorded line: {line}"
 
 
+def test_the_pages_name_the_demo_runs_folder_as_the_recording_does():
+    name = re.search(r"runs/trase/hypernerf/synthetic/(c[0-9a-f]{8})/", recording()["figures"]["line"]).group(1)
+    pages = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]  # user pages; notes keep their history
+    stale = {f"{p.name}: {n}" for p in pages for n in re.findall(r"runs/trase/hypernerf/synthetic/(c[0-9a-f]{8})\b",
+                                                               p.read_text()) if n != name}
+    assert not stale, f"the demo's run is {name}; pages name another: {sorted(stale)}"
+
+
 def test_the_recording_is_of_the_makefiles_demo_run():
     demo = re.search(r"^demo:.*\n\t\$\(VENV\)/bin/trase-bench (.+)$", (ROOT / "Makefile").read_text(), re.MULTILINE)
     assert demo and demo.group(1).split() == DEMO
