@@ -6,7 +6,7 @@ loop (gsplat's strategy layout: its own state, one call before and one after the
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
@@ -71,20 +71,23 @@ def lstsq_screen_grad_norm(grad_means: torch.Tensor, means: torch.Tensor, camera
 @torch.no_grad()
 def densify_and_prune(g: GaussianModel, opt, cfg: ReconstructionConfig, grad_accum, denom,
                        extent: float, prune_large: bool, gen: torch.Generator,
-                       carry: dict[str, torch.Tensor] | None = None) -> dict[str, torch.Tensor] | None:
+                       carry: dict[str, torch.Tensor] | None = None,
+                       cap: int | None = None) -> dict[str, torch.Tensor] | None:
     """3DGS densify_and_prune: clone small / split large high-gradient gaussians, then drop
     transparent ones and, after the first opacity reset, ones larger than 0.1 x the scene
     extent. (3DGS also tests a screen-size limit, but its radii statistic has just been reset
     to zero by the densification, so that test never fires; it is left out here.)
 
     ``carry``: other per-gaussian tensors [N, ...] (e.g. static flags) that follow the rows:
-    a clone or a split child gets its parent's row. Returns them renumbered like the model."""
+    a clone or a split child gets its parent's row. Returns them renumbered like the model.
+    ``cap``: the gaussian count not to densify past (None: ``cfg.max_gaussians``; 0: none)."""
+    cap = cfg.max_gaussians if cap is None else cap
     grads = torch.where(denom > 0, grad_accum / denom.clamp_min(1), torch.zeros_like(grad_accum))
     big = g.scales.max(dim=1).values > cfg.percent_dense * extent
     cand = grads >= cfg.densify_grad_threshold
-    if cfg.max_gaussians > 0:
+    if cap > 0:
         # each clone adds one, each split adds one net (2 new, 1 removed)
-        room = max(cfg.max_gaussians - g.num_gaussians, 0)
+        room = max(cap - g.num_gaussians, 0)
         if int(cand.sum()) > room:
             order = torch.argsort(torch.where(cand, grads, torch.full_like(grads, -1.0)), descending=True)
             keep = torch.zeros_like(cand)
@@ -128,6 +131,9 @@ class DensifyStrategy:
     extent: float  # scene radius the size thresholds scale with (``scene_extent``)
     grad_accum: torch.Tensor | None = None  # [N] float32: summed screen-gradient norms (NDC)
     denom: torch.Tensor | None = None  # [N] float32: steps each gaussian was counted in
+    # iteration -> the gaussian cap there (a primitive schedule, trase.resolution_schedule);
+    # None: cfg.max_gaussians throughout
+    cap_at: Callable[[int], int] | None = None
 
     STATE_KEYS: ClassVar[tuple[str, ...]] = ("grad_accum", "denom")  # trainer-state file keys
 
@@ -174,8 +180,9 @@ class DensifyStrategy:
         self._accumulate(gaussians, out, means, camera)
         if step > cfg.densify_from and step % cfg.densify_interval == 0:
             prune_large = step > cfg.opacity_reset_interval
+            cap = self.cap_at(step) if self.cap_at is not None else None
             carry = densify_and_prune(gaussians, optimizer, cfg, self.grad_accum, self.denom, self.extent,
-                                      prune_large, generator, carry)
+                                      prune_large, generator, carry, cap)
             self.initialize_state(gaussians.num_gaussians, self.grad_accum.device)
         if step % cfg.opacity_reset_interval == 0 or (cfg.white_background and step == cfg.densify_from):
             gaussians.reset_opacity(optimizer)

@@ -107,13 +107,14 @@ def _run_stages(root: Path) -> None:
     import torch
 
     from trase.features import FeatureConfig, train_features
-    from trase.reconstruct import ReconstructionConfig, evaluate_psnr, reconstruct
+    from trase.reconstruction_presets import reconstruction_preset
+    from trase.reconstruct import evaluate_psnr, reconstruct
     from trase.segment import render_alpha, render_visible
 
     views, points, colors = _tiny_scene(root)
     for monocular in (True, False):  # the two CPU schedules share kernels; both statistics paths
         cfg = dataclasses.replace(
-            ReconstructionConfig.cpu(monocular=monocular), iterations=4, warm_up=2, densify_from=1,
+            reconstruction_preset("cpu", monocular=monocular), iterations=4, warm_up=2, densify_from=1,
             densify_interval=2, densify_until=4, opacity_entropy_from=1, checkpoint_interval=4,
             densify_statistic="lstsq" if monocular else "means2d", deform_visible_only=not monocular,
             device="cpu")  # the numba kernels are the CPU's (on a GPU machine "auto" would pick gsplat)

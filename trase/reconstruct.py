@@ -55,6 +55,7 @@ from trase.gaussians import GaussianModel
 from trase.io import atomic_torch_save, read_torch
 from trase.losses import l1_loss, mean_squared_error, opacity_entropy, psnr, psnr_of_mse, ssim
 from trase.reconstruction_config import ReconstructionConfig, expon_lr, time_noise_scale
+from trase.resolution_schedule import ScaledViews, scaled_views
 from trase.training_images import ImageCache, load_image
 from trase.training_log import ProgressBar, TrainLog
 
@@ -179,6 +180,7 @@ class _Trainer:
     static: torch.Tensor | None = None
     frozen: torch.Tensor | None = None
     plateau: Plateau | None = None  # the stopping checks (stop_interval > 0)
+    scaled: ScaledViews | None = None  # the views at each iteration's size (a resolution schedule)
 
     def deformation(self):
         """What renders this step: the network, or the network for the moving gaussians only."""
@@ -355,6 +357,8 @@ def _reconstruct(views, points, point_colors, config, out_dir, resume, progress,
         tr = _new_trainer(points, point_colors, cfg, dev, strategy, gen, static)
     if not held:
         tr.plateau = None  # none held out (too few views, or no stop possible): the full schedule
+    tr.scaled = scaled_views(data, cfg, len(points))
+    strategy.cap_at = tr.scaled.schedule.cap_at if tr.scaled is not None else None
     if tr.plateau is None or tr.plateau.stopped_at is None:  # a run that stopped when converged is done
         _train(tr, data, bg, cfg, out_dir, start, progress, backend, max_seconds, held_data)
     if cfg.stop_interval > 0:
@@ -591,7 +595,7 @@ def _forward_backward(tr: _Trainer, it: int, data: ImageCache, bg: torch.Tensor,
     if not tr.view_stack:
         tr.view_stack = torch.randperm(n_views, generator=tr.gen).tolist()
     vi = tr.view_stack.pop()
-    cam, gt = data.cameras[vi], data.images[vi]
+    cam, gt = tr.scaled.view(vi, it) if tr.scaled is not None else (data.cameras[vi], data.images[vi])
 
     use_deform = tr.deform is not None and it >= cfg.warm_up
     offset = 0.0

@@ -9,6 +9,8 @@ import math
 import re
 
 DENSIFY_STATISTICS = ("means2d", "lstsq")
+RESOLUTION_SCHEDULES = ("off", "frequency")  # trase.resolution_schedule
+PRIMITIVE_SCHEDULES = ("off", "resolution")
 DEFORM_PRESETS = {"paper": (8, 256), "small": (4, 64)}  # name -> (depth D, width W)
 
 
@@ -51,6 +53,16 @@ class ReconstructionConfig:
     min_opacity: float = 0.005
     opacity_reset_interval: int = 3_000
     max_gaussians: int = 0  # 0 = no cap
+    # render the training views small while the low frequencies are fitted
+    # (trase.resolution_schedule): "off" (the public code), or "frequency": the size follows the
+    # training images' spectrum, from at most resolution_max_factor x smaller up to full size at
+    # resolution_until (0: densify_until)
+    resolution_schedule: str = "off"
+    resolution_max_factor: float = 4.0
+    resolution_until: int = 0
+    # with a resolution schedule, "resolution" caps the gaussian count at max_gaussians x the
+    # share of pixels rendered (grow with the resolution); "off": the configured cap throughout
+    primitive_schedule: str = "off"
     # appearance
     sh_degree: int = 3
     sh_interval: int = 1_000  # one more SH band every this many iterations
@@ -125,14 +137,6 @@ class ReconstructionConfig:
         are the benchmark's to add (trase knows no dataset)."""
         return cls(**overrides)
 
-    @classmethod
-    def cpu(cls, monocular: bool = True, **overrides) -> ReconstructionConfig:
-        """The ``cpu`` preset (trase.reconstruction_presets) for a monocular capture or a
-        multi-view rig, with ``overrides``."""
-        from trase.reconstruction_presets import reconstruction_preset
-
-        return reconstruction_preset("cpu", monocular=monocular, **overrides)
-
     def __post_init__(self) -> None:
         deform_shape(self.deform_preset)  # a bad name fails here, not after the warm-up
         if not (math.isfinite(self.near_plane) and self.near_plane > 0):
@@ -151,6 +155,15 @@ class ReconstructionConfig:
         self.stop_rule()  # a bad stopping rule fails here
         if self.stop_interval > 0 and self.stop_holdout_every < 2:
             raise ValueError(f"stop_holdout_every must be >= 2 when stopping is on, got {self.stop_holdout_every}")
+        if self.resolution_schedule not in RESOLUTION_SCHEDULES or self.primitive_schedule not in PRIMITIVE_SCHEDULES:
+            raise ValueError(f"resolution_schedule must be one of {', '.join(RESOLUTION_SCHEDULES)} and "
+                             f"primitive_schedule one of {', '.join(PRIMITIVE_SCHEDULES)}, got "
+                             f"{self.resolution_schedule!r} and {self.primitive_schedule!r}")
+        if not (self.resolution_max_factor >= 1 and self.resolution_until >= 0):
+            raise ValueError(f"resolution_max_factor must be >= 1 and resolution_until >= 0, got "
+                             f"{self.resolution_max_factor} and {self.resolution_until}")
+        if self.primitive_schedule != "off" and self.resolution_schedule == "off":
+            raise ValueError("primitive_schedule follows the resolution: it needs a resolution_schedule")
         if self.densify_statistic not in DENSIFY_STATISTICS:
             raise ValueError(f"densify_statistic must be one of {', '.join(DENSIFY_STATISTICS)}, "
                              f"got {self.densify_statistic!r}")

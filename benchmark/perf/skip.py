@@ -65,11 +65,17 @@ QUICK_SCENE = ["geometry.train.warm_up=10", "geometry.train.static_from=10", "ge
 FULL = ["method.features.stop_interval=0"]  # the cpu preset stops the feature stage; "full" runs every step
 
 
+# the reconstruction rendered small first (trase.resolution_schedule), and its gaussians grown with it
+RESOLUTION = ["geometry.train.resolution_schedule=frequency"]
+PRIMITIVES = [*RESOLUTION, "geometry.train.primitive_schedule=resolution"]
+
+
 def variants(threshold: float, quick: bool = False) -> dict[str, list[str]]:
     return {"full": FULL, "static": [*FULL, f"geometry.train.static_threshold={threshold}",
                                      f"geometry.train.static_time_gap={STATIC_TIME_GAP}",
                                      f"geometry.train.static_hold_error={STATIC_HOLD_ERROR}"],
-            "converged": converged(QUICK_STOP_INTERVAL if quick else STOP_INTERVAL)}
+            "converged": converged(QUICK_STOP_INTERVAL if quick else STOP_INTERVAL),
+            "resolution": [*FULL, *RESOLUTION], "resolution+primitives": [*FULL, *PRIMITIVES]}
 
 
 def _stage_figures(rec: dict) -> dict:

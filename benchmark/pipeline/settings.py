@@ -97,6 +97,9 @@ AS_BEFORE = {
     "static_hold_error": (0.0, ("static_hold_error",)),  # above the time gap, hold every gaussian back
     "deform_scale_rule": ("clamp", ("deform_scale_rule",)),  # the CPU presets' scale rule, the only one before
     "near_plane": (0.01, ("near_plane",)),  # the rasterizer's near plane, the only one before
+    # full-size renders throughout (trase.resolution_schedule): off
+    "resolution_schedule": ("off", ("resolution_schedule", "resolution_max_factor", "resolution_until")),
+    "primitive_schedule": ("off", ("primitive_schedule",)),
     "numerics": ("native", ("numerics",)),  # each library's own kernels for this processor (benchmark.numerics)
     # the first clicks alone (the single-click protocol)
     "corrections": (0, ("corrections", "correction_target", "correction_min_gain", "correction_check_frames")),

@@ -74,7 +74,7 @@ def check_frames(n_views: int, click_frames: Sequence[int], count: int) -> list[
     if count <= 0 or not free:
         return []
     picks = np.linspace(0, len(free) - 1, count + 2)[1:-1] if count < len(free) else np.arange(len(free))
-    return sorted({free[int(round(p))] for p in picks})
+    return sorted({free[round(p)] for p in picks})
 
 
 @dataclasses.dataclass

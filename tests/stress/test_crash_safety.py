@@ -223,9 +223,10 @@ def test_same_seed_bit_identical_and_seeds_recorded(baseline, chain):
 RECON_SCRIPT = """
 import sys
 from benchmark.datasets import load_scene
+from trase.reconstruction_presets import reconstruction_preset
 from trase.reconstruct import ReconstructionConfig, reconstruct
 scene = load_scene("hypernerf", sys.argv[1])
-cfg = ReconstructionConfig.cpu(iterations=60, checkpoint_interval=20, warm_up=20, densify_from=10,
+cfg = reconstruction_preset("cpu", iterations=60, checkpoint_interval=20, warm_up=20, densify_from=10,
                                densify_until=50, densify_interval=10)
 reconstruct(scene.train, scene.points, scene.point_colors, cfg, sys.argv[2], resume=True, progress=False)
 """

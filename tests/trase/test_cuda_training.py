@@ -11,15 +11,16 @@ import torch
 
 from tests.trase.helpers import exact_masks, tiny_scene
 from tests.trase.recon_scene import write_scene
+from trase.reconstruction_presets import reconstruction_preset
 from trase.checkpoint import load_model
 from trase.features import FeatureConfig, train_features
 from trase.gaussians import GaussianModel
-from trase.reconstruct import ReconstructionConfig, evaluate_psnr, reconstruct
+from trase.reconstruct import evaluate_psnr, reconstruct
 
 pytestmark = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
 
-CFG = ReconstructionConfig.cpu(
-    iterations=40, warm_up=15, densify_from=10, densify_until=35, densify_interval=10,
+CFG = reconstruction_preset(
+    "cpu",     iterations=40, warm_up=15, densify_from=10, densify_until=35, densify_interval=10,
     checkpoint_interval=20, time_noise_steps=40, position_lr_max_steps=40, deform_lr_max_steps=40,
     device="cuda",
 )

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 import torch
 
+from trase.reconstruction_presets import reconstruction_preset
 from trase.camera import Camera, intrinsics, look_at
 from trase.deformation import DeformMLP
 from trase.densify import (
@@ -14,7 +15,6 @@ from trase.densify import (
     screen_grad_norm,
 )
 from trase.gaussians import GaussianModel
-from trase.reconstruction_config import ReconstructionConfig
 
 
 def test_screen_grad_norm_recovers_pixel_gradient():
@@ -41,7 +41,7 @@ def _densify_points_under_cap(cap: int) -> tuple[GaussianModel, np.ndarray]:
 
     pts = np.random.default_rng(0).uniform(-1, 1, (200, 3))
     g = GaussianModel.from_points(pts, None, sh_degree=0)
-    cfg = ReconstructionConfig.cpu(max_gaussians=cap, min_opacity=0.0)
+    cfg = reconstruction_preset("cpu", max_gaussians=cap, min_opacity=0.0)
     opt, _ = _make_optimizers(g, DeformMLP.preset("small"), cfg)
     grads = torch.linspace(0.0, 1.0, 200)
     grads[0] = 0.0  # 199 candidates above the 0.0004 threshold
@@ -76,7 +76,7 @@ def _strategy(statistic: str, n: int = 40, extent: float = 1.0,
     pts = np.random.default_rng(0).uniform(-0.5, 0.5, (n, 3))
     g = GaussianModel.from_points(pts, None, sh_degree=0)
     cam = Camera(K=intrinsics(40, 40, 20, 15), w2c=look_at(np.array([0.3, -3, 0.5]), np.zeros(3)), width=40, height=30)
-    cfg = ReconstructionConfig.cpu(densify_statistic=statistic, **cfg_kw)
+    cfg = reconstruction_preset("cpu", densify_statistic=statistic, **cfg_kw)
     opt, _ = _make_optimizers(g, DeformMLP.preset("small"), cfg)
     s = DensifyStrategy(cfg, extent=extent)
     s.initialize_state(g.num_gaussians, "cpu")
@@ -212,7 +212,7 @@ def test_rows_carried_through_densification_follow_their_gaussians():
     with torch.no_grad():
         g.log_scales[:30] = -8.0  # small: cloned; the others large: split
         g.opacity_logits[::7] = -20.0  # transparent: pruned
-    cfg = ReconstructionConfig.cpu(min_opacity=0.005)
+    cfg = reconstruction_preset("cpu", min_opacity=0.005)
     opt, _ = _make_optimizers(g, DeformMLP.preset("small"), cfg)
     before_means, before_scales = g.means.detach().clone(), g.log_scales.detach().clone()
     grads = torch.zeros(60)

@@ -10,17 +10,17 @@ import torch
 from recon_scene import write_scene
 
 from imagefiles import ImageFileError
+from trase.reconstruction_presets import reconstruction_preset
 from trase.checkpoint import CheckpointError, available_iterations, load_model
 from trase.deformation import DeformMLP
 from trase.gaussians import GaussianModel
 from trase.reconstruct import (
-    ReconstructionConfig,
     evaluate_psnr,
     reconstruct,
 )
 
-CFG = ReconstructionConfig.cpu(
-    iterations=40, warm_up=15, densify_from=10, densify_until=35, densify_interval=10,
+CFG = reconstruction_preset(
+    "cpu", iterations=40, warm_up=15, densify_from=10, densify_until=35, densify_interval=10,
     checkpoint_interval=20, time_noise_steps=40, position_lr_max_steps=40, deform_lr_max_steps=40,
 )
 

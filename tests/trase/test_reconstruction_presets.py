@@ -71,7 +71,6 @@ def test_presets_name_their_near_plane():
 def test_the_paper_preset_is_the_configs_defaults_and_cpu_presets_are_in_the_cpu_tier():
     assert preset("paper") == ReconstructionConfig()
     assert [RECONSTRUCTION_PRESETS.preset(n).tier for n in RECONSTRUCTION_PRESETS.names()] == ["paper"] + ["cpu"] * 5
-    assert ReconstructionConfig.cpu(monocular=False) == preset("cpu", monocular=False)
 
 
 def test_the_training_scale_follows_the_image_size_and_every_value_says_where_it_was_declared():

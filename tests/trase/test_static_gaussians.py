@@ -14,6 +14,7 @@ import pytest
 import torch
 from recon_scene import write_scene
 
+from trase.reconstruction_presets import reconstruction_preset
 from trase.checkpoint import load_model
 from trase.deformation import DeformMLP, deformed, deformed_visible
 from trase.reconstruct import ReconstructionConfig, evaluate_psnr, reconstruct
@@ -157,8 +158,8 @@ def test_visible_only_pass_takes_the_rows_of_a_partly_static_deformation():
     assert all(torch.allclose(x, y) for x, y in zip(a, b))
 
 
-CFG = ReconstructionConfig.cpu(
-    iterations=40, warm_up=10, densify_from=5, densify_until=35, densify_interval=10,
+CFG = reconstruction_preset(
+    "cpu",     iterations=40, warm_up=10, densify_from=5, densify_until=35, densify_interval=10,
     checkpoint_interval=20, time_noise_steps=40, position_lr_max_steps=40, deform_lr_max_steps=40,
     static_threshold=0.05, static_from=5, static_interval=10,
 )

@@ -15,8 +15,9 @@ sys.path.insert(0, str(Path(__file__).parent))
 from recon_scene import write_scene
 
 from tests.trase.helpers import exact_masks, tiny_scene
+from trase.reconstruction_presets import reconstruction_preset
 from trase.features import FeatureConfig, train_features
-from trase.reconstruct import ReconstructionConfig, reconstruct
+from trase.reconstruct import reconstruct
 
 pytestmark = pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="needs 2 numba threads")
 
@@ -32,7 +33,7 @@ def _under(threads: int, fn):
 
 def test_reconstruction_is_bit_identical_under_1_and_2_numba_threads(tmp_path):
     views, pts, _, _ = write_scene(tmp_path / "images", num=6, size=24)
-    cfg = ReconstructionConfig.cpu(iterations=30, warm_up=10, densify_from=5, densify_until=25, densify_interval=10,
+    cfg = reconstruction_preset("cpu", iterations=30, warm_up=10, densify_from=5, densify_until=25, densify_interval=10,
                                    checkpoint_interval=30, time_noise_steps=30, torch_threads=1)
     a, da = _under(1, lambda: reconstruct(views, pts, None, cfg, tmp_path / "one", progress=False))
     b, db = _under(2, lambda: reconstruct(views, pts, None, cfg, tmp_path / "two", progress=False))

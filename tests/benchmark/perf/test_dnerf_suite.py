@@ -59,8 +59,8 @@ def test_perf_skip_measures_each_skip_on_a_dnerf_scene(tmp_path, monkeypatch):
     out = skip.run(quick=True, echo=lines.append, datasets=[], scenes=[scene], overrides=["capture.image_scale=1"],
                    out_dir=tmp_path / "out")
     assert not out["failed"], out["runs"]
-    full, _, converged = out["runs"]
-    assert [r["variant"] for r in out["runs"]] == ["full", "static", "converged"]
+    full, _, converged, *_ = out["runs"]
+    assert [r["variant"] for r in out["runs"]] == ["full", "static", "converged", "resolution", "resolution+primitives"]
     assert {r["dataset"] for r in out["runs"]} == {"dnerf/hook"}
     assert full["stopping"] == {} and set(converged["stopping"]) == {"geometry", "features"}
     assert {s: st["cap"] for s, st in converged["stopping"].items()} == {"geometry": 60, "features": 30}
@@ -71,8 +71,8 @@ def test_perf_skip_measures_each_skip_on_a_dnerf_scene(tmp_path, monkeypatch):
     assert full["static_gaussians"] == 0
     # each variant trained its own geometry (the static threshold and the stopping are keyed)
     keys = {v: json.loads((tmp_path / "out" / "skip-dnerf" / "hook" / v / "fit.json").read_text())["stages"]["geometry"]["key"]
-            for v in ("full", "static", "converged")}
-    assert len(set(keys.values())) == 3, keys
+            for v in ("full", "static", "converged", "resolution", "resolution+primitives")}
+    assert len(set(keys.values())) == 5, keys
     text = "\n".join(lines)
     assert text.startswith("skips on and off, dnerf/hook, trase, settings")  # the scene only, no format
     assert "foreground IoU, mask prompt" in text and "dnerf/hook" in text and "geometry s vs full" in text

@@ -61,8 +61,8 @@ def test_all_suites_quick(tmp_path, monkeypatch, capsys):
     assert "ms/step" in text
 
     sk = s["skip"]  # static gaussians on and off, stages that stop when converged
-    assert not sk["failed"] and [r["variant"] for r in sk["runs"]] == ["full", "static", "converged"]
-    full, static, converged = sk["runs"]
+    assert not sk["failed"] and [r["variant"] for r in sk["runs"]] == ["full", "static", "converged", "resolution", "resolution+primitives"]
+    full, static, converged, resolution, primitives = sk["runs"]
     assert full["stopping"] == {}  # full: no stopping
     assert {s: st["cap"] for s, st in converged["stopping"].items()} == {"geometry": 60, "features": 20}
     assert all(st["stopped_at"] is None or 10 <= st["stopped_at"] < st["cap"] for st in converged["stopping"].values())
@@ -73,8 +73,9 @@ def test_all_suites_quick(tmp_path, monkeypatch, capsys):
     assert full["seconds"]["geometry"] > 0 and static["seconds"]["geometry"] > 0 and "geometry s vs full" in text
     # each run was told as it ended: a line printed and a line in the runs file (an interrupted suite keeps them)
     told = [json.loads(line) for line in (tmp_path / "skip-runs.jsonl").read_text().splitlines()]
-    assert [r["variant"] for r in told] == ["full", "static", "converged"] and told[0]["miou"] == full["miou"]
-    assert "[1/3] neu3d full: " in text and "[3/3] neu3d converged: " in text
+    assert [r["variant"] for r in told] == ["full", "static", "converged", "resolution", "resolution+primitives"] and told[0]["miou"] == full["miou"]
+    assert "[1/5] neu3d full: " in text and "[5/5] neu3d resolution+primitives: " in text
+    assert resolution["seconds"]["geometry"] > 0 and primitives["gaussians"] > 0
     from benchmark.perf.skip import tables
 
     assert tables(told) in text  # the runs file gives back the table the suite printed
