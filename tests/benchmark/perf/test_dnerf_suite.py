@@ -78,7 +78,8 @@ def test_perf_skip_measures_each_skip_on_a_dnerf_scene(tmp_path, monkeypatch):
     assert "foreground IoU, mask prompt" in text and "dnerf/hook" in text and "geometry s vs full" in text
     assert (tmp_path / "out" / "skip-dnerf-hook.png").stat().st_size > 1000
     told = (tmp_path / "out" / "skip-runs.jsonl").read_text().splitlines()  # a line per fit, as each ended
-    assert len(told) == 3 and "[3/3] dnerf/hook converged: " in text and "foreground IoU" in text
+    assert len(told) == 5 and "[3/5] dnerf/hook converged: " in text and "foreground IoU" in text
+    assert "[5/5] dnerf/hook resolution+primitives: " in text
 
 
 def test_capture_settings_reach_the_scenes_only():
