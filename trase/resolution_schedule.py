@@ -85,11 +85,6 @@ class ResolutionSchedule:
         f = self.factor_at(it)
         return max(int(self.max_gaussians / (f * f)), min(self.start_gaussians, self.max_gaussians))
 
-    def summary(self) -> dict:
-        """What the schedule was, for the stage's record."""
-        return {"factors": self.factors, "energy": [round(e, 4) for e in self.energy], "until": self.until,
-                "primitives": self.grow_primitives}
-
 
 def make_schedule(images: Sequence[torch.Tensor], width: int, height: int, max_factor: float, until: int,
                   grow_primitives: bool = False, max_gaussians: int = 0, start_gaussians: int = 0,

@@ -50,8 +50,9 @@ def datasets(as_json: bool) -> None:
         kind = "monocular" if s.monocular else "multi-view"
         table.add_row(f"{s.key}\n{s.display_name}\n{s.format}, {kind}", "\n".join(s.sequences),
                       s.split, f"{res}\n{frames}", defaults)
-    # a pipe or a file gets the whole table, not a terminal's 80 columns
-    console = Console() if Console().is_terminal else Console(width=200)
+    console = Console()
+    if not console.is_terminal:  # a pipe or a file gets the whole table, not 80 columns
+        console = Console(width=200)
     console.print(table)
     console.print(builtin_sequences())
 

@@ -73,7 +73,7 @@ class Corrected:
     n_first: int
     budget: int  # the most corrective clicks it could have made
     negatives: bool  # whether it could click negatively (the method's negative_clicks)
-    watched: list = dataclasses.field(default_factory=list)  # the check frames' test view indices
+    check_frames: list = dataclasses.field(default_factory=list)  # test view indices the robot watched
 
     def kept_after(self, j: int) -> list:
         """The clicks in force after the first ``j`` corrective clicks."""
@@ -124,7 +124,7 @@ def score_curve(predictor: Predictor, run: Corrected, names: list[str], stored: 
     noc = {f"noc@{round(t * 100)}": clicks_to_reach(mious, run.n_first, t, run.budget) for t in NOC_TARGETS}
     numbered = [click_dicts([c])[0] | {"n": run.n_first + j + 1} for j, (c, _) in enumerate(run.spent)]
     summary = {"first_clicks": run.n_first, "budget": run.budget, "negatives": run.negatives,
-               "check_frames": [predictor.scene.test[i].name for i in run.watched],
+               "check_frames": [predictor.scene.test[i].name for i in run.check_frames],
                "corrections": [d for d, (_, kept) in zip(numbered, run.spent) if kept],
                "undone": [d for d, (_, kept) in zip(numbered, run.spent) if not kept], "curve": points, **noc}
     return summary, final
