@@ -8,6 +8,7 @@ STAMP  := $(VENV)/.trase-bench-installed
 TORCH_PIN := torch==2.13.0
 
 DOCS_STAMP := $(VENV)/.trase-bench-docs-installed
+TEST_STAMP := $(VENV)/.trase-bench-test-installed
 
 .PHONY: test test-all demo docs venv clean
 
@@ -27,10 +28,16 @@ $(STAMP): pyproject.toml $(wildcard competitors/*/pyproject.toml) | $(PY)
 	$(PY) -m pip install --quiet --no-deps -e competitors/trase-bench-saga
 	@touch $(STAMP)
 
-test: $(STAMP)
+# the tests also build the text extra's models small from their configs (transformers); the
+# demo and a plain install stay without it
+$(TEST_STAMP): pyproject.toml $(STAMP)
+	$(PY) -m pip install --quiet -e ".[text]"
+	@touch $(TEST_STAMP)
+
+test: $(TEST_STAMP)
 	$(PY) -m pytest -m "not slow"
 
-test-all: $(STAMP)
+test-all: $(TEST_STAMP)
 	$(PY) -m pytest
 
 # The main job on the built-in default data: TRASE on the synthetic HyperNeRF-format scene

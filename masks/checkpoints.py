@@ -28,11 +28,22 @@ CHUNK = 1 << 20
 @dataclasses.dataclass(frozen=True)
 class Checkpoint:
     url: str
-    sha256: str  # of the whole file, as published with it
+    sha256: str  # of the whole file, as published with it (see ``digest``)
+    # "sha256", or "git-sha1": the git blob id a model hub publishes for its small files
+    digest: str = "sha256"
+    name: str = ""  # the file's name in the cache (default: the URL's last part)
 
     @property
     def filename(self) -> str:
-        return self.url.rsplit("/", 1)[-1]
+        return self.name or self.url.rsplit("/", 1)[-1]
+
+    @property
+    def digest_name(self) -> str:
+        return {"sha256": "SHA-256", "git-sha1": "git blob SHA-1"}[self.digest]
+
+    def checksum(self, path: Path) -> str:
+        """``path``'s checksum of this checkpoint's kind."""
+        return git_blob_sha1(path) if self.digest == "git-sha1" else sha256_of(path)
 
 
 # The official segment-anything checkpoints (facebookresearch/segment-anything README) and their
@@ -63,6 +74,15 @@ def sha256_of(path: Path) -> str:
     return h.hexdigest()
 
 
+def git_blob_sha1(path: Path) -> str:
+    """The git blob id of ``path`` (SHA-1 of ``blob <size>\\0`` and the bytes)."""
+    h = hashlib.sha1(f"blob {Path(path).stat().st_size}\0".encode())
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(CHUNK), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
 def sam_checkpoint(model: str, cache_dir: Path | None = None, progress: bool = True) -> Path:
     """The official SAM checkpoint of ``model`` (vit_b, vit_l, vit_h), fetched on first use."""
     if model not in SAM_CHECKPOINTS:
@@ -74,17 +94,18 @@ def fetch(ck: Checkpoint, cache_dir: Path, progress: bool = True, timeout: float
     """``ck`` in ``cache_dir`` (downloaded, resumed or reused), its SHA-256 checked."""
     dest = Path(cache_dir) / ck.filename
     if dest.is_file():
-        if sha256_of(dest) == ck.sha256:
+        have = ck.checksum(dest)
+        if have == ck.sha256:
             return dest
-        raise MaskError(f"{dest}: SHA-256 {sha256_of(dest)[:12]}... is not the published {ck.sha256[:12]}...; "
+        raise MaskError(f"{dest}: {ck.digest_name} {have[:12]}... is not the published {ck.sha256[:12]}...; "
                         "delete it to download it again")
     dest.parent.mkdir(parents=True, exist_ok=True)
     part = dest.with_name(dest.name + ".part")
     _download(ck.url, part, progress, timeout)
-    got = sha256_of(part)
+    got = ck.checksum(part)
     if got != ck.sha256:
         part.unlink(missing_ok=True)
-        raise MaskError(f"{ck.url}: downloaded file has SHA-256 {got[:12]}..., not the published "
+        raise MaskError(f"{ck.url}: downloaded file has {ck.digest_name} {got[:12]}..., not the published "
                         f"{ck.sha256[:12]}... (deleted; try again, or pass a checkpoint you have)")
     os.replace(part, dest)
     return dest
@@ -155,4 +176,4 @@ class _Bar:
             self.p.stop()
 
 
-__all__ = ["SAM_CHECKPOINTS", "Checkpoint", "fetch", "sam_checkpoint", "sha256_of", "weights_dir"]
+__all__ = ["SAM_CHECKPOINTS", "Checkpoint", "fetch", "git_blob_sha1", "sam_checkpoint", "sha256_of", "weights_dir"]

@@ -11,9 +11,11 @@
   surface are lifted the same way. Rule ``cover`` (default): a cluster is chosen when at least
   ``min_cover`` of its own lifted pixels in the view lie inside the mask, the intersection over
   the cluster's area that Gaussian Grouping's mask prompt thresholds at 0.7
-  (``ext/grounded_sam.py``). Rule ``share`` (the paper's wording, "the number of associated
-  gaussians of a cluster is more than a threshold"): at least ``min_share`` of the lifted mask
-  pixels land on the cluster's gaussians. Why ``cover`` by default: a share of the mask depends
+  (``ext/grounded_sam.py``). Rule ``share`` (the paper's text-prompt rule, "the number of
+  associated gaussians of a cluster is more than a threshold"): each lifted mask pixel takes its
+  nearest gaussian, and a cluster is chosen when it holds at least ``min_share`` of the distinct
+  gaussians hit (a share rather than the paper's count, which would change with the image size).
+  Why ``cover`` by default: a share of the mask depends
   on the other clusters under it, so an object cut into parts keeps only its largest part
   (D-NeRF hook, one figure in six clusters: ``share`` chose the torso, IoU 0.857 against the
   alpha of the validation views, ``cover`` the whole figure, 0.956; docs/captures.md).
@@ -41,6 +43,9 @@ CLICK_RULES = ("depth", "weight", "feature", "front")
 FRONT_SHARE = 0.4
 MASK_RULES = ("cover", "share")
 MASK_MIN_COVER = 0.7  # Gaussian Grouping's intersection-over-area threshold of its mask prompt
+# the "share" rule's least share of the distinct gaussians a mask's lifted pixels hit (the paper
+# names no value)
+MASK_MIN_SHARE = 0.05
 
 
 class PromptError(ValueError):
@@ -271,11 +276,11 @@ def _strided_pixels(mask: np.ndarray, max_points: int) -> np.ndarray:
 
 
 def mask_to_clusters(gaussians, deformation, camera: Camera, mask: np.ndarray, labels: np.ndarray,
-                     rule: str = "cover", min_cover: float = MASK_MIN_COVER, min_share: float = 0.05,
+                     rule: str = "cover", min_cover: float = MASK_MIN_COVER, min_share: float = MASK_MIN_SHARE,
                      max_points: int = 40000, min_alpha: float = 0.5) -> list[int]:
     """2D mask [H, W] of ``camera`` -> sorted ids of the clusters it selects (module docstring:
     ``cover``: >= min_cover of the cluster's lifted pixels in the view are inside the mask;
-    ``share``: the cluster holds >= min_share of the lifted mask pixels).
+    ``share``: the cluster holds >= min_share of the distinct gaussians the mask's pixels hit).
 
     At most ``max_points`` pixels are lifted (of the whole view for ``cover``, of the mask for
     ``share``; an evenly strided, deterministic subset)."""
@@ -290,7 +295,7 @@ def mask_to_clusters(gaussians, deformation, camera: Camera, mask: np.ndarray, l
     lab_all = np.asarray(labels, dtype=np.int64)
     if rule == "share":
         gids = lift_pixels(gaussians, deformation, camera, _strided_pixels(mask, max_points), min_alpha)
-        hit = gids[gids >= 0]
+        hit = np.unique(gids[gids >= 0])  # [M] distinct gaussians hit
         if hit.size == 0:
             return []
         values, counts = np.unique(lab_all[hit], return_counts=True)

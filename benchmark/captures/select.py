@@ -116,19 +116,20 @@ def parsed_clicks(texts: list[str], scene, fit_dir, positive: bool = True) -> li
 
 
 def select_clicks(fit_dir: Path | str, clicks: list[str], out_dir: Path | str | None = None,
-                  masks: list[str] = (), unclicks: list[str] = ()) -> dict:
+                  masks: list[str] = (), unclicks: list[str] = (), text=None) -> dict:
     """Clusters chosen by ``clicks`` (``VIEW:X,Y``) and ``masks`` (``VIEW:PATH``) and their
     masks at every view, written to ``out_dir`` (default ``<fit>/selection``) ->
     {"clusters", "per_click", "per_mask", "masks": {view: bool [H, W]}}. ``unclicks``: negative
     clicks, taken before the clicks: the cluster under each is kept out, so a click where it
-    blends with another picks the other (``per_click`` lists them first)."""
+    blends with another picks the other (``per_click`` lists them first). ``text``: a
+    benchmark.scene.text_prompt.TextRequest, each phrase's choice in ``per_text``."""
     from benchmark.io import atomic_directory, atomic_write_bytes
     from benchmark.methods import click_selection
     from benchmark.protocol.prompts import BenchmarkPrompts
     from trase.prompts import mask_to_clusters
 
-    if not clicks and not masks:
-        raise UserError("give at least one --click VIEW:X,Y or --mask VIEW:PATH")
+    if not clicks and not masks and not (text and text.phrases):
+        raise UserError("give at least one --click VIEW:X,Y, --mask VIEW:PATH or --text PHRASE")
     _, method, fitted, scene = fitted_capture(fit_dir)
     names = [v.name for v in scene.test]
     parsed = parsed_clicks(list(unclicks), scene, fit_dir, positive=False) + parsed_clicks(list(clicks), scene, fit_dir)
@@ -141,11 +142,14 @@ def select_clicks(fit_dir: Path | str, clicks: list[str], out_dir: Path | str | 
             raise UserError(f"--mask: no view {view!r} in {fit_dir} (e.g. {', '.join(names[:3])})")
         return scene.test[names.index(view)].camera
 
+    rule = text.rule if text is not None else "cover"
     per_mask = []
-    for text in masks:
-        cam, mask = mask_prompt(text, camera_of)
-        per_mask.append(mask_to_clusters(fitted.gaussians, fitted.deformation, cam, mask, fitted.labels))
-    clusters = sorted(set(selected_by_clicks) | {k for ks in per_mask for k in ks})
+    for text_of_mask in masks:
+        cam, mask = mask_prompt(text_of_mask, camera_of)
+        per_mask.append(mask_to_clusters(fitted.gaussians, fitted.deformation, cam, mask, fitted.labels, rule=rule))
+    per_text = text_choices(fitted, scene, text)
+    clusters = sorted(set(selected_by_clicks) | {k for ks in per_mask for k in ks}
+                      | {k for c in per_text for k in c.clusters})
     rendered = method.render_selection(fitted, scene, clusters)
     out = Path(out_dir) if out_dir else Path(fit_dir) / "selection"
     from imagefiles import png_bytes
@@ -155,9 +159,24 @@ def select_clicks(fit_dir: Path | str, clicks: list[str], out_dir: Path | str | 
             atomic_write_bytes(d / f"{name.replace('/', '_')}.png", png_bytes(np.asarray(m, np.uint8) * 255))
         atomic_write_bytes(d / "selection.json", json.dumps(
             {"clicks": list(clicks), "per_click": per_click, "masks": list(masks), "per_mask": per_mask,
-             "clusters": clusters}, indent=1).encode())
-    return {"clusters": clusters, "per_click": per_click, "per_mask": per_mask,
+             "mask_rule": rule, "text": [c.to_dict() for c in per_text], "clusters": clusters}, indent=1).encode())
+    return {"clusters": clusters, "per_click": per_click, "per_mask": per_mask, "per_text": per_text,
             "masks": dict(zip(names, rendered)), "dir": out}
 
 
-__all__ = ["fitted_capture", "mask_for_view", "mask_prompt", "parse_click", "parse_mask", "select_clicks"]
+def text_choices(fitted, scene, text) -> list:
+    """Each phrase's benchmark.scene.text_prompt.TextChoice on the fitted capture (none without
+    ``text``); a phrase whose mask selects nothing is a one-line error."""
+    if text is None or not text.phrases:
+        return []
+    from trase.edit import EditableModel
+
+    model = EditableModel(fitted.gaussians, fitted.deformation, fitted.labels, fitted.keep)
+    choices = text.choices(model, [(v.name, v.camera) for v in scene.test])
+    for c in choices:
+        if not c.clusters:
+            raise UserError(f"--text {c.phrase!r}: its mask in view {c.view} selects no cluster (rule {c.rule})")
+    return choices
+
+
+__all__ = ["fitted_capture", "mask_for_view", "mask_prompt", "parse_click", "parse_mask", "select_clicks", "text_choices"]

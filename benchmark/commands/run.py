@@ -82,6 +82,9 @@ def run(method, dataset, sequences, data_root, runs_dir, cache_dir, overrides, n
             curve = corr["curve"]
             v1 += (f"; after {curve[-1]['clicks']} clicks of at most {corr['first_clicks'] + corr['budget']} "
                    f"(mIoU@1 {fmt(curve[0]['miou'])}, NoC@85 {corr['noc@85']}, NoC@90 {corr['noc@90']})")
+        text = r.get("text")
+        if text:  # the text protocol: each phrase's view and clusters
+            v1 += "; " + ", ".join(f"{p['phrase']!r} -> {p['clusters'] or 'nothing'}" for p in text["phrases"])
         sets = r.get("click_sets")
         if sets:
             ceiling += f", click sets median {fmt(sets['median'])} worst {fmt(sets['worst'])} of {sets['n']}"

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import click
 
+from benchmark.commands.text_options import text_options, text_request
+
 
 @click.command(name="select")
 @click.option("--fit", "fit_dir", required=True, type=click.Path(file_okay=False),
@@ -18,11 +20,15 @@ import click
                    "pixels): the clusters it covers; repeatable.")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False), default=None,
               help="Where the masks go (default <fit>/selection).")
-def select(fit_dir, clicks, unclicks, masks, out_dir) -> None:
-    """Masks of the objects chosen by clicks or 2D masks at every view of the capture (PNG, 0/255)."""
+@text_options
+def select(fit_dir, clicks, unclicks, masks, out_dir, **text) -> None:
+    """Masks of the objects chosen by clicks, 2D masks or text at every view of the capture (PNG, 0/255)."""
     from benchmark.captures.select import select_clicks
 
-    res = select_clicks(fit_dir, list(clicks), out_dir, masks=list(masks), unclicks=list(unclicks))
+    res = select_clicks(fit_dir, list(clicks), out_dir, masks=list(masks), unclicks=list(unclicks),
+                        text=text_request(**text))
+    for choice in res["per_text"]:
+        click.echo(f"text {choice.line()}")
     chosen = ", ".join(map(str, res["clusters"])) or "none (the prompts hit no surface)"
     per = [f"per click: {res['per_click']}"] * bool(clicks or unclicks) + [f"per mask: {res['per_mask']}"] * bool(masks)
     click.echo(f"clusters {chosen} ({'; '.join(per)}); {len(res['masks'])} masks -> {res['dir']}")

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import click
 
+from benchmark.commands.text_options import text_model_options, text_request
+
 
 @click.command(name="view")
 @click.option("--run", "run_dir", required=True, type=click.Path(exists=True, file_okay=False),
@@ -18,15 +20,17 @@ import click
               help="Where frames are drawn: cuda uses the rasterizer's gsplat backend (needs gsplat and a GPU).")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False), default=None,
               help="Where Export writes the edited scene (default <run>-edited).")
-def view(run_dir, cache, host, port, height, device, out_dir) -> None:
-    """Open a scene in the browser: orbit, time, render modes, click selection, edits, export."""
+@text_model_options
+def view(run_dir, cache, host, port, height, device, out_dir, **text) -> None:
+    """Open a scene in the browser: orbit, time, render modes, click and text selection, edits, export."""
     import time
 
     from benchmark.scene.folders import open_scene_folder
     from benchmark.scene.viewer import SceneViewer
 
     folder = open_scene_folder(run_dir, cache)
-    viewer = SceneViewer(folder, host=host, port=port, out=out_dir, height=int(height), device=device)
+    viewer = SceneViewer(folder, host=host, port=port, out=out_dir, height=int(height), device=device,
+                         text=text_request(**text))
     click.echo(f"viewer of {folder.path} at {viewer.url()}  (drawn on {viewer.painter.device}; Ctrl+C to stop)")
     try:
         while True:

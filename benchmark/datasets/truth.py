@@ -34,6 +34,7 @@ class SceneTruth:
     instance_maps: dict[str, Path]  # view name -> 16-bit instance id PNG
     geometry_path: Path  # ground-truth gaussians with tabulated motion (trase.checkpoint)
     info: dict  # SCENE_INFO_KEYS -> value (None where the manifest lacks it)
+    name: str = ""  # the sequence name the generator gave it ("synthetic-tiny"; a data root may call it otherwise)
 
     @property
     def interest_ids(self) -> list[int]:
@@ -74,7 +75,7 @@ def read_truth(path: str | Path) -> SceneTruth:
     except (KeyError, TypeError, ValueError) as exc:
         raise _fail(path, f"synthetic manifest: malformed objects or instances ({type(exc).__name__}: {exc})") from None
     return SceneTruth(path, objects, maps, path.parent / str(man.get("geometry", "geometry.npz")),
-                      {k: man.get(k) for k in SCENE_INFO_KEYS})
+                      {k: man.get(k) for k in SCENE_INFO_KEYS}, str(man.get("sequence", "")))
 
 
 def find_truth(scene_dir: Path) -> SceneTruth | None:

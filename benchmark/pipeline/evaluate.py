@@ -116,8 +116,15 @@ def evaluate(method, fitted, scene, prompts, directory: Path, protocol) -> dict:
 
     names = [f"{i:05d}" for i in range(len(scene.test))]
     gts, stored = read_ground_truths(scene.gt_masks)
-    predictor, preds, selected, per_click, corrective = segment_prompts(method, fitted, scene, prompts, protocol,
-                                                                        gts, stored, names)
+    text = None
+    if protocol.source == "text":
+        from benchmark.pipeline.text_prompts import segment_text
+
+        preds, selected, text = segment_text(method, fitted, scene, protocol)
+        predictor, per_click, corrective = None, None, None
+    else:
+        predictor, preds, selected, per_click, corrective = segment_prompts(method, fitted, scene, prompts, protocol,
+                                                                            gts, stored, names)
     if len(preds) != len(scene.test):
         raise RuntimeError(f"{method.name}.segment returned {len(preds)} masks for {len(scene.test)} test views")
     v1, official = score_predictions(names, preds, gts, stored)
@@ -145,7 +152,8 @@ def evaluate(method, fitted, scene, prompts, directory: Path, protocol) -> dict:
         "selected": selected,
         "click_clusters": per_click,
         "corrective": corrective,
-        "click_sets": score_click_sets(predictor, prompts, gts, names, first, protocol),
+        "text": text,
+        "click_sets": score_click_sets(predictor, prompts, gts, names, first, protocol) if predictor else None,
         "oracle": None,
         "n_gaussians": int(fitted.features.shape[0]),
         "n_clusters": int(fitted.stats.get("n_clusters", 0)),
@@ -165,11 +173,16 @@ def evaluate(method, fitted, scene, prompts, directory: Path, protocol) -> dict:
     return jsonable(out)
 
 
-def corrective_key(protocol) -> dict:
+def corrective_key(protocol, scene=None) -> dict:
     """The corrective protocol's part of the evaluate stage's key; none where it does not
-    correct, so single-click stages keep their keys."""
+    correct, so single-click stages keep their keys; the text protocol's settings where it
+    reads text."""
     from benchmark.protocol.corrective import PROTOCOL_VERSION
 
+    if protocol.source == "text":
+        from benchmark.pipeline.text_prompts import text_key
+
+        return text_key(protocol, scene)
     if protocol.corrections == 0:
         return {}
     return {"corrective": {"version": PROTOCOL_VERSION, "corrections": int(protocol.corrections),
@@ -183,7 +196,7 @@ def run(ctx: SequenceRun) -> list[StageRecord]:
 
     fit_rec, prompts_rec = ctx.records["fit"], ctx.records["prompts"]
     protocol = ctx.settings.prompts
-    key = ctx.cache.key("evaluate", {"method": ctx.method.name, **METRICS_KEY, **corrective_key(protocol)},
+    key = ctx.cache.key("evaluate", {"method": ctx.method.name, **METRICS_KEY, **corrective_key(protocol, ctx.scene)},
                         {"fit": fit_rec.key, "prompts": prompts_rec.key, "gt": ctx.gt_key})
 
     def work(d: Path) -> dict:

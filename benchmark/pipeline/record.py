@@ -28,7 +28,7 @@ def build_record(ctx: SequenceRun, run: dict, dataset: str, variant: str, scene_
         synthetic_scene=dict(scene.truth.info) if scene.truth else None,
         metrics={**{k: v1[k] for k in V1_KEYS}, "official": {k: official[k] for k in OFFICIAL_KEYS}},
         per_frame=v1["per_frame"],
-        oracle=ev["oracle"], corrective=ev.get("corrective"),
+        oracle=ev["oracle"], corrective=ev.get("corrective"), text=ev.get("text"),
         ceiling=(ceiling | {"note": CEILING_NOTE}) if ceiling else None,
         stages={name: r.to_dict() for name, r in ctx.records.items()},
         n_gaussians=ev["n_gaussians"], n_clusters=ev["n_clusters"],

@@ -17,6 +17,7 @@ from benchmark import numerics
 from benchmark.cache import config_hash
 from benchmark.config import ConfigError, flatten, merge, typed
 from benchmark.datasets.registry import get_dataset
+from benchmark.protocol.settings import PromptProtocol
 from lazyspecs.presets import Context, Derived, When
 from trase.feature_config import FeatureConfig
 from trase.reconstruction_config import ReconstructionConfig
@@ -103,6 +104,9 @@ AS_BEFORE = {
     "numerics": ("native", ("numerics",)),  # each library's own kernels for this processor (benchmark.numerics)
     # the first clicks alone (the single-click protocol)
     "corrections": (0, ("corrections", "correction_target", "correction_min_gain", "correction_check_frames")),
+    # the benchmark's clicks (not text prompts)
+    "source": ("clicks", ("source", "text_detector", "text_segmenter", "text_rule", "text_min_cover", "text_min_share", "text_min_score",
+                           "text_file")),
     "correction_min_gain": (0.0, ("correction_min_gain",)),  # any gain in the watched frames keeps a click
 }
 
@@ -150,38 +154,6 @@ def key_config(settings) -> dict:
     d = recorded_settings(dataclasses.asdict(settings))
     d.pop("preset", None)
     return d
-
-
-@dataclasses.dataclass
-class PromptProtocol:
-    """The benchmark's clicks (benchmark.protocol.prompts)."""
-
-    # clicks on every object of interest, in the first test frame it appears in
-    # ("gt-first-frame": the first non-empty frame only)
-    rule: str = "gt-first-appearance"
-    click_sets: int = 5  # click sets scored beside the run's own; 1 = the run's own clicks alone
-    # the robot user (benchmark.protocol.corrective): at most this many corrective clicks per
-    # first click (object of interest), until every click frame reaches the target IoU; 0: the
-    # first clicks alone (the single-click protocol)
-    corrections: int = 3
-    correction_target: float = 0.9
-    correction_min_gain: float = 0.0  # a click that raises the watched frames' mean IoU by less is undone
-    # test frames spread over the sequence that the robot watches besides its click frames: a click
-    # is judged by the mean IoU over both (0: the click frames alone)
-    correction_check_frames: int = 2
-
-    def __post_init__(self) -> None:
-        if not isinstance(self.corrections, int) or isinstance(self.corrections, bool) or self.corrections < 0:
-            raise ConfigError(f"--set prompts.corrections={self.corrections!r}: a whole number >= 0 "
-                              "(0: the first clicks alone)")
-        if (not isinstance(self.correction_check_frames, int) or isinstance(self.correction_check_frames, bool)
-                or self.correction_check_frames < 0):
-            raise ConfigError(f"--set prompts.correction_check_frames={self.correction_check_frames!r}: a whole "
-                              "number >= 0 (0: the click frames alone)")
-        if not 0.0 <= float(self.correction_min_gain) < 1.0:
-            raise ConfigError(f"--set prompts.correction_min_gain={self.correction_min_gain!r}: an IoU gain in [0, 1)")
-        if not 0.0 < float(self.correction_target) <= 1.0:
-            raise ConfigError(f"--set prompts.correction_target={self.correction_target!r}: an IoU in (0, 1]")
 
 
 @dataclasses.dataclass

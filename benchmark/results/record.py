@@ -111,6 +111,9 @@ class RunRecord:
     # the robot user's clicks, the score after each click, NoC@85 / NoC@90
     # (benchmark.pipeline.corrective); None where the run's prompts were its first clicks alone
     corrective: dict | None = None
+    # the text protocol (benchmark.protocol.text): each phrase's view, score, box, mask and
+    # clusters, and the models and rule; None where the prompts were clicks
+    text: dict | None = None
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)

@@ -114,6 +114,8 @@ def protocol(record: dict) -> dict:
     if "cgc" in mcfg:
         prompts += ", cgc patch query"
     prompts += corrective_protocol(cfg, record.get("corrective"))
+    if (cfg.get("prompts") or {}).get("source") == "text":  # benchmark.protocol.text
+        prompts = (record.get("text") or {}).get("label") or "text"
     official = (record.get("metrics") or {}).get("official") or {}
     syn = record.get("synthetic_scene")
     scene = {}

@@ -155,11 +155,13 @@ def parse_clusters(text: str | None) -> list[int]:
 
 def resolve_selection(folder: SceneFolder, clusters: str | None = None, clicks: tuple[str, ...] = (),
                       selected: bool = False, filtered: bool = True,
-                      masks: tuple[str, ...] = ()) -> tuple[list[int], np.ndarray | None]:
+                      masks: tuple[str, ...] = (), text=None, found: list | None = None
+                      ) -> tuple[list[int], np.ndarray | None]:
     """(cluster ids, [N] bool or None when nothing was asked) from ``--clusters``,
     ``--click VIEW:X,Y`` (the method's click rule; pixel centres), ``--mask VIEW:PATH`` (the
-    clusters a 2D mask covers, ``trase.prompts.mask_to_clusters``) and ``--selected`` (the
-    clusters the run's prompts chose)."""
+    clusters a 2D mask covers, ``trase.prompts.mask_to_clusters``), ``--selected`` (the
+    clusters the run's prompts chose) and ``text`` (a benchmark.scene.text_prompt.TextRequest;
+    its phrases' TextChoice go to ``found`` where given)."""
     from benchmark.captures.select import mask_prompt, parse_click
     from trase.edit import by_click, by_clusters, by_mask
     from trase.prompts import MASK_MIN_COVER
@@ -173,22 +175,31 @@ def resolve_selection(folder: SceneFolder, clusters: str | None = None, clicks: 
         if not folder.selected:
             raise UserError(f"--selected: {folder.path} records no selected clusters")
         ks |= set(folder.selected)
-    for text in clicks:
-        view, x, y = parse_click(text)
+    for click_text in clicks:
+        view, x, y = parse_click(click_text)
         cam = folder.camera(view)
         if not (0 <= x < cam.width and 0 <= y < cam.height):
-            raise UserError(f"--click {text!r}: pixel outside the {cam.width}x{cam.height} view")
+            raise UserError(f"--click {click_text!r}: pixel outside the {cam.width}x{cam.height} view")
         k, _ = by_click(folder.model, cam, x + 0.5, y + 0.5, rule=folder.click_rule)
         if k < 0:
-            raise UserError(f"--click {text!r}: the click hits no surface (rendered alpha below 0.5 there)")
+            raise UserError(f"--click {click_text!r}: the click hits no surface (rendered alpha below 0.5 there)")
         ks.add(k)
-    for text in masks:
-        cam, mask = mask_prompt(text, folder.camera)
-        found, _ = by_mask(folder.model, cam, mask)
-        if not found:
-            raise UserError(f"--mask {text!r}: the mask covers no cluster (none has {MASK_MIN_COVER:.0%} of its visible pixels in it)")
-        ks |= set(found)
-    if not ks and not (clusters or clicks or selected or masks):
+    for text_of_mask in masks:
+        cam, mask = mask_prompt(text_of_mask, folder.camera)
+        rule = text.rule if text is not None else "cover"
+        hit, _ = by_mask(folder.model, cam, mask, rule=rule)
+        if not hit:
+            raise UserError(f"--mask {text_of_mask!r}: the mask selects no cluster (rule {rule}; cover: none has "
+                            f"{MASK_MIN_COVER:.0%} of its visible pixels in it)")
+        ks |= set(hit)
+    for choice in text.choices(folder.model, folder.views) if text is not None else []:
+        if not choice.clusters:
+            raise UserError(f"--text {choice.phrase!r}: its mask in view {choice.view} selects no cluster "
+                            f"(rule {choice.rule})")
+        ks |= set(choice.clusters)
+        if found is not None:
+            found.append(choice)
+    if not ks and not (clusters or clicks or selected or masks or (text is not None and text.phrases)):
         return [], None
     chosen = sorted(ks)
     return chosen, by_clusters(folder.model, chosen, filtered)

@@ -48,12 +48,16 @@ class SceneViewer:
     writes the edited scene."""
 
     def __init__(self, folder, host: str = "127.0.0.1", port: int = 8080, out: Path | None = None,
-                 height: int = 240, device: str = "auto") -> None:
+                 height: int = 240, device: str = "auto", text=None) -> None:
         import viser
 
         from trase.visualize import MODES, Painter, look_centre
 
         self.folder = folder
+        # text prompts: a benchmark.scene.text_prompt.TextRequest (its models, rule and score),
+        # its segmenter loaded on the first phrase
+        self.text = text
+        self.segmenter = None
         self.out = Path(out) if out else folder.path.parent / f"{folder.path.name}-edited"
         self.history = [folder.model]  # undo stack of EditableModels
         self.actions: list[dict] = []  # what each step of the history did
@@ -83,6 +87,8 @@ class SceneViewer:
         with gui.add_folder("selection"):
             self.gui_click = gui.add_dropdown("click", ("add", "remove", "off"), initial_value="add")
             self.gui_clusters = gui.add_text("clusters", "")
+            self.gui_text = gui.add_text("text", "", hint="a phrase, e.g. the cup")
+            gui.add_button("select by text").on_click(lambda event: self.select_text(event.client))
             gui.add_button("clear").on_click(lambda _: self.set_clusters(set()))
             if folder.selected:
                 gui.add_button("the run's selection").on_click(lambda _: self.set_clusters(set(folder.selected)))
@@ -272,6 +278,30 @@ class SceneViewer:
             self.set_clusters(self.clusters - {k}, self.ruled_out | {k})
         done = "added" if mode == "add" else "removed and kept out"
         self._status(f"cluster {k} {done} in {1000 * (time.perf_counter() - t0):.0f} ms")
+
+    def select_text(self, client=None) -> None:
+        """Add the clusters the text field's phrase selects in the client's current view (the
+        paper's text prompt: detector box -> mask -> lifted to clusters)."""
+        from benchmark.scene.text_prompt import TextRequest, text_choice
+        from masks.maskset import MaskError
+
+        phrase = self.gui_text.value.strip()
+        if not phrase:
+            self._status("type a phrase in the text field first")
+            return
+        request = self.text or TextRequest()
+        t0 = time.perf_counter()
+        try:
+            self.segmenter = self.segmenter or request.load_segmenter()
+            with self._lock:
+                cam = self.camera_of(client) if client is not None else self.home
+                choice = text_choice(self.model, [("the current view", cam)], phrase, self.segmenter,
+                                     rule=request.rule)
+        except (UserError, MaskError) as exc:
+            self._status(str(exc))
+            return
+        self.set_clusters(self.clusters | set(choice.clusters), self.ruled_out)
+        self._status(f"text {choice.line()} in {time.perf_counter() - t0:.1f} s")
 
     def _status(self, note: str = "") -> None:
         m = self.model

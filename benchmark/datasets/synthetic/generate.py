@@ -325,3 +325,5 @@ def _write_truth(scene, out: Path, world: World, seed: int, size: str, difficult
                          "objects": fit_report},
     }
     write_manifest(out, manifest)
+    # the text protocol's phrases (benchmark.protocol.text): "the <object>" per object of interest
+    formats.write_json(out / "prompts_text.json", {scene.sequence: [f"the {o.name}" for o in interest]})
