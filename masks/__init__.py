@@ -11,6 +11,7 @@ Public API::
     sampling.sample_masks / sampling.sample_pixels
     generators: masks.generators.{sam.SamGenerator, classical.ClassicalGenerator,
                 synthetic.SyntheticGenerator}; generate_scene_masks(views, generator, out_dir)
+    text.TextSegmenter              a phrase -> a mask (OWLv2 boxes, SAM masks; the text extra)
 
 Generators are imported lazily (OpenCV, segment-anything), so ``import masks`` is light.
 """

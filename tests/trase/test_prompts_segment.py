@@ -338,3 +338,17 @@ def test_mask_rules_cover_every_part_share_only_large_ones():
     assert mask_to_clusters(gm, deform, cam, np.zeros_like(obj), labels) == []
     with pytest.raises(PromptError, match="unknown mask rule"):
         mask_to_clusters(gm, deform, cam, obj, labels, rule="iou")
+
+
+def test_share_counts_the_distinct_gaussians_hit_not_the_pixels(monkeypatch):
+    """The paper's rule counts a cluster's associated gaussians: eight pixels on one gaussian of
+    cluster 0 weigh as much as one pixel on it, so two distinct gaussians of cluster 1 hold the
+    larger share."""
+    import trase.prompts as prompts
+
+    monkeypatch.setattr(prompts, "lift_pixels", lambda *a, **k: np.array([0] * 8 + [1, 2, -1]))
+    cam = type("C", (), {"height": 4, "width": 4})()
+    mask = np.ones((4, 4), bool)
+    labels = np.array([0, 1, 1])
+    assert prompts.mask_to_clusters(None, None, cam, mask, labels, rule="share", min_share=0.5) == [1]
+    assert prompts.mask_to_clusters(None, None, cam, mask, labels, rule="share", min_share=0.3) == [0, 1]
