@@ -41,5 +41,15 @@ def test_the_readmes_results_table_is_the_rendering_of_the_figures_data():
     assert block == render_summary_block(data), "README.md: run trase-bench figures --from-data --write-page README.md"
 
 
+def test_the_performance_pages_figures_are_the_rendering_of_its_perf_data():
+    from benchmark.results.figures import page_block
+    from benchmark.results.perf_page import PERF_BEGIN, PERF_END, render_perf_block
+
+    data = json.loads((ROOT / "docs" / "perf-runs" / "current.json").read_text())
+    block = page_block((ROOT / "docs" / "performance.md").read_text(), "docs/performance.md", (PERF_BEGIN, PERF_END))
+    assert block == render_perf_block(data), ("docs/performance.md: run trase-bench perf --json "
+                                              "docs/perf-runs/current.json --from-json --write-page docs/performance.md")
+
+
 def test_the_readme_is_short():
     assert len((ROOT / "README.md").read_text().splitlines()) <= 130

@@ -1,4 +1,4 @@
-"""``trase-bench perf SUITE... [--quick] [--json OUT]``: measured performance suites."""
+"""``trase-bench perf SUITE... [--quick] [--json OUT] [--write-page PAGE]``: measured performance suites."""
 
 from __future__ import annotations
 
@@ -33,10 +33,38 @@ from benchmark.perf import SUITES, get_suite, machine_info
 @click.option("--threads", type=click.IntRange(min=1), default=None,
               help="Threads for torch and numba (default: theirs, all cores). On a shared, loaded "
                    "machine --threads 1 gives the steadiest side-by-side ratios.")
+@click.option("--write-page", "page", type=click.Path(dir_okay=False, exists=True), default=None,
+              help="Write the figures of --json (raster, features, knn, cluster) into the page's generated block "
+                   "(docs/performance.md).")
+@click.option("--from-json", "from_json", is_flag=True,
+              help="With --write-page: run nothing, write the page from the --json file as it is.")
 def perf(suites: tuple[str, ...], quick: bool, json_out: str | None, out_dir: str | None,
          dataset: str | None, scenes: tuple[str, ...], overrides: tuple[str, ...], lpips_weights: str | None,
-         methods: tuple[str, ...], threads: int | None) -> None:
+         methods: tuple[str, ...], threads: int | None, page: str | None, from_json: bool) -> None:
     """Run performance SUITES (default: all that this machine can run) and print their figures."""
+    if page and not json_out:
+        raise click.UsageError("--write-page renders a --json file: give --json FILE")
+    if from_json:
+        if not page:
+            raise click.UsageError("--from-json writes a page from --json: give --write-page PAGE")
+        _write_page(page, json_out)
+        return
+    _run_suites(suites, quick, json_out, out_dir, dataset, scenes, overrides, lpips_weights, methods, threads)
+    if page:
+        _write_page(page, json_out)
+
+
+def _write_page(page: str, json_out: str) -> None:
+    from benchmark.results.perf_page import write_perf_page
+
+    write_perf_page(Path(page), Path(json_out))
+    click.echo(f"wrote the figures of {json_out} into {page}")
+
+
+def _run_suites(suites, quick, json_out, out_dir, dataset, scenes, overrides, lpips_weights, methods,
+                threads) -> None:
+    """Each suite named (default: all this machine can run), its figures printed and, with
+    ``json_out``, written."""
     names = suites or tuple(SUITES.names())
     no_dataset = dataset == "none"
     if no_dataset:
