@@ -42,6 +42,9 @@ SUITES.add("methods", "benchmark.perf.methods:run",
 SUITES.add("skip", "benchmark.perf.skip:run",
            "Skipping what a scene does not need (static gaussians, stages stopped when converged), on and off per "
            "format: stage seconds, PSNR, ceiling, mIoU; a PNG per format with the Pareto front.")
+SUITES.add("frames", "benchmark.perf.frames:run",
+           "How much new content each frame of a monocular sequence carries (built-in formats, D-NeRF --scene): "
+           "the share of frames far below the median novelty.")
 SUITES.add("pareto", "benchmark.perf.pareto:run",
            "mIoU vs features+fit+evaluate time over a settings grid for one scene; PNG with the Pareto front.")
 
