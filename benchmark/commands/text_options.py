@@ -24,7 +24,7 @@ def text_model_options(f):
 def text_options(f):
     """--text PHRASE (repeatable), --text-view and the text_model_options."""
     f = text_model_options(f)
-    f = click.option("--text-view", default=None, metavar="VIEW",
+    f = click.option("--text-view", "--view", "text_view", default=None, metavar="VIEW",
                      help="The view a --text phrase is looked for in (default: the best-scoring of 8 spread views).")(f)
     return click.option("--text", "texts", multiple=True, metavar="PHRASE",
                         help="Select what a phrase names ('the cup'): detector box -> mask -> clusters; repeatable "
