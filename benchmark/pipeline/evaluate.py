@@ -173,10 +173,10 @@ def evaluate(method, fitted, scene, prompts, directory: Path, protocol) -> dict:
     return jsonable(out)
 
 
-def corrective_key(protocol, scene=None) -> dict:
-    """The corrective protocol's part of the evaluate stage's key; none where it does not
-    correct, so single-click stages keep their keys; the text protocol's settings where it
-    reads text."""
+def prompt_key(protocol, scene=None) -> dict:
+    """The prompt protocol's part of the evaluate stage's key: the text protocol's settings where
+    it reads text, else the corrective one's; none for the first clicks alone, so single-click
+    stages keep their keys."""
     from benchmark.protocol.corrective import PROTOCOL_VERSION
 
     if protocol.source == "text":
@@ -196,7 +196,7 @@ def run(ctx: SequenceRun) -> list[StageRecord]:
 
     fit_rec, prompts_rec = ctx.records["fit"], ctx.records["prompts"]
     protocol = ctx.settings.prompts
-    key = ctx.cache.key("evaluate", {"method": ctx.method.name, **METRICS_KEY, **corrective_key(protocol, ctx.scene)},
+    key = ctx.cache.key("evaluate", {"method": ctx.method.name, **METRICS_KEY, **prompt_key(protocol, ctx.scene)},
                         {"fit": fit_rec.key, "prompts": prompts_rec.key, "gt": ctx.gt_key})
 
     def work(d: Path) -> dict:

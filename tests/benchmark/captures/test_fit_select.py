@@ -188,25 +188,31 @@ def test_fit_exports_a_folder_that_select_reads(capture_dirs, tmp_path):
         select_clicks(out, [on_k], tmp_path / "bad", unclicks=[f"{v['name']}:10000,1"])
     with pytest.raises(UserError, match="at least one --click VIEW:X,Y, --mask VIEW:PATH or --text PHRASE"):
         select_clicks(out, [])
-    # a phrase whose detector box and mask are that cluster's: the same cluster, recorded with its view
-    from benchmark.scene.text_prompt import TextRequest
-    from masks.text import Detection, TextSegmenter
-
-    object_mask = method.render_selection(fitted, scene, [k])[names.index(v["name"])]
-    rows, cols = np.nonzero(object_mask)
-    box = (float(cols.min()), float(rows.min()), float(cols.max() + 1), float(rows.max() + 1))
-    stand_in = type("StandIn", (), {"detect": lambda self, image, phrase: [Detection(box, 0.9)],
-                                    "segment": lambda self, image, b: object_mask})()
-    request = TextRequest(("the object",), view=v["name"])
-    object.__setattr__(request, "load_segmenter", lambda: TextSegmenter(stand_in, stand_in))  # the models' stand-in
-    by_text = select_clicks(out, [], tmp_path / "by-text", text=request)
-    assert by_text["clusters"] == by_mask["clusters"]
-    (recorded,) = json.loads((tmp_path / "by-text" / "selection.json").read_text())["text"]
-    assert recorded["view"] == v["name"] and recorded["clusters"] == by_mask["clusters"] and recorded["rule"] == "cover"
+    _a_phrase_selects_what_its_mask_covers(out, v["name"], method, fitted, scene, k, by_mask["clusters"], tmp_path)
     with pytest.raises(UserError, match="pixel outside"):
         select_clicks(out, [f"{v['name']}:10000,1"])
     with pytest.raises(UserError, match="not a fitted capture"):
         select_clicks(tmp_path, [f"{v['name']}:1,1"])
+
+
+def _a_phrase_selects_what_its_mask_covers(out, view, method, fitted, scene, k, clusters, tmp_path):
+    """A phrase whose detector box and mask are cluster ``k``'s selects what that mask does,
+    recorded with its view and rule."""
+    from benchmark.scene.text_prompt import TextRequest
+    from masks.text import Detection, TextSegmenter
+
+    names = [w.name for w in scene.test]
+    object_mask = method.render_selection(fitted, scene, [k])[names.index(view)]
+    rows, cols = np.nonzero(object_mask)
+    box = (float(cols.min()), float(rows.min()), float(cols.max() + 1), float(rows.max() + 1))
+    stand_in = type("StandIn", (), {"detect": lambda self, image, phrase: [Detection(box, 0.9)],
+                                    "segment": lambda self, image, b: object_mask})()
+    request = TextRequest(("the object",), view=view)
+    object.__setattr__(request, "load_segmenter", lambda: TextSegmenter(stand_in, stand_in))  # the models' stand-in
+    by_text = select_clicks(out, [], tmp_path / "by-text", text=request)
+    assert by_text["clusters"] == clusters
+    (recorded,) = json.loads((tmp_path / "by-text" / "selection.json").read_text())["text"]
+    assert recorded["view"] == view and recorded["clusters"] == clusters and recorded["rule"] == "cover"
 
 
 @pytest.mark.slow
