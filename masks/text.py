@@ -73,21 +73,26 @@ def _transformers():
     return transformers
 
 
-def _load(kind: str, folder, loader):
-    try:
-        return loader(str(folder))
-    except Exception as exc:  # noqa: BLE001 - a corrupt checkpoint raises many kinds (safetensors', torch's)
-        raise TextPromptError(f"{folder}: cannot load the {kind} ({type(exc).__name__}: "
-                              f"{str(exc).splitlines()[0] if str(exc) else 'no detail'})") from None
+def _load_pair(kind: str, folder, processor_class: str, model_class: str, device: str):
+    """(processor, model in eval mode on ``device``) of the transformers classes named, from
+    ``folder``; anything that fails to load is one line naming the folder."""
+    tf = _transformers()
+    loaded = []
+    for what, cls in ((f"{kind}'s processor", processor_class), (kind, model_class)):
+        try:
+            loaded.append(getattr(tf, cls).from_pretrained(str(folder)))
+        except Exception as exc:  # noqa: BLE001 - a corrupt checkpoint raises many kinds (safetensors', torch's)
+            raise TextPromptError(f"{folder}: cannot load the {what} ({type(exc).__name__}: "
+                                  f"{str(exc).splitlines()[0] if str(exc) else 'no detail'})") from None
+    processor, model = loaded
+    return processor, model.to(device).eval()
 
 
 class OwlDetector:
     """OWLv2 (``Owlv2ForObjectDetection``): boxes for a phrase, best first."""
 
     def __init__(self, folder, device: str = "cpu") -> None:
-        tf = _transformers()
-        self.processor = _load("detector's processor", folder, tf.Owlv2Processor.from_pretrained)
-        self.model = _load("detector", folder, tf.Owlv2ForObjectDetection.from_pretrained).to(device).eval()
+        self.processor, self.model = _load_pair("detector", folder, "Owlv2Processor", "Owlv2ForObjectDetection", device)
         self.device = device
 
     def detect(self, image: np.ndarray, phrase: str) -> list[Detection]:
@@ -111,9 +116,7 @@ class SamBoxSegmenter:
     """SAM (``SamModel``) prompted with one box: the mask its IoU head scores best."""
 
     def __init__(self, folder, device: str = "cpu") -> None:
-        tf = _transformers()
-        self.processor = _load("segmenter's processor", folder, tf.SamProcessor.from_pretrained)
-        self.model = _load("segmenter", folder, tf.SamModel.from_pretrained).to(device).eval()
+        self.processor, self.model = _load_pair("segmenter", folder, "SamProcessor", "SamModel", device)
         self.device = device
 
     def segment(self, image: np.ndarray, box: tuple[float, float, float, float]) -> np.ndarray:

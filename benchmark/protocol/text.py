@@ -4,7 +4,7 @@
 
     {"americano": ["the cup"], "synthetic": ["the ball", "the ring", "the blob"]}
 
-For each phrase the text-to-mask model (``masks.text``) scores up to SEARCH_VIEWS test views
+For each phrase the text-to-mask model (``masks.text``) scores up to 8 test views
 spread over the sequence, each rendered by the method's geometry (the paper's "in the novel
 view"); the best one's mask is lifted to clusters (``trase.prompts.mask_to_clusters``, the
 protocol's rule) and the union of every phrase's clusters is rendered at every test view.
@@ -27,7 +27,6 @@ from masks.text import Detection, TextSegmenter
 
 TEXT_FILE = "prompts_text.json"
 GROUND_TRUTH = "ground-truth"
-SEARCH_VIEWS = 8
 
 
 def read_phrases(path: Path, sequence: str, aliases: tuple[str, ...] = ()) -> list[str]:
@@ -78,7 +77,7 @@ class _TruthModel:
         return [Detection(box, float(pix.mean()))]
 
     def segment(self, image: np.ndarray, box) -> np.ndarray:
-        x0, y0, x1, y1 = (int(round(v)) for v in box)
+        x0, y0, x1, y1 = (round(float(v)) for v in box)
         inside = np.zeros(self.ids.shape, bool)
         inside[y0:y1, x0:x1] = True
         return inside & (self.ids > 0) & _same_object(self.ids, inside)
@@ -98,6 +97,7 @@ class TextModel:
     protocol: object  # benchmark.protocol.settings.PromptProtocol
     scene: object
     _learned: TextSegmenter | None = None
+    _by_view: dict = dataclasses.field(default_factory=dict)  # view name -> its TextSegmenter, built once
 
     def __post_init__(self) -> None:
         p = self.protocol
@@ -107,6 +107,11 @@ class TextModel:
                             f"({self.scene.dataset}/{self.scene.sequence} has none)")
 
     def for_view(self, view_name: str) -> TextSegmenter:
+        if view_name not in self._by_view:
+            self._by_view[view_name] = self._segmenter(view_name)
+        return self._by_view[view_name]
+
+    def _segmenter(self, view_name: str) -> TextSegmenter:
         p = self.protocol
         truth = (_TruthModel(self.scene.truth, view_name)
                  if GROUND_TRUTH in (p.text_detector, p.text_segmenter) else None)
@@ -151,39 +156,29 @@ def scene_phrases(protocol, scene) -> tuple[list[str], str]:
 
 def text_selection(fitted, scene, protocol) -> tuple[list[int], list[dict]]:
     """(the clusters every phrase's mask selects, one record per phrase) for a fitted cluster
-    method on a benchmark scene."""
+    method on a benchmark scene; a phrase that matches nothing selects nothing, and says so."""
+    from benchmark.protocol.text_choice import rendered_views, text_choice
+    from masks.text import TextPromptError
     from trase.edit import EditableModel
-    from trase.prompts import mask_to_clusters
-    from trase.visualize import Painter
 
     phrases, _ = scene_phrases(protocol, scene)
-    model = TextModel(protocol, scene)
-    painter = Painter(EditableModel(fitted.gaussians, fitted.deformation, fitted.labels, fitted.keep))
-    step = max(1, -(-len(scene.test) // SEARCH_VIEWS))
-    candidates = list(range(0, len(scene.test), step))[:SEARCH_VIEWS]
+    text_model = TextModel(protocol, scene)
+    model = EditableModel(fitted.gaussians, fitted.deformation, fitted.labels, fitted.keep)
+    views = [(v.name, v.camera) for v in scene.test]
+    index = {name: i for i, (name, _) in enumerate(views)}
+    image_of = rendered_views(model)  # each view rendered once for every phrase
     chosen, records = set(), []
     for phrase in phrases:
-        best = None
-        for i in candidates:
-            view = scene.test[i]
-            seg = model.for_view(view.name)
-            image = painter.render(view.camera, "rgb")
-            det = seg.best(image, phrase)
-            if det is not None and (best is None or det.score > best[0].score):
-                best = (det, i, seg, image)
-        if best is None:
-            records.append({"phrase": phrase, "view_index": None, "clusters": [], "note": "nothing matched"})
+        try:
+            c = text_choice(model, views, phrase, text_model.for_view, rule=protocol.text_rule, image_of=image_of,
+                            min_share=float(protocol.text_min_share), min_cover=float(protocol.text_min_cover))
+        except TextPromptError as exc:
+            records.append({"phrase": phrase, "view_index": None, "clusters": [], "note": str(exc)})
             continue
-        det, i, seg, image = best
-        mask = seg.mask_of(image, phrase, det, where=f"test view {scene.test[i].name}").mask
-        ks = mask_to_clusters(fitted.gaussians, fitted.deformation, scene.test[i].camera, mask, fitted.labels,
-                              rule=protocol.text_rule, min_share=float(protocol.text_min_share),
-                              min_cover=float(protocol.text_min_cover))
-        chosen |= set(ks)
-        records.append({"phrase": phrase, "view_index": i, "view": scene.test[i].name, "score": round(det.score, 4),
-                        "box": [round(v, 1) for v in det.box], "mask_pixels": int(mask.sum()), "clusters": ks})
+        chosen |= set(c.clusters)
+        records.append({"view_index": index[c.view], **c.to_dict()})
     return sorted(chosen), records
 
 
-__all__ = ["GROUND_TRUTH", "SEARCH_VIEWS", "TEXT_FILE", "TextModel", "phrases_file", "phrases_for_objects",
+__all__ = ["GROUND_TRUTH", "TEXT_FILE", "TextModel", "phrases_file", "phrases_for_objects",
            "read_phrases", "scene_phrases", "text_selection"]

@@ -40,9 +40,9 @@ def feature_rows(suite: dict) -> list[tuple[str, str]]:
         if not w:
             continue
         t = w["threads"]["1"]
-        out.append((f"feature step, {w['scene']} ({w['n_gaussians']:,} gaussians, {w['image']}, Np {w['n_pixels']}), "
-                    "one thread", f"fast path {_s(t['step_fast'])}, rasterizer {_s(t['step_raster'])} "
-                    f"({t['step_raster']['median'] / t['step_fast']['median']:.2f}x)"))
+        what = f"feature step, {w['scene']} ({w['n_gaussians']:,} gaussians, {w['image']}, Np {w['n_pixels']}), one thread"
+        ratio = t["step_raster"]["median"] / t["step_fast"]["median"]
+        out.append((what, f"fast path {_s(t['step_fast'])}, rasterizer {_s(t['step_raster'])} ({ratio:.2f}x)"))
     for o in suite.get("objective_alone", []):
         out.append((f"objective, Np {o['n_pixels']}", f"fused {_s(o['fused_s'])}, dense {_s(o['reference_s'])}"))
     return out

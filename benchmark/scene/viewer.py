@@ -282,7 +282,8 @@ class SceneViewer:
     def select_text(self, client=None) -> None:
         """Add the clusters the text field's phrase selects in the client's current view (the
         paper's text prompt: detector box -> mask -> lifted to clusters)."""
-        from benchmark.scene.text_prompt import TextRequest, text_choice
+        from benchmark.protocol.text_choice import text_choice
+        from benchmark.scene.text_prompt import TextRequest
         from masks.maskset import MaskError
 
         phrase = self.gui_text.value.strip()
@@ -295,7 +296,7 @@ class SceneViewer:
             self.segmenter = self.segmenter or request.load_segmenter()
             with self._lock:
                 cam = self.camera_of(client) if client is not None else self.home
-                choice = text_choice(self.model, [("the current view", cam)], phrase, self.segmenter,
+                choice = text_choice(self.model, [("the current view", cam)], phrase, lambda _: self.segmenter,
                                      rule=request.rule)
         except (UserError, MaskError) as exc:
             self._status(str(exc))

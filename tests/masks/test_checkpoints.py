@@ -3,12 +3,12 @@
 import hashlib
 import http.server
 import socket
-import threading
 
 import pytest
 
 from masks.checkpoints import Checkpoint, fetch, sam_checkpoint
 from masks.generators.base import MaskError
+from tests.masks.local_server import LocalServer
 
 BODY = bytes(range(256)) * 64  # 16 KiB
 SHA = hashlib.sha256(BODY).hexdigest()
@@ -42,14 +42,11 @@ class _Server:
             def log_message(self, *args):
                 pass
 
-        self.httpd = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-        self.thread = threading.Thread(target=self.httpd.serve_forever, daemon=True)
-        self.thread.start()
-        self.url = f"http://127.0.0.1:{self.httpd.server_address[1]}/w/model_abc.pth"
+        self.server = LocalServer(Handler)
+        self.url = f"{self.server.base}/w/model_abc.pth"
 
     def close(self):
-        self.httpd.shutdown()
-        self.httpd.server_close()
+        self.server.close()
 
 
 @pytest.fixture

@@ -4,14 +4,14 @@ the hub's API (revision, file tree with checksums) and serves the files."""
 import hashlib
 import http.server
 import json
-import threading
 
 import pytest
 
 pytest.importorskip("huggingface_hub")
 
-from masks.hub import hub_folder, model_folder  # noqa: E402
-from masks.maskset import MaskError  # noqa: E402
+from masks.hub import hub_folder, model_folder
+from masks.maskset import MaskError
+from tests.masks.local_server import LocalServer
 
 COMMIT = "0123456789abcdef0123456789abcdef01234567"
 FILES = {"config.json": b'{"model_type": "tiny"}', "model.safetensors": bytes(range(256)) * 40,
@@ -29,7 +29,7 @@ class Hub:
         hub = self
 
         class Handler(http.server.BaseHTTPRequestHandler):
-            def do_GET(self):  # noqa: N802 - the http.server API
+            def do_GET(self):
                 hub.requests.append(self.path)
                 if self.path.startswith("/api/models/owner/tiny/tree/"):
                     body = json.dumps([hub.entry(name) for name in hub.files]).encode()
@@ -52,9 +52,8 @@ class Hub:
             def log_message(self, *args):
                 pass
 
-        self.httpd = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-        threading.Thread(target=self.httpd.serve_forever, daemon=True).start()
-        self.url = f"http://127.0.0.1:{self.httpd.server_address[1]}"
+        self.server = LocalServer(Handler)
+        self.url = self.server.base
 
     def entry(self, name):
         data = self.files[name]
@@ -64,8 +63,7 @@ class Hub:
         return e
 
     def close(self):
-        self.httpd.shutdown()
-        self.httpd.server_close()
+        self.server.close()
 
 
 @pytest.fixture

@@ -6,8 +6,8 @@ import pytest
 
 pytest.importorskip("transformers")
 
-from masks.text import Detection, SamBoxSegmenter, TextModels, TextPromptError, TextSegmenter  # noqa: E402
-from tests.masks.text_models import tiny_owlv2, tiny_sam  # noqa: E402
+from masks.text import Detection, SamBoxSegmenter, TextModels, TextPromptError, TextSegmenter
+from tests.masks.text_models import tiny_owlv2, tiny_sam
 
 IMAGE = (np.random.default_rng(0).random((48, 64, 3)) * 255).astype(np.uint8)
 

@@ -11,7 +11,14 @@ from benchmark.protocol.prompts import (
     make_benchmark_prompts,
 )
 from tests.trase.helpers import exact_masks, object_alpha, tiny_scene
-from trase.prompts import Click, PromptError, click_to_cluster, lift_pixels, mask_to_clusters, window_weights
+from trase.prompts import (
+    Click,
+    PromptError,
+    click_to_cluster,
+    lift_pixels,
+    mask_to_clusters,
+    window_weights,
+)
 from trase.segment import render_masks, select_gaussians
 
 
@@ -344,7 +351,7 @@ def test_share_counts_the_distinct_gaussians_hit_not_the_pixels(monkeypatch):
     """The paper's rule counts a cluster's associated gaussians: eight pixels on one gaussian of
     cluster 0 weigh as much as one pixel on it, so two distinct gaussians of cluster 1 hold the
     larger share."""
-    import trase.prompts as prompts
+    from trase import prompts
 
     monkeypatch.setattr(prompts, "lift_pixels", lambda *a, **k: np.array([0] * 8 + [1, 2, -1]))
     cam = type("C", (), {"height": 4, "width": 4})()

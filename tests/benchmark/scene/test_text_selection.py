@@ -3,8 +3,6 @@ stand-ins in place of the downloaded models."""
 
 import json
 
-import pytest
-
 from benchmark.protocol.text import _TruthModel
 from benchmark.scene.folders import EDIT_FILE
 from benchmark.scene.text_prompt import TextRequest
