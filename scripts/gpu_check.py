@@ -1,4 +1,4 @@
-"""The GPU path's whole check in one command, for a machine lent for a few minutes.
+"""The GPU path's whole check in one command, for a GPU machine available for a few minutes.
 
     python3 scripts/gpu_check.py all --out DIR [--before TREE] [--budget SECONDS] [--tiny]
 
@@ -346,11 +346,11 @@ EXTENSIONS_DIR = "/tmp/trase-torch-extensions"  # torch's JIT builds (gsplat's),
 
 def build_gsplat(chk, reuse: str | None = None, save: str | None = None) -> dict:
     """gsplat's CUDA extension, ready in this process's environment. ``reuse``: a tar.gz of an
-    earlier lease's build folder (same image, GPU and gsplat), unpacked first with its files'
+    earlier GPU run's build folder (same image, GPU and gsplat), unpacked first with its files'
     times, and gsplat's sources dated back so that ninja finds every object newer than its
-    inputs and compiles nothing (~90 s of a lease otherwise); where anything differs ninja
+    inputs and compiles nothing (~90 s of a GPU run otherwise); where anything differs ninja
     compiles as before, so a stale archive costs the build's time, not a wrong extension.
-    ``save``: where to write this lease's build folder as such an archive."""
+    ``save``: where to write this run's build folder as such an archive."""
     import importlib.util
 
     import torch
@@ -507,7 +507,7 @@ def diagnose_all(args) -> int:
 
 
 def watch_all(args) -> int:
-    """The check for one short lease: gsplat built (beside the scene and the numba kernels), each
+    """The check for one short GPU run: gsplat built (beside the scene and the numba kernels), each
     watched variant of the default run's reconstruction one after the other, alone on the GPU
     (``diagnose``: the model's state every ``--every`` iterations, the test PSNR and label
     ceiling where it stops), sharing what the budget leaves after the time kept for the CUDA
@@ -673,7 +673,7 @@ def main(argv=None) -> int:
     d.add_argument("--variant", choices=DIAG_VARIANTS, default="default")
     d.add_argument("--json", required=True)
     d.add_argument("--near", type=float, default=None, help="the near plane while training (default: the run's)")
-    w = sub.add_parser("watch", help="CUDA tests and watched variants one after the other, for one short lease")
+    w = sub.add_parser("watch", help="CUDA tests and watched variants one after the other, for one short GPU run")
     w.add_argument("--out", required=True)
     w.add_argument("--budget", type=float, default=540.0, help="seconds for everything")
     w.add_argument("--variants", default="cap@0.01,cap@0.2", help="NAME[@NEAR],...")
@@ -682,8 +682,8 @@ def main(argv=None) -> int:
     w.add_argument("--skip-tests", action="store_true")
     w.add_argument("--profile-seconds", type=float, default=40.0, help="kept for the profile at the end")
     w.add_argument("--profile-first", action="store_true", help="profile first, in FP32 and TF32, then the variants")
-    w.add_argument("--reuse-build", default=None, help="a tar.gz of an earlier lease's gsplat build (--save-build)")
-    w.add_argument("--save-build", default=None, help="write this lease's gsplat build here as a tar.gz")
+    w.add_argument("--reuse-build", default=None, help="a tar.gz of an earlier GPU run's gsplat build (--save-build)")
+    w.add_argument("--save-build", default=None, help="write this run's gsplat build here as a tar.gz")
     r = sub.add_parser("paper-run", help="the default run on the GPU, continued over calls until it ends")
     r.add_argument("--out", required=True)
     r.add_argument("--runs", required=True, help="the run's folder, kept between calls (it resumes there)")

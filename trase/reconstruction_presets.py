@@ -149,7 +149,7 @@ RECONSTRUCTION_PRESETS.declare("cpu-v2", base="cpu-v1", help="cpu-v1 with two to
 # learning rates still decay over 20000 steps). Chosen on the seed-1 scenes (never the
 # benchmark's seed 0), runs side by side on one thread each, 15k gaussians; test PSNR /
 # geometry ceiling / share of the objects' pixels below alpha 0.5:
-#   HyperNeRF format: 2000 iterations 27.25 dB / 0.777 / 8.0% (sixth session); 4000: 28.57 dB / 0.844 / 4.0%;
+#   HyperNeRF format: 2000 iterations 27.25 dB / 0.777 / 8.0% (cpu-v2); 4000: 28.57 dB / 0.844 / 4.0%;
 #     8000: 29.47 dB / 0.827 / 3.0% (more PSNR, no more ceiling, twice the time again)
 #   NeRF-DS format: 2000 iterations 23.69 dB / 0.614 / 22.8%; 4000: 23.96 dB / 0.626 / 19.4%
 # Multi-view rigs kept cpu-v2's 2000 iterations under cpu-v3 and cpu-v4 (not measured then);

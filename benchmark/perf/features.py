@@ -4,7 +4,7 @@ precomputed sparse pixel -> gaussian weights) against the same step through the 
 
 Three parts (and a real-scale row of part 1), side by side in one run:
 
-1. Whole step on the default synthetic scene (the issue's goal: Np = 5000, synthetic NeRF-DS,
+1. Whole step on the default synthetic scene (the target: Np = 5000, synthetic NeRF-DS,
    ground-truth geometry, synthetic masks, the dataset's M'; ``--quick``: the random scene of
    part 3). A step is what trase.features.train_features does per iteration after sampling:
    smoothing (8 of K=16 slots) -> render the Np sampled pixels -> TRASE soft-mined loss ->
@@ -89,7 +89,7 @@ def _whole_steps(cfg: dict, gm, cam, ms, reps: int, echo) -> tuple[dict, dict, l
     else:
         scene = {"name": "random scene (part 3)", "gaussians": gm, "deformation": None, "camera": cam,
                  "masks": ms, "m_prime": M_PRIME}
-    # thread counts up to the session's (`trase-bench perf --threads 1` runs one row only)
+    # thread counts up to this run's (`trase-bench perf --threads 1` runs one row only)
     step_threads = [t for t in cfg["step_threads"] if t <= torch.get_num_threads()] or [1]
     step = whole_step(scene, cfg["step_pixels"], reps, cfg["budget_s"], step_threads, echo)
 

@@ -57,7 +57,7 @@ def test_a_saved_build_is_unpacked_with_its_times_and_the_sources_dated_before_i
     assert rec["reused_archive"] and chk.ran[0][0] == "build_gsplat"
     assert chk.ran[0][1]["TORCH_EXTENSIONS_DIR"] == str(tmp_path / "ext")
     assert chk.ran[0][1]["TORCH_CUDA_ARCH_LIST"] == "9.0"  # built for this GPU only
-    with tarfile.open(saved) as tar:  # what the next lease would unpack
+    with tarfile.open(saved) as tar:  # what a later GPU run would unpack
         assert "./gsplat_cuda/gsplat_cuda.so" in tar.getnames()
 
 

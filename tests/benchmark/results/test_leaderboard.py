@@ -29,7 +29,7 @@ def test_synthetic_table_best_in_bold_and_no_published_rows(tmp_path):
 
 
 def test_ablation_variants_and_reruns_stay_out_of_the_main_table(tmp_path):
-    # the reproduction: a main run, then ablation variants into the same --out
+    # the reported case: a main run, then ablation variants into the same --out
     write(tmp_path, record("trase", "nerfds", "synthetic", 0.1221, 0.9))
     for k, miou in (("K=0", 0.1221), ("K=16", 0.6368), ("K=32", 0.1069)):
         rec = record("trase", "nerfds", "synthetic", miou, 0.9, cfg=config(knn=k), study="smoothing",
