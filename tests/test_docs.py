@@ -53,3 +53,13 @@ def test_the_performance_pages_figures_are_the_rendering_of_its_perf_data():
 
 def test_the_readme_is_short():
     assert len((ROOT / "README.md").read_text().splitlines()) <= 130
+
+
+def test_the_skip_pages_figures_are_the_rendering_of_its_perf_data():
+    from benchmark.results.figures import page_block
+    from benchmark.results.skip_page import SKIP_BEGIN, SKIP_END, render_skip_block
+
+    data = json.loads((ROOT / "docs" / "skip-runs" / "current.json").read_text())
+    block = page_block((ROOT / "docs" / "skip.md").read_text(), "docs/skip.md", (SKIP_BEGIN, SKIP_END))
+    assert block == render_skip_block(data), ("docs/skip.md: run trase-bench perf skip --json "
+                                              "docs/skip-runs/current.json --from-json --write-page docs/skip.md")

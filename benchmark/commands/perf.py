@@ -34,8 +34,8 @@ from benchmark.perf import SUITES, get_suite, machine_info
               help="Threads for torch and numba (default: theirs, all cores). On a shared, loaded "
                    "machine --threads 1 gives the steadiest side-by-side ratios.")
 @click.option("--write-page", "page", type=click.Path(dir_okay=False, exists=True), default=None,
-              help="Write the figures of --json (raster, features, knn, cluster) into the page's generated block "
-                   "(docs/performance.md).")
+              help="Write the figures of --json into the page's generated block: raster, features, knn and "
+                   "cluster into docs/performance.md's, skip into docs/skip.md's.")
 @click.option("--from-json", "from_json", is_flag=True,
               help="With --write-page: run nothing, write the page from the --json file as it is.")
 def perf(suites: tuple[str, ...], quick: bool, json_out: str | None, out_dir: str | None,

@@ -216,17 +216,22 @@ def _scene_row(e: dict, runs: list[dict]) -> list[str]:
             _stopped(e), _ratio(runs, name, variant, "geometry"), _ratio(runs, name, variant, "features")]
 
 
-def tables(runs: list[dict]) -> str:
-    """The built-in formats' table and the D-NeRF scenes' (each where it has runs), from the
-    suite's entries (its JSON's ``runs``, or the lines of RUNS_FILE)."""
+def table_rows(runs: list[dict]) -> list[tuple[list[str], list[list[str]]]]:
+    """(header, rows) of the built-in formats' table and of the D-NeRF scenes' (each where it has
+    runs), from the suite's entries (its JSON's ``runs``, or the lines of RUNS_FILE)."""
     out = []
     for header, row, mine in ((HEADER, _format_row, lambda r: not r["dataset"].startswith("dnerf/")),
                               (SCENE_HEADER, _scene_row, lambda r: r["dataset"].startswith("dnerf/"))):
         rows = [[r["dataset"], r["variant"], "FAILED"] + [""] * (len(header) - 3) if "error" in r else row(r, runs)
                 for r in runs if mine(r)]
         if rows:
-            out.append(table(rows, header))
-    return "\n\n".join(out)
+            out.append((header, rows))
+    return out
+
+
+def tables(runs: list[dict]) -> str:
+    """The suite's tables as plain text (table_rows)."""
+    return "\n\n".join(table(rows, header) for header, rows in table_rows(runs))
 
 
 class _Progress:

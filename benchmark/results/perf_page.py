@@ -97,17 +97,31 @@ def render_perf_block(data: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def page_blocks() -> dict[tuple[str, str], object]:
+    """The generated blocks a page can hold, by their markers: the performance page's and the
+    skip page's (benchmark.results.skip_page)."""
+    from benchmark.results.skip_page import SKIP_BEGIN, SKIP_END, render_skip_block
+
+    return {(PERF_BEGIN, PERF_END): render_perf_block, (SKIP_BEGIN, SKIP_END): render_skip_block}
+
+
 def write_perf_page(page: Path, data_path: Path) -> None:
-    """Put the block rendered from the perf JSON ``data_path`` between the page's PERF markers."""
+    """Put the block rendered from the perf JSON ``data_path`` between the page's markers (the
+    performance page's PERF block or the skip page's SKIP block, whichever the page has)."""
     from benchmark.io import atomic_write_text
     from benchmark.results.figures import replace_block
 
+    text = Path(page).read_text()
+    found = [(markers, render) for markers, render in page_blocks().items() if markers[0] in text]
+    if not found:
+        raise UserError(f"{page}: no generated figures block (a PERF:BEGIN or SKIP:BEGIN marker line)")
     try:
         data = json.loads(Path(data_path).read_text())
     except (OSError, ValueError) as exc:
         raise UserError(f"{data_path}: not a readable perf JSON file ({exc})") from None
-    text = Path(page).read_text()
-    atomic_write_text(Path(page), replace_block(text, render_perf_block(data), str(page), (PERF_BEGIN, PERF_END)))
+    for markers, render in found:
+        text = replace_block(text, render(data), str(page), markers)
+    atomic_write_text(Path(page), text)
 
 
 __all__ = ["PERF_BEGIN", "PERF_END", "SUITES", "render_perf_block", "write_perf_page"]

@@ -47,8 +47,12 @@ def test_the_page_block_is_replaced_and_a_page_without_one_refused(tmp_path):
     text = page.read_text()
     assert "old" not in text and text.endswith(f"{PERF_END}\n\nafter\n") and "numba 24.0 ms" in text
     page.write_text("# no block\n")
+    with pytest.raises(UserError, match="page.md: no generated figures block"):
+        write_perf_page(page, data)
+    page.write_text(f"{PERF_BEGIN}\n{PERF_BEGIN}\n{PERF_END}\n")
     with pytest.raises(UserError, match="page.md: needs exactly one figures block"):
         write_perf_page(page, data)
+    page.write_text(f"{PERF_BEGIN}\n{PERF_END}\n")
     data.write_text("{")
     with pytest.raises(UserError, match="perf.json: not a readable perf JSON file"):
         write_perf_page(page, data)
