@@ -8,17 +8,21 @@
   the cluster whose mean feature is nearest the feature rendered there, the "front" rule the
   nearest to the camera of the clusters holding a share of that weight; see ``click_to_cluster``.
 * 2D mask prompt (the public code's text-prompt path: a Grounded-SAM mask): pixels with a rendered
-  surface are lifted the same way. Rule ``cover`` (default): a cluster is chosen when at least
+  surface are lifted the same way. Rule ``cover``: a cluster is chosen when at least
   ``min_cover`` of its own lifted pixels in the view lie inside the mask, the intersection over
   the cluster's area that Gaussian Grouping's mask prompt thresholds at 0.7
   (``ext/grounded_sam.py``). Rule ``share`` (the paper's text-prompt rule, "the number of
   associated gaussians of a cluster is more than a threshold"): each lifted mask pixel takes its
   nearest gaussian, and a cluster is chosen when it holds at least ``min_share`` of the distinct
   gaussians hit (a share rather than the paper's count, which would change with the image size).
-  Why ``cover`` by default: a share of the mask depends
-  on the other clusters under it, so an object cut into parts keeps only its largest part
-  (D-NeRF hook, one figure in six clusters: ``share`` chose the torso, IoU 0.857 against the
-  alpha of the validation views, ``cover`` the whole figure, 0.956; docs/captures.md).
+  Rule ``iou`` (default): the clusters whose lifted pixels in the view together best match the
+  mask (the largest intersection over union).
+  Why ``iou`` by default: a share of the mask depends on the other clusters under it, so an
+  object cut into parts keeps only its largest part (D-NeRF hook, one figure in six clusters:
+  ``share`` chose the torso, IoU 0.857 against the alpha of the validation views, ``cover`` the
+  whole figure, 0.956); and where an object shares its clusters with its surroundings, no
+  cluster passes ``cover``'s threshold and the mask selects nothing, where ``iou`` takes the
+  mixed cluster when it raises the IoU (docs/notes/text-prompts.md, "The iou rule").
 
 The benchmark's clicks from ground truth and the oracle live in benchmark.protocol.
 """
@@ -41,7 +45,8 @@ CLICK_RULES = ("depth", "weight", "feature", "front")
 # the "front" rule's least share of the window's weight: the only share tried that chose no
 # occluder on the selection scenes (0.2-0.33 did; docs/notes/cpu-constants.md, "The click rule")
 FRONT_SHARE = 0.4
-MASK_RULES = ("cover", "share")
+MASK_RULES = ("cover", "share", "iou")
+DEFAULT_MASK_RULE = "iou"  # chosen on the selection scenes (docs/notes/text-prompts.md)
 MASK_MIN_COVER = 0.7  # Gaussian Grouping's intersection-over-area threshold of its mask prompt
 # the "share" rule's least share of the distinct gaussians a mask's lifted pixels hit (the paper
 # names no value)
@@ -276,7 +281,7 @@ def _strided_pixels(mask: np.ndarray, max_points: int) -> np.ndarray:
 
 
 def mask_to_clusters(gaussians, deformation, camera: Camera, mask: np.ndarray, labels: np.ndarray,
-                     rule: str = "cover", min_cover: float = MASK_MIN_COVER, min_share: float = MASK_MIN_SHARE,
+                     rule: str = DEFAULT_MASK_RULE, min_cover: float = MASK_MIN_COVER, min_share: float = MASK_MIN_SHARE,
                      max_points: int = 40000, min_alpha: float = 0.5) -> list[int]:
     """2D mask [H, W] of ``camera`` -> sorted ids of the clusters it selects (module docstring:
     ``cover``: >= min_cover of the cluster's lifted pixels in the view are inside the mask;
@@ -312,5 +317,23 @@ def mask_to_clusters(gaussians, deformation, camera: Camera, mask: np.ndarray, l
         return []
     seen = np.bincount(lab)  # [K] lifted pixels per cluster
     within = np.bincount(lab, weights=inside.astype(np.float64), minlength=seen.size)
+    if rule == "iou":
+        return best_iou_clusters(within, seen - within, float(np.count_nonzero(inside)))
     chosen = (within > 0) & (within >= min_cover * np.maximum(seen, 1))
     return [int(k) for k in np.flatnonzero(chosen)]
+
+
+def best_iou_clusters(inside: np.ndarray, outside: np.ndarray, mask_area: float) -> list[int]:
+    """Sorted ids of the clusters whose union best matches a mask: ``inside`` [K] / ``outside``
+    [K], each cluster's pixels in and out of the mask (disjoint across clusters), ``mask_area``
+    the mask's pixels. IoU(S) = sum(in) / (area + sum(out)); adding a cluster raises it exactly
+    when its in/out ratio exceeds the current IoU, so the best set is a prefix of the clusters
+    ordered by that ratio, taken while each raises the IoU."""
+    order = sorted(np.flatnonzero(inside > 0), key=lambda k: (-(inside[k] / max(outside[k], 1e-9)), -inside[k], k))
+    chosen, got, union = [], 0.0, float(mask_area)
+    for k in order:
+        if got * (union + outside[k]) >= (got + inside[k]) * union:  # IoU would not rise
+            break
+        chosen.append(int(k))
+        got, union = got + float(inside[k]), union + float(outside[k])
+    return sorted(chosen)

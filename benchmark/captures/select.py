@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmark.errors import UserError
+from benchmark.scene.text_prompt import TextRequest
 
 CLICK = re.compile(r"(?P<view>.+):(?P<x>-?\d+(\.\d*)?),(?P<y>-?\d+(\.\d*)?)")
 
@@ -142,7 +143,7 @@ def select_clicks(fit_dir: Path | str, clicks: list[str], out_dir: Path | str | 
             raise UserError(f"--mask: no view {view!r} in {fit_dir} (e.g. {', '.join(names[:3])})")
         return scene.test[names.index(view)].camera
 
-    rule = text.rule if text is not None else "cover"
+    rule = (text or TextRequest()).mask_rule
     per_mask = []
     for text_of_mask in masks:
         cam, mask = mask_prompt(text_of_mask, camera_of)

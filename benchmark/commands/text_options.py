@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from trase.prompts import MASK_RULES
+from trase.prompts import DEFAULT_MASK_RULE, MASK_RULES
 
 
 def text_model_options(f):
@@ -15,9 +15,10 @@ def text_model_options(f):
                      help="The box-prompted segmenter (default facebook/sam-vit-base, fetched once).")(f)
     f = click.option("--detector", default=None, metavar="HUB_ID|PATH",
                      help="The open-vocabulary detector (default google/owlv2-base-patch16-ensemble, fetched once).")(f)
-    f = click.option("--mask-rule", type=click.Choice(MASK_RULES), default="cover", show_default=True,
-                     help="How a --mask or --text mask chooses clusters: cover (the clusters it covers) or share (the paper's: "
-                          "the clusters its lifted pixels' nearest gaussians belong to).")(f)
+    f = click.option("--mask-rule", type=click.Choice(MASK_RULES), default=DEFAULT_MASK_RULE, show_default=True,
+                     help="How a --mask or --text mask chooses clusters: cover (the clusters it covers), share (the paper's: "
+                          "the clusters its lifted pixels' nearest gaussians belong to) or iou (the clusters that "
+                          "together best match it).")(f)
     return f
 
 

@@ -133,7 +133,8 @@ class TextModel:
 
     def label(self) -> str:
         p = self.protocol
-        rule = f"share >= {p.text_min_share}" if p.text_rule == "share" else f"cover >= {p.text_min_cover}"
+        rule = {"share": f"share >= {p.text_min_share}", "cover": f"cover >= {p.text_min_cover}",
+                "iou": "the clusters of best IoU"}[p.text_rule]
         return f"text ({p.text_detector} boxes, {p.text_segmenter} masks, lifted by {rule})"
 
 

@@ -68,15 +68,16 @@ def rendered_views(model):
 
 
 def text_choice(model, views: list, phrase: str, segmenter_of, view: str | None = None,
-                rule: str = "cover", image_of=None, **rule_args) -> TextChoice:
+                rule: str | None = None, image_of=None, **rule_args) -> TextChoice:
     """``phrase`` -> the clusters of ``model`` (a trase.edit.EditableModel) its mask selects in
     the best-scoring of ``views`` [(name, camera)]. ``segmenter_of(name)`` gives the
     masks.text.TextSegmenter of a view (one for all, or a per-view stand-in); ``image_of(name,
-    camera)`` the image it sees (default: ``rendered_views(model)``); ``rule_args``: min_cover or
-    min_share of ``mask_to_clusters``."""
+    camera)`` the image it sees (default: ``rendered_views(model)``); ``rule``: of
+    ``mask_to_clusters`` (None: its default); ``rule_args``: its min_cover or min_share."""
     from masks.text import TextPromptError
-    from trase.prompts import mask_to_clusters
+    from trase.prompts import DEFAULT_MASK_RULE, mask_to_clusters
 
+    rule = rule or DEFAULT_MASK_RULE
     image_of = image_of or rendered_views(model)
     best = None
     candidates = search_views(views, view)

@@ -20,6 +20,7 @@ import torch
 
 from benchmark.errors import UserError
 from benchmark.io import read_json
+from benchmark.scene.text_prompt import TextRequest
 
 EDIT_FILE, VIEWS_FILE = "edit.json", "views.json"
 
@@ -186,11 +187,11 @@ def resolve_selection(folder: SceneFolder, clusters: str | None = None, clicks: 
         ks.add(k)
     for text_of_mask in masks:
         cam, mask = mask_prompt(text_of_mask, folder.camera)
-        rule = text.rule if text is not None else "cover"
+        rule = (text or TextRequest()).mask_rule
         hit, _ = by_mask(folder.model, cam, mask, rule=rule)
         if not hit:
-            raise UserError(f"--mask {text_of_mask!r}: the mask selects no cluster (rule {rule}; cover: none has "
-                            f"{MASK_MIN_COVER:.0%} of its visible pixels in it)")
+            why = f"none has {MASK_MIN_COVER:.0%} of its visible pixels in it" if rule == "cover" else "no surface under it"
+            raise UserError(f"--mask {text_of_mask!r}: the mask selects no cluster (rule {rule}: {why})")
         ks |= set(hit)
     for choice in text.choices(folder.model, folder.views) if text is not None else []:
         if not choice.clusters:

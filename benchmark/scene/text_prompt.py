@@ -16,7 +16,7 @@ class TextRequest:
 
     phrases: tuple[str, ...] = ()
     view: str | None = None
-    rule: str = "cover"
+    rule: str | None = None  # None: trase.prompts.DEFAULT_MASK_RULE
     detector: str | None = None
     segmenter: str | None = None
     min_score: float | None = None
@@ -29,17 +29,24 @@ class TextRequest:
         return TextSegmenter.load(TextModels(self.detector or defaults.detector, self.segmenter or defaults.segmenter,
                                              MIN_SCORE if self.min_score is None else float(self.min_score)))
 
+    @property
+    def mask_rule(self) -> str:
+        """The lifting rule asked for, else the library's default."""
+        from trase.prompts import DEFAULT_MASK_RULE, MASK_RULES
+
+        rule = self.rule or DEFAULT_MASK_RULE
+        if rule not in MASK_RULES:
+            raise UserError(f"--mask-rule {rule!r}: choose one of {', '.join(MASK_RULES)}")
+        return rule
+
     def choices(self, model, views: list, segmenter=None) -> list[TextChoice]:
         """Each phrase's TextChoice (``segmenter``: a TextSegmenter, else the models loaded)."""
-        from trase.prompts import MASK_RULES
-
         if not self.phrases:
             return []
-        if self.rule not in MASK_RULES:
-            raise UserError(f"--mask-rule {self.rule!r}: choose one of {', '.join(MASK_RULES)}")
+        rule = self.mask_rule
         segmenter = segmenter or self.load_segmenter()
         image_of = rendered_views(model)  # each view rendered once for every phrase
-        return [text_choice(model, views, p, lambda _: segmenter, self.view, self.rule, image_of)
+        return [text_choice(model, views, p, lambda _: segmenter, self.view, rule, image_of)
                 for p in self.phrases]
 
 

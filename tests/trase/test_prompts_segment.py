@@ -336,15 +336,16 @@ def test_mask_rules_cover_every_part_share_only_large_ones():
     part = (ids == 1) & (xs > np.quantile(xs[ids == 1], 0.8))  # the object's outer fifth
     labels[part] = 2
     grazing = cv2.dilate(obj.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
-    assert mask_to_clusters(gm, deform, cam, grazing, labels) == [1, 2]
+    assert mask_to_clusters(gm, deform, cam, grazing, labels, rule="cover") == [1, 2]
     assert mask_to_clusters(gm, deform, cam, grazing, labels, rule="share", min_share=0.4) == [1]
     # low enough for the small part, ``share`` takes the grazed neighbour as well
     assert mask_to_clusters(gm, deform, cam, grazing, labels, rule="share", min_share=0.01) == [0, 1, 2]
     # a mask on half of the small part only: under min_cover of it
-    assert 2 not in mask_to_clusters(gm, deform, cam, obj & (np.arange(obj.shape[1]) < 5)[None, :], labels)
+    assert 2 not in mask_to_clusters(gm, deform, cam, obj & (np.arange(obj.shape[1]) < 5)[None, :], labels,
+                                     rule="cover")
     assert mask_to_clusters(gm, deform, cam, np.zeros_like(obj), labels) == []
     with pytest.raises(PromptError, match="unknown mask rule"):
-        mask_to_clusters(gm, deform, cam, obj, labels, rule="iou")
+        mask_to_clusters(gm, deform, cam, obj, labels, rule="best")
 
 
 def test_share_counts_the_distinct_gaussians_hit_not_the_pixels(monkeypatch):
@@ -359,3 +360,39 @@ def test_share_counts_the_distinct_gaussians_hit_not_the_pixels(monkeypatch):
     labels = np.array([0, 1, 1])
     assert prompts.mask_to_clusters(None, None, cam, mask, labels, rule="share", min_share=0.5) == [1]
     assert prompts.mask_to_clusters(None, None, cam, mask, labels, rule="share", min_share=0.3) == [0, 1]
+
+
+def test_iou_rule_takes_the_cluster_that_mixes_the_object_with_its_surroundings():
+    """An object whose gaussians share a cluster with the floor: no cluster has 70% of its pixels
+    inside the object's mask, so ``cover`` chooses nothing; ``iou`` chooses the mixed cluster
+    because it raises the IoU with the mask, and leaves out the floor's own cluster."""
+    gm, deform, ids, views = tiny_scene()
+    cam = views[1].camera
+    obj = exact_masks(gm, deform, ids, views[1]).masks[1]
+    labels = ids.copy()
+    rng = np.random.default_rng(0)
+    floor = np.flatnonzero(ids == 0)
+    labels[rng.choice(floor, floor.size // 2, replace=False)] = 1  # half the floor joins the object
+    assert mask_to_clusters(gm, deform, cam, obj, labels, rule="cover") == []
+    assert mask_to_clusters(gm, deform, cam, obj, labels) == [1]  # iou, the default
+    assert mask_to_clusters(gm, deform, cam, np.zeros_like(obj), labels, rule="iou") == []
+
+
+def test_best_iou_clusters_is_the_best_subset():
+    """The prefix by in/out ratio is the subset of largest IoU (brute force over small cases)."""
+    import itertools
+
+    from trase.prompts import best_iou_clusters
+
+    rng = np.random.default_rng(1)
+    for _ in range(200):
+        k = int(rng.integers(1, 7))
+        inside = rng.integers(0, 20, k).astype(float)
+        outside = rng.integers(0, 20, k).astype(float)
+        area = float(inside.sum() + rng.integers(0, 10))
+
+        def iou(sel):
+            return inside[list(sel)].sum() / (area + outside[list(sel)].sum()) if sel else 0.0
+
+        best = max(iou(c) for n in range(k + 1) for c in itertools.combinations(range(k), n))
+        assert iou(best_iou_clusters(inside, outside, area)) == pytest.approx(best)

@@ -13,7 +13,7 @@ import numpy as np
 
 from trase.camera import Camera
 from trase.edit.model import EditableModel
-from trase.prompts import Click, click_to_cluster, mask_to_clusters
+from trase.prompts import DEFAULT_MASK_RULE, Click, click_to_cluster, mask_to_clusters
 from trase.segment import select_gaussians
 
 
@@ -32,7 +32,7 @@ def by_click(model: EditableModel, camera: Camera, u: float, v: float, rule: str
     return k, by_clusters(model, [k] if k >= 0 else [], filtered)
 
 
-def by_mask(model: EditableModel, camera: Camera, mask: np.ndarray, rule: str = "cover",
+def by_mask(model: EditableModel, camera: Camera, mask: np.ndarray, rule: str = DEFAULT_MASK_RULE,
             filtered: bool = True) -> tuple[list[int], np.ndarray]:
     """(clusters, [N] bool) covered by the 2D ``mask`` [H, W] of ``camera`` (``rule``: see
     ``trase.prompts.mask_to_clusters``)."""

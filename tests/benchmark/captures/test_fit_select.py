@@ -212,7 +212,7 @@ def _a_phrase_selects_what_its_mask_covers(out, view, method, fitted, scene, k, 
     by_text = select_clicks(out, [], tmp_path / "by-text", text=request)
     assert by_text["clusters"] == clusters
     (recorded,) = json.loads((tmp_path / "by-text" / "selection.json").read_text())["text"]
-    assert recorded["view"] == view and recorded["clusters"] == clusters and recorded["rule"] == "cover"
+    assert recorded["view"] == view and recorded["clusters"] == clusters and recorded["rule"] == "iou"
 
 
 @pytest.mark.slow

@@ -60,7 +60,7 @@ def test_a_run_under_the_text_protocol_records_each_phrase_and_its_label(tiny_ru
     assert rec["selected_clusters"] == chosen and rec["click_sets"] is None and rec["corrective"] is None
     assert all(p["view"] and p["mask_pixels"] > 0 for p in text["phrases"])
     label = protocol(rec)["prompts"]
-    assert label == "text (ground-truth boxes, ground-truth masks, lifted by cover >= 0.7)"
+    assert label == "text (ground-truth boxes, ground-truth masks, lifted by the clusters of best IoU)"
     clicks = load_run(tiny_run / "results.json")
     assert rec["oracle"]["miou"] == pytest.approx(clicks["oracle"]["miou"])  # the same fit under either protocol
 
