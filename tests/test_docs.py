@@ -57,7 +57,7 @@ def test_the_readme_is_short():
 
 def test_the_skip_pages_figures_are_the_rendering_of_its_perf_data():
     from benchmark.results.figures import page_block
-    from benchmark.results.skip_page import SKIP_BEGIN, SKIP_END, render_skip_block
+    from benchmark.perf.skip_page import SKIP_BEGIN, SKIP_END, render_skip_block
 
     data = json.loads((ROOT / "docs" / "skip-runs" / "current.json").read_text())
     block = page_block((ROOT / "docs" / "skip.md").read_text(), "docs/skip.md", (SKIP_BEGIN, SKIP_END))

@@ -55,9 +55,11 @@ def perf(suites: tuple[str, ...], quick: bool, json_out: str | None, out_dir: st
 
 
 def _write_page(page: str, json_out: str) -> None:
-    from benchmark.results.perf_page import write_perf_page
+    from benchmark.perf.skip_page import SKIP_BEGIN, SKIP_END, render_skip_block
+    from benchmark.results.perf_page import PERF_BEGIN, PERF_END, render_perf_block, write_perf_page
 
-    write_perf_page(Path(page), Path(json_out))
+    write_perf_page(Path(page), Path(json_out), {(PERF_BEGIN, PERF_END): render_perf_block,
+                                                 (SKIP_BEGIN, SKIP_END): render_skip_block})
     click.echo(f"wrote the figures of {json_out} into {page}")
 
 

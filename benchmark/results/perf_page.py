@@ -97,24 +97,19 @@ def render_perf_block(data: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def page_blocks() -> dict[tuple[str, str], object]:
-    """The generated blocks a page can hold, by their markers: the performance page's and the
-    skip page's (benchmark.results.skip_page)."""
-    from benchmark.results.skip_page import SKIP_BEGIN, SKIP_END, render_skip_block
-
-    return {(PERF_BEGIN, PERF_END): render_perf_block, (SKIP_BEGIN, SKIP_END): render_skip_block}
-
-
-def write_perf_page(page: Path, data_path: Path) -> None:
-    """Put the block rendered from the perf JSON ``data_path`` between the page's markers (the
-    performance page's PERF block or the skip page's SKIP block, whichever the page has)."""
+def write_perf_page(page: Path, data_path: Path, blocks: dict | None = None) -> None:
+    """Put the block rendered from the perf JSON ``data_path`` between the page's markers.
+    ``blocks``: {(begin, end) markers: render(data) -> text}, those the page may hold (default:
+    the performance page's PERF block; the perf command adds the skip page's)."""
     from benchmark.io import atomic_write_text
     from benchmark.results.figures import replace_block
 
+    blocks = blocks or {(PERF_BEGIN, PERF_END): render_perf_block}
     text = Path(page).read_text()
-    found = [(markers, render) for markers, render in page_blocks().items() if markers[0] in text]
+    found = [(markers, render) for markers, render in blocks.items() if markers[0] in text]
     if not found:
-        raise UserError(f"{page}: no generated figures block (a PERF:BEGIN or SKIP:BEGIN marker line)")
+        names = " or ".join(begin.split(" ")[1] for begin, _ in blocks)
+        raise UserError(f"{page}: no generated figures block (a {names} marker line)")
     try:
         data = json.loads(Path(data_path).read_text())
     except (OSError, ValueError) as exc:

@@ -6,7 +6,7 @@ import pytest
 
 from benchmark.errors import UserError
 from benchmark.results.perf_page import write_perf_page
-from benchmark.results.skip_page import SKIP_BEGIN, SKIP_END, render_skip_block
+from benchmark.perf.skip_page import SKIP_BEGIN, SKIP_END, render_skip_block
 
 
 def _run(variant, geometry, features, miou, stopping=None):
@@ -40,8 +40,18 @@ def test_a_skip_page_gets_its_block_and_a_file_without_the_suite_is_refused(tmp_
     data, page = tmp_path / "skip.json", tmp_path / "skip.md"
     data.write_text(json.dumps(DATA))
     page.write_text(f"# Skip\n\n{SKIP_BEGIN}\nold\n{SKIP_END}\nafter\n")
-    write_perf_page(page, data)
+    write_perf_page(page, data, {(SKIP_BEGIN, SKIP_END): render_skip_block})
     text = page.read_text()
     assert "old" not in text and "| hypernerf | full | 200 | 100 |" in text and text.endswith(f"{SKIP_END}\nafter\n")
     with pytest.raises(UserError, match="holds no skip suite"):
         render_skip_block({"machine": {}, "suites": {"raster": {}}})
+
+
+def test_the_perf_command_writes_the_skip_page(tmp_path):
+    from benchmark.cli import main
+
+    data, page = tmp_path / "skip.json", tmp_path / "skip.md"
+    data.write_text(json.dumps(DATA))
+    page.write_text(f"{SKIP_BEGIN}\n{SKIP_END}\n")
+    assert main(["perf", "--json", str(data), "--from-json", "--write-page", str(page)]) == 0
+    assert "| hypernerf | full | 200 | 100 |" in page.read_text()
