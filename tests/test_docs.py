@@ -63,3 +63,12 @@ def test_the_skip_pages_figures_are_the_rendering_of_its_perf_data():
     block = page_block((ROOT / "docs" / "skip.md").read_text(), "docs/skip.md", (SKIP_BEGIN, SKIP_END))
     assert block == render_skip_block(data), ("docs/skip.md: run trase-bench perf skip --json "
                                               "docs/skip-runs/current.json --from-json --write-page docs/skip.md")
+
+
+def test_the_results_file_reference_is_the_rendering_of_its_fields():
+    from benchmark.results.fields import FIELDS_BEGIN, FIELDS_END, render_fields_block
+    from benchmark.results.figures import page_block
+
+    page = ROOT / "docs" / "reference" / "results-file.md"
+    block = page_block(page.read_text(), str(page), (FIELDS_BEGIN, FIELDS_END))
+    assert block == render_fields_block(), "run python -m benchmark.results.fields docs/reference/results-file.md"

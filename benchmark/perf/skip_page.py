@@ -26,10 +26,10 @@ def render_skip_block(data: dict) -> str:
     if not isinstance(suite, dict) or "runs" not in suite:
         raise UserError("the perf file holds no skip suite: run trase-bench perf skip --json FILE")
     settings = suite.get("settings") or {}
-    lines = [f"Machine: {machine_line(data)}.", "",
-             f"One run per variant, one after the other; built-in scene `{settings.get('sequence', '?')}`"
-             f"{', settings ' + ' '.join(settings['overrides']) if settings.get('overrides') else ''}. "
-             "The last two columns are each variant's seconds over the full schedule's."]
+    extra = f", settings {' '.join(settings['overrides'])}" if settings.get("overrides") else ""
+    how = (f"One run per variant, one after the other; built-in scene `{settings.get('sequence', '?')}`{extra}. "
+           "The last two columns are each variant's seconds over the full schedule's.")
+    lines = [f"Machine: {machine_line(data)}.", "", how]
     for header, rows in table_rows(suite["runs"]):
         lines += ["", *_markdown(header, rows)]
     return "\n".join(lines) + "\n"

@@ -69,8 +69,11 @@ def evaluated(bench, tmp_path_factory) -> dict[str, dict]:
 
 
 def test_every_sequence_becomes_an_external_run(evaluated):
+    from benchmark.results.fields import FIELDS
+
     assert sorted(evaluated) == sorted(SEQUENCES)
     for seq, rec in evaluated.items():
+        assert set(rec) - {"_dir"} <= set(FIELDS)  # every field documented (docs/reference/results-file.md)
         assert rec["run"]["kind"] == "external" and rec["method"] == "ext" and rec["variant"] == "real"
         assert rec["run"]["name"] == rec["_dir"].name == f"e{rec['config_hash'][:8]}"
         ext = rec["external"]

@@ -5,8 +5,8 @@ import json
 import pytest
 
 from benchmark.errors import UserError
-from benchmark.results.perf_page import write_perf_page
 from benchmark.perf.skip_page import SKIP_BEGIN, SKIP_END, render_skip_block
+from benchmark.results.perf_page import write_perf_page
 
 
 def _run(variant, geometry, features, miou, stopping=None):
