@@ -217,11 +217,17 @@ class Method:
         """Features -> clusters, filter and stats."""
         raise NotImplementedError
 
+    def group_inputs(self, scene, gaussians, deformation, config) -> dict:
+        """What ``group`` reads from the scene beyond the features, added to its ``learn_info``
+        (computed in the fit stage, never cached with the features); the base class reads none."""
+        return {}
+
     def fit(self, scene, gaussians, deformation, masks_dir: Path, config, work_dir: Path,
             progress: bool = True) -> FittedModel:
         """``learn`` then ``group`` in one call (the benchmark runs them as two cached stages)."""
         feats, info = self.learn(scene, gaussians, deformation, masks_dir, config, work_dir, progress)
-        return self.group(feats, config, gaussians, deformation, info)
+        return self.group(feats, config, gaussians, deformation,
+                          {**info, **self.group_inputs(scene, gaussians, deformation, config)})
 
     def segment(self, fitted: FittedModel, scene, prompts) -> list[np.ndarray]:
         raise NotImplementedError

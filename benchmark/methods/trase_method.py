@@ -42,6 +42,14 @@ class TraseMethod(Method):
         return dataclasses.replace(r, sources={**r.sources, "features.objective": where,
                                                **({"features.objective_params": where} if self.objective_params else {})})
 
+    def check_settings(self, settings: TraseSettings) -> None:
+        from benchmark.config import ConfigError
+
+        if not float(settings.unseen_min_weight) >= 0:
+            raise ConfigError(f"--set method.unseen_min_weight={settings.unseen_min_weight!r}: a weight >= 0 (0: off)")
+        if isinstance(settings.unseen_neighbours, bool) or int(settings.unseen_neighbours) < 1:
+            raise ConfigError(f"--set method.unseen_neighbours={settings.unseen_neighbours!r}: a whole number >= 1")
+
     # -- fit = learn (features: the slow part) then group (clustering + filter) ----------
     FEATURE_FIELDS = ("features",)  # the settings that change the learned features
 
@@ -82,6 +90,15 @@ class TraseMethod(Method):
         }
         return feats, info
 
+    def group_inputs(self, scene, gaussians, deformation, config: TraseSettings) -> dict:
+        """The training images' compositing weight per gaussian, where unseen gaussians take
+        their neighbours' features (``unseen_min_weight`` > 0)."""
+        if float(config.unseen_min_weight) <= 0 or gaussians is None:
+            return {}
+        from trase.unseen import training_weights
+
+        return {"training_weights": training_weights(gaussians, deformation, [v.camera for v in scene.train])}
+
     def group(self, feats: np.ndarray, config: TraseSettings, gaussians=None, deformation=None,
               learn_info: dict | None = None) -> FittedModel:
         """Cluster features, assign every gaussian, filter by similarity -> FittedModel."""
@@ -89,6 +106,7 @@ class TraseMethod(Method):
         from trase.feature_stats import feature_space_stats
 
         learn_info = dict(learn_info or {})
+        feats, unseen = _unseen_from_neighbours(feats, config, gaussians, learn_info.pop("training_weights", None))
         ccfg = config.clustering
         t0 = time.perf_counter()
         cl = cluster(feats, method=ccfg.method, fraction=float(ccfg.fraction), seed=int(ccfg.seed),
@@ -105,6 +123,7 @@ class TraseMethod(Method):
             "path": learn_info.get("path", {}),
             "loss_tail": learn_info.get("loss_tail", []),
             "objective": learn_info.get("objective"),
+            **({"unseen_gaussians": unseen} if unseen is not None else {}),
             **({"peak_gpu_mib": learn_info["peak_gpu_mib"]} if "peak_gpu_mib" in learn_info else {}),
         }
         timings = {**learn_info.get("timings", {}), "clustering": t_cluster}
@@ -167,6 +186,17 @@ class TraseMethod(Method):
         sel = select_gaussians(fitted.labels, clusters, fitted.keep)
         thr, rule = float(fitted.config.alpha_threshold), str(fitted.config.render_rule)
         return render_masks(fitted.gaussians, fitted.deformation, sel, cams, thr, rule), clusters
+
+
+def _unseen_from_neighbours(feats: np.ndarray, config: TraseSettings, gaussians, weights) -> tuple[np.ndarray, int | None]:
+    """(features, how many gaussians took their neighbours' features; None when off)."""
+    if weights is None:
+        return feats, None
+    from trase.unseen import neighbours_features
+
+    seen = np.asarray(weights) >= float(config.unseen_min_weight)
+    means = gaussians.means.detach().cpu().numpy()
+    return neighbours_features(feats, means, seen, int(config.unseen_neighbours)), int((~seen).sum())
 
 
 def with_objective(objective: str, **params) -> TraseMethod:

@@ -56,7 +56,8 @@ def run(ctx: SequenceRun) -> list[StageRecord]:
     def work(d: Path) -> dict:
         gaussians, deformation = ctx.geometry
         feats = np.load(feat_rec.path / "features.npy")
-        fitted = method.group(feats, settings, gaussians, deformation, feat_rec.info)
+        extra = method.group_inputs(ctx.scene, gaussians, deformation, settings)  # e.g. training weights
+        fitted = method.group(feats, settings, gaussians, deformation, {**feat_rec.info, **extra})
         fitted.save(d)
         return {"timings": fitted.timings, "stats": jsonable(fitted.stats)}
 
