@@ -285,10 +285,11 @@ def mask_to_clusters(gaussians, deformation, camera: Camera, mask: np.ndarray, l
                      max_points: int = 40000, min_alpha: float = 0.5) -> list[int]:
     """2D mask [H, W] of ``camera`` -> sorted ids of the clusters it selects (module docstring:
     ``cover``: >= min_cover of the cluster's lifted pixels in the view are inside the mask;
-    ``share``: the cluster holds >= min_share of the distinct gaussians the mask's pixels hit).
+    ``share``: the cluster holds >= min_share of the distinct gaussians the mask's pixels hit;
+    ``iou``: the clusters whose lifted pixels in the view best match the mask, best_iou_clusters).
 
-    At most ``max_points`` pixels are lifted (of the whole view for ``cover``, of the mask for
-    ``share``; an evenly strided, deterministic subset)."""
+    At most ``max_points`` pixels are lifted (of the whole view for ``cover`` and ``iou``, of the
+    mask for ``share``; an evenly strided, deterministic subset)."""
     if rule not in MASK_RULES:
         raise PromptError(f"unknown mask rule {rule!r}; choose one of {', '.join(MASK_RULES)}")
     mask = np.asarray(mask, dtype=bool)
@@ -321,6 +322,13 @@ def mask_to_clusters(gaussians, deformation, camera: Camera, mask: np.ndarray, l
         return best_iou_clusters(within, seen - within, float(np.count_nonzero(inside)))
     chosen = (within > 0) & (within >= min_cover * np.maximum(seen, 1))
     return [int(k) for k in np.flatnonzero(chosen)]
+
+
+def no_cluster_reason(rule: str, min_cover: float = MASK_MIN_COVER, min_share: float = MASK_MIN_SHARE) -> str:
+    """Why a mask chose no cluster under ``rule``, for the line that says so."""
+    return {"cover": f"none has {min_cover:.0%} of its visible pixels inside the mask",
+            "share": f"none holds {min_share:.0%} of the gaussians the mask's pixels hit"}.get(
+        rule, "no surface under the mask")
 
 
 def best_iou_clusters(inside: np.ndarray, outside: np.ndarray, mask_area: float) -> list[int]:

@@ -166,17 +166,19 @@ def select_clicks(fit_dir: Path | str, clicks: list[str], out_dir: Path | str | 
 
 
 def text_choices(fitted, scene, text) -> list:
-    """Each phrase's benchmark.scene.text_prompt.TextChoice on the fitted capture (none without
+    """Each phrase's benchmark.protocol.text_choice.TextChoice on the fitted capture (none without
     ``text``); a phrase whose mask selects nothing is a one-line error."""
     if text is None or not text.phrases:
         return []
     from trase.edit import EditableModel
+    from trase.prompts import no_cluster_reason
 
     model = EditableModel(fitted.gaussians, fitted.deformation, fitted.labels, fitted.keep)
     choices = text.choices(model, [(v.name, v.camera) for v in scene.test])
     for c in choices:
         if not c.clusters:
-            raise UserError(f"--text {c.phrase!r}: its mask in view {c.view} selects no cluster (rule {c.rule})")
+            raise UserError(f"--text {c.phrase!r}: its mask in view {c.view} selects no cluster "
+                            f"(rule {c.rule}: {no_cluster_reason(c.rule)})")
     return choices
 
 

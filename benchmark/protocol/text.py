@@ -4,10 +4,11 @@
 
     {"americano": ["the cup"], "synthetic": ["the ball", "the ring", "the blob"]}
 
-For each phrase the text-to-mask model (``masks.text``) scores up to 8 test views
-spread over the sequence, each rendered by the method's geometry (the paper's "in the novel
-view"); the best one's mask is lifted to clusters (``trase.prompts.mask_to_clusters``, the
-protocol's rule) and the union of every phrase's clusters is rendered at every test view.
+For each phrase the text-to-mask model (``masks.text``) scores up to SEARCH_VIEWS test views
+spread over the sequence (benchmark.protocol.text_choice), each rendered by the method's
+geometry (the paper's "in the novel view"); the best one's mask is lifted to clusters
+(``trase.prompts.mask_to_clusters``, the protocol's rule) and the union of every phrase's
+clusters is rendered at every test view.
 
 ``ground-truth`` stands in for the detector (the named object's box in the scene's instance
 maps, scored by its visible area) and for the segmenter (the object's instance pixels inside the

@@ -5,7 +5,7 @@ clusters. What ``select``/``edit``/the viewer (benchmark.scene.text_prompt) and 
 The paper's text prompt: a grounded detector and SAM make a 2D mask from the text in a novel
 view; the mask's pixels are lifted with the rendered depth to their nearest gaussians and the
 clusters hit are chosen (``trase.prompts.mask_to_clusters``: rule ``share`` is the paper's,
-``cover`` the clusters the mask covers). Without a named view the detector looks at up to
+``cover`` the clusters the mask covers, ``iou``, the default, the clusters that best match it). Without a named view the detector looks at up to
 SEARCH_VIEWS views spread over the scene and the best-scoring one is used (and said).
 """
 

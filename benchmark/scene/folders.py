@@ -165,7 +165,7 @@ def resolve_selection(folder: SceneFolder, clusters: str | None = None, clicks: 
     its phrases' TextChoice go to ``found`` where given)."""
     from benchmark.captures.select import mask_prompt, parse_click
     from trase.edit import by_click, by_clusters, by_mask
-    from trase.prompts import MASK_MIN_COVER, MASK_MIN_SHARE
+    from trase.prompts import no_cluster_reason
 
     ks = set(parse_clusters(clusters))
     n = folder.model.n_clusters
@@ -190,14 +190,13 @@ def resolve_selection(folder: SceneFolder, clusters: str | None = None, clicks: 
         rule = (text or TextRequest()).mask_rule
         hit, _ = by_mask(folder.model, cam, mask, rule=rule)
         if not hit:
-            why = {"cover": f"none has {MASK_MIN_COVER:.0%} of its visible pixels in it",
-                   "share": f"none holds {MASK_MIN_SHARE:.0%} of the gaussians its pixels hit"}.get(rule, "no surface under it")
-            raise UserError(f"--mask {text_of_mask!r}: the mask selects no cluster (rule {rule}: {why})")
+            raise UserError(f"--mask {text_of_mask!r}: the mask selects no cluster (rule {rule}: "
+                            f"{no_cluster_reason(rule)})")
         ks |= set(hit)
     for choice in text.choices(folder.model, folder.views) if text is not None else []:
         if not choice.clusters:
             raise UserError(f"--text {choice.phrase!r}: its mask in view {choice.view} selects no cluster "
-                            f"(rule {choice.rule})")
+                            f"(rule {choice.rule}: {no_cluster_reason(choice.rule)})")
         ks |= set(choice.clusters)
         if found is not None:
             found.append(choice)

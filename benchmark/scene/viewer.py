@@ -297,7 +297,7 @@ class SceneViewer:
             with self._lock:
                 cam = self.camera_of(client) if client is not None else self.home
                 choice = text_choice(self.model, [("the current view", cam)], phrase, lambda _: self.segmenter,
-                                     rule=request.rule)
+                                     rule=request.mask_rule)
         except (UserError, MaskError) as exc:
             self._status(str(exc))
             return
