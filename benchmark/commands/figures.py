@@ -91,10 +91,8 @@ def figures(runs_dir, seeds, formats, geometries, collect_only, from_data, data_
 
 def write_page(path: Path, data: dict) -> None:
     """Rewrite the block ``path`` holds (benchmark.results.figures.page_markers) from ``data``."""
-    from benchmark.io import atomic_write_text
-    from benchmark.results.figures import page_markers, replace_block
+    from benchmark.results.figures import page_markers, write_block
 
-    text = path.read_text()
-    markers, render = page_markers(text)
-    atomic_write_text(path, replace_block(text, render(data), str(path), markers))
+    markers, render = page_markers(path.read_text())
+    write_block(path, render(data), markers)
     click.echo(f"wrote the figures block of {path}")

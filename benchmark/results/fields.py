@@ -6,13 +6,15 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from benchmark.results.record import SCHEMA
+
 FIELDS_BEGIN = ("<!-- FIELDS:BEGIN (python -m benchmark.results.fields docs/reference/results-file.md; "
                 "do not edit by hand) -->")
 FIELDS_END = "<!-- FIELDS:END -->"
 
 # field -> (in which runs, what it holds)
 FIELDS: dict[str, tuple[str, str]] = {
-    "schema": ("every run", "the file's schema, `trase-bench/results/3`; older schemas are refused by tables"),
+    "schema": ("every run", f"the file's schema, `{SCHEMA}`; older schemas are refused by tables"),
     "created": ("every run", "when the file was written (UTC, ISO 8601)"),
     "run": ("every run", ("`name` (the run's folder), `kind` (main, run, ablation, external), `overrides` "
             "(the `--set` values), `study` (an ablation's), `seed`, `group` (the config hash without the seed, "
@@ -72,11 +74,9 @@ def render_fields_block() -> str:
 
 def write_fields_page(page: Path) -> None:
     """Put the table between the page's FIELDS markers."""
-    from benchmark.io import atomic_write_text
-    from benchmark.results.figures import replace_block
+    from benchmark.results.figures import write_block
 
-    text = Path(page).read_text()
-    atomic_write_text(Path(page), replace_block(text, render_fields_block(), str(page), (FIELDS_BEGIN, FIELDS_END)))
+    write_block(Path(page), render_fields_block(), (FIELDS_BEGIN, FIELDS_END))
 
 
 if __name__ == "__main__":  # python -m benchmark.results.fields docs/reference/results-file.md

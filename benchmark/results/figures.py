@@ -203,6 +203,13 @@ def replace_block(text: str, block: str, where: str = PAGE, markers: tuple[str, 
     return f"{head}{begin}\n{block}{end}{tail}"
 
 
+def write_block(path: Path, block: str, markers: tuple[str, str] = (BEGIN, END)) -> None:
+    """Replace the block between ``markers`` in the page at ``path``, written atomically."""
+    from benchmark.io import atomic_write_text
+
+    atomic_write_text(Path(path), replace_block(Path(path).read_text(), block, str(path), markers))
+
+
 def page_block(text: str, where: str = PAGE, markers: tuple[str, str] = (BEGIN, END)) -> str:
     """The current block's content (between the markers)."""
     begin, end = markers

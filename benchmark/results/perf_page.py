@@ -101,8 +101,7 @@ def write_perf_page(page: Path, data_path: Path, blocks: dict | None = None) -> 
     """Put the block rendered from the perf JSON ``data_path`` between the page's markers.
     ``blocks``: {(begin, end) markers: render(data) -> text}, those the page may hold (default:
     the performance page's PERF block; the perf command adds the skip page's)."""
-    from benchmark.io import atomic_write_text
-    from benchmark.results.figures import replace_block
+    from benchmark.results.figures import write_block
 
     blocks = blocks or {(PERF_BEGIN, PERF_END): render_perf_block}
     text = Path(page).read_text()
@@ -114,9 +113,9 @@ def write_perf_page(page: Path, data_path: Path, blocks: dict | None = None) -> 
         data = json.loads(Path(data_path).read_text())
     except (OSError, ValueError) as exc:
         raise UserError(f"{data_path}: not a readable perf JSON file ({exc})") from None
-    for markers, render in found:
-        text = replace_block(text, render(data), str(page), markers)
-    atomic_write_text(Path(page), text)
+    rendered = [(markers, render(data)) for markers, render in found]  # all before any write
+    for markers, block in rendered:
+        write_block(Path(page), block, markers)
 
 
 __all__ = ["PERF_BEGIN", "PERF_END", "SUITES", "render_perf_block", "write_perf_page"]
