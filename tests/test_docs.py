@@ -5,6 +5,8 @@ import json
 import re
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
 # pages the docs build writes (mkdocs-gen-files, scripts/docs_settings.py), linked before they exist
@@ -25,50 +27,52 @@ def test_relative_links_resolve():
 
 def test_the_library_guides_imports_run():
     text = (ROOT / "docs" / "library.md").read_text()
-    blocks = re.findall(r"```python\n(.*?)```", text, flags=re.S)
+    blocks = re.findall(r"```python\n(.*?)```", text, flags=re.DOTALL)
     assert blocks, "the library guide's code is missing"
     for block in blocks:
         imports = "\n".join(line.split("#")[0] for line in block.splitlines() if line.startswith("from "))
         exec(compile(imports, "docs/library.md", "exec"), {})
 
 
-def test_the_readmes_results_table_is_the_rendering_of_the_figures_data():
-    from benchmark.results.figures import page_block
+def _summary():
     from benchmark.results.figures_summary import SUMMARY_BEGIN, SUMMARY_END, render_summary_block
 
     data = json.loads((ROOT / "docs" / "figures.json").read_text())
-    block = page_block((ROOT / "README.md").read_text(), "README.md", (SUMMARY_BEGIN, SUMMARY_END))
-    assert block == render_summary_block(data), "README.md: run trase-bench figures --from-data --write-page README.md"
+    return (SUMMARY_BEGIN, SUMMARY_END), render_summary_block(data), "trase-bench figures --from-data --write-page README.md"
 
 
-def test_the_performance_pages_figures_are_the_rendering_of_its_perf_data():
-    from benchmark.results.figures import page_block
+def _performance():
     from benchmark.results.perf_page import PERF_BEGIN, PERF_END, render_perf_block
 
     data = json.loads((ROOT / "docs" / "perf-runs" / "current.json").read_text())
-    block = page_block((ROOT / "docs" / "performance.md").read_text(), "docs/performance.md", (PERF_BEGIN, PERF_END))
-    assert block == render_perf_block(data), ("docs/performance.md: run trase-bench perf --json "
-                                              "docs/perf-runs/current.json --from-json --write-page docs/performance.md")
+    return ((PERF_BEGIN, PERF_END), render_perf_block(data),
+            "trase-bench perf --json docs/perf-runs/current.json --from-json --write-page docs/performance.md")
+
+
+def _skip():
+    from benchmark.perf.skip_page import SKIP_BEGIN, SKIP_END, render_skip_block
+
+    data = json.loads((ROOT / "docs" / "skip-runs" / "current.json").read_text())
+    return ((SKIP_BEGIN, SKIP_END), render_skip_block(data),
+            "trase-bench perf skip --json docs/skip-runs/current.json --from-json --write-page docs/skip.md")
+
+
+def _results_file():
+    from benchmark.results.fields import FIELDS_BEGIN, FIELDS_END, render_fields_block
+
+    return ((FIELDS_BEGIN, FIELDS_END), render_fields_block(),
+            "python -m benchmark.results.fields docs/reference/results-file.md")
+
+
+@pytest.mark.parametrize(("page", "expected"), [("README.md", _summary), ("docs/performance.md", _performance),
+                                                ("docs/skip.md", _skip),
+                                                ("docs/reference/results-file.md", _results_file)])
+def test_each_generated_block_is_the_rendering_of_its_data(page, expected):
+    from benchmark.results.figures import page_block
+
+    markers, rendered, command = expected()
+    assert page_block((ROOT / page).read_text(), page, markers) == rendered, f"{page}: run {command}"
 
 
 def test_the_readme_is_short():
     assert len((ROOT / "README.md").read_text().splitlines()) <= 130
-
-
-def test_the_skip_pages_figures_are_the_rendering_of_its_perf_data():
-    from benchmark.results.figures import page_block
-    from benchmark.perf.skip_page import SKIP_BEGIN, SKIP_END, render_skip_block
-
-    data = json.loads((ROOT / "docs" / "skip-runs" / "current.json").read_text())
-    block = page_block((ROOT / "docs" / "skip.md").read_text(), "docs/skip.md", (SKIP_BEGIN, SKIP_END))
-    assert block == render_skip_block(data), ("docs/skip.md: run trase-bench perf skip --json "
-                                              "docs/skip-runs/current.json --from-json --write-page docs/skip.md")
-
-
-def test_the_results_file_reference_is_the_rendering_of_its_fields():
-    from benchmark.results.fields import FIELDS_BEGIN, FIELDS_END, render_fields_block
-    from benchmark.results.figures import page_block
-
-    page = ROOT / "docs" / "reference" / "results-file.md"
-    block = page_block(page.read_text(), str(page), (FIELDS_BEGIN, FIELDS_END))
-    assert block == render_fields_block(), "run python -m benchmark.results.fields docs/reference/results-file.md"

@@ -35,3 +35,11 @@ def test_a_fresh_demo_run_gives_the_recorded_figures_bit_for_bit(tmp_path):
     golden = recording()
     diff = differences(golden["figures"], measure(tmp_path))
     assert not diff, f"make demo differs from its recording (reproduced on {len(golden['machines'])} machine(s)): {diff}"
+
+
+def test_the_quickstarts_stage_seconds_are_the_recorded_runs():
+    seconds = recording()["machines"][0]["stage_seconds"]
+    text = " ".join((ROOT / "docs" / "quickstart.md").read_text().split())
+    for stage, said in (("geometry", "geometry"), ("features", "features"), ("fit", "clustering (fit)"),
+                        ("evaluate", "evaluate")):
+        assert f"{said} {round(seconds[stage])} s" in text, f"docs/quickstart.md: {stage} took {seconds[stage]:.0f} s"
