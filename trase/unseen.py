@@ -5,7 +5,8 @@ small training views (the tiny synthetic scenes: 3-6 views of 64x48 px) most gau
 drawn into almost none; their features stay near their random start, and the clustering mixes
 them into every cluster. A gaussian's nearest seen neighbours in 3D are the best evidence of
 what it belongs to, so before clustering its feature is replaced by theirs (the mean of their
-normalised features, at its own norm). Measured in docs/notes/corrective-clicks.md ("A lead").
+normalised features, at its own norm). Measured in docs/notes/corrective-clicks.md ("Features of the
+barely seen gaussians from their seen neighbours").
 """
 
 from __future__ import annotations
