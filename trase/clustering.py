@@ -19,6 +19,8 @@ import math
 
 import numpy as np
 
+from trase.epsilon_merge import epsilon_labels
+
 METHODS = ("hdbscan", "dbscan", "kmeans")
 NORM_EPS = 1e-12
 
@@ -74,24 +76,11 @@ def _cluster_sample(x: np.ndarray, method: str, seed: int, params: dict) -> np.n
         mcs = int(params.get("min_cluster_size", 10))
         if S < max(mcs, 2) or distinct < 2:
             return np.zeros(S, np.int64)
-        hd = skc.HDBSCAN(
-            min_cluster_size=mcs,
-            min_samples=params.get("min_samples"),
-            cluster_selection_epsilon=float(params.get("cluster_selection_epsilon", 0.01)),
-            copy=True,
-        )
-        try:
-            return hd.fit_predict(x).astype(np.int64)
-        except TypeError as exc:
-            # scikit-learn issue #33219: with NumPy 2 the epsilon merge (traverse_upwards) fails
-            # on condensed trees with tied distances; without epsilon the code path is not taken
-            if float(params.get("cluster_selection_epsilon", 0.01)) > 0 and "0-dimensional" in str(exc):
-                raise ClusteringError(
-                    "HDBSCAN with cluster_selection_epsilon > 0 failed inside scikit-learn (its issue "
-                    "#33219, tied distances under NumPy 2); set method.clustering.params."
-                    "cluster_selection_epsilon=0 or use another clustering method"
-                ) from None
-            raise
+        epsilon = float(params.get("cluster_selection_epsilon", 0.01))
+        # epsilon 0 here, the merge after (trase.epsilon_merge: scikit-learn's own fails under NumPy 2.4)
+        hd = skc.HDBSCAN(min_cluster_size=mcs, min_samples=params.get("min_samples"), copy=True)
+        labels = hd.fit_predict(x)
+        return epsilon_labels(hd._single_linkage_tree_, labels, mcs, epsilon).astype(np.int64)
     if method == "dbscan":
         ms = int(params.get("min_samples", 10))
         if S < max(ms, 2) or distinct < 2:

@@ -53,17 +53,16 @@ def test_filter_by_similarity():
     assert keep.tolist() == [True, True, False, True, False]
 
 
-def test_sklearn_epsilon_bug_becomes_a_one_line_error(monkeypatch):
-    """scikit-learn #33219 (epsilon merge on tied distances under NumPy 2) -> ClusteringError
-    telling the user which setting avoids it; other TypeErrors pass through unchanged."""
-    from sklearn import cluster as skc
-
-    def boom(self, x, y=None):
-        raise TypeError("only 0-dimensional arrays can be converted to Python scalars")
-
-    monkeypatch.setattr(skc.HDBSCAN, "fit_predict", boom)
-    x, _ = _blobs()
-    with pytest.raises(ClusteringError, match="cluster_selection_epsilon=0"):
-        cluster(x, method="hdbscan", fraction=1.0, min_sample=0, cluster_selection_epsilon=0.1)
-    with pytest.raises(TypeError, match="0-dimensional"):  # no epsilon: not that bug, re-raised
-        cluster(x, method="hdbscan", fraction=1.0, min_sample=0, cluster_selection_epsilon=0.0)
+def test_hdbscan_epsilon_merges_what_splits_below_it():
+    """The public code's cluster_selection_epsilon merges clusters that split below it (here three
+    tight micro-clusters inside each of four groups), where scikit-learn's own merge fails
+    under NumPy 2.4 (trase.epsilon_merge)."""
+    rng = np.random.default_rng(0)
+    groups = np.eye(8)[:4] * 3
+    x = np.concatenate([g + 0.05 * rng.standard_normal(8) + 0.002 * rng.standard_normal((40, 8))
+                        for g in groups for _ in range(3)]).astype(np.float32)
+    truth = np.repeat(np.arange(4), 120)
+    fine = cluster(x, method="hdbscan", fraction=1.0, min_sample=0, cluster_selection_epsilon=0.0)
+    merged = cluster(x, method="hdbscan", fraction=1.0, min_sample=0, cluster_selection_epsilon=0.5)
+    assert fine.n_clusters == 12 and merged.n_clusters == 4
+    assert _purity(merged.labels, truth)
