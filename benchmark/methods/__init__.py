@@ -259,10 +259,16 @@ def click_selection(method, fitted, scene, prompts) -> tuple[list[int], list[int
     own = getattr(method, "click_selection", None)
     if own is not None:
         return own(fitted, scene, prompts)
-    per_click = method.click_clusters(fitted, scene, prompts)
+    return combine_clicks(prompts.clicks, method.click_clusters(fitted, scene, prompts))
+
+
+def combine_clicks(clicks, per_click: list[int]) -> tuple[list[int], list[int]]:
+    """(the clusters selected, ``per_click``) from each click's cluster, taken in order: a
+    positive click's added unless a negative click ruled it out before, a negative click's
+    removed and ruled out."""
     selected: set[int] = set()
     ruled_out: set[int] = set()
-    for click, k in zip(prompts.clicks, per_click):
+    for click, k in zip(clicks, per_click):
         if k < 0:
             continue
         if click.positive and k not in ruled_out:
@@ -270,7 +276,7 @@ def click_selection(method, fitted, scene, prompts) -> tuple[list[int], list[int
         elif not click.positive:
             selected.discard(k)
             ruled_out.add(k)
-    return sorted(selected), per_click
+    return sorted(selected), list(per_click)
 
 
 def click_view(scene, prompts, click):
@@ -286,4 +292,4 @@ def click_view(scene, prompts, click):
 
 
 __all__ = ["ENTRY_POINT_GROUP", "METHODS", "FittedModel", "Method", "MethodError", "check_method_class",
-           "click_selection", "click_view", "get_method", "register_method", "takes_negative_clicks"]
+           "click_selection", "click_view", "combine_clicks", "get_method", "register_method", "takes_negative_clicks"]

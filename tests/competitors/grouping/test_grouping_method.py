@@ -11,6 +11,7 @@ import torch
 pytest.importorskip("trase_bench_grouping")
 
 from trase_bench_grouping.method import NO_TRACK, SA4D, GaussianGrouping, inside_hull
+from trase_bench_grouping.settings import GroupingSettings
 from masks.tracked import ids_path, save_ids
 
 from benchmark.methods import FittedModel, check_method_class
@@ -180,3 +181,40 @@ def test_hull_by_facet_planes_matches_the_delaunay_reference():
     flat = np.c_[rng.normal(size=(50, 2)), np.zeros(50)]
     assert not inside_hull(flat, np.ones(50, bool), 1.0).any()
     assert not inside_hull(pts, np.arange(len(pts)) < 4, 1.0).any()
+
+
+def _logits(*rows) -> torch.Tensor:
+    """[K, 8] logits of a click window whose pixels prefer classes in the order given."""
+    out = torch.zeros(len(rows), 8)
+    for i, order in enumerate(rows):
+        for rank, k in enumerate(order):
+            out[i, k] = 10.0 - rank
+    return out
+
+
+def test_vote_among_the_allowed_classes():
+    from trase_bench_grouping.method import vote
+
+    window = _logits([3, 5, 2], [3, 5, 2], [5, 3, 2])
+    assert vote(window) == 3 and vote(window, exclude={3}) == 5 and vote(window, among=[2]) == 2
+    assert vote(None) == -1 and vote(window, among=[]) == -1
+    assert vote(_logits([NO_TRACK, 4])) == -1 and vote(_logits([NO_TRACK, 4]), exclude={NO_TRACK}) == 4
+
+
+@pytest.mark.parametrize("votes,expected", [("ruled-out", ([5], [3, 3, 5])), ("any", ([3], [3, 4, 3]))])
+def test_a_negative_click_removes_a_selected_class(monkeypatch, votes, expected):
+    """A click that reads class 3 (the wall) selects it; a negative click on a pixel that class 3
+    lights from behind the ball (class 4 in front) removes 3 under "ruled-out", and the next
+    positive click at the first pixel takes the next class there (5). Under "any" the negative
+    click reads 4, which was not selected: nothing changes and 3 stays."""
+    from trase.prompts import Click
+
+    clicks = [Click(1.0, 1.0), Click(2.0, 2.0, positive=False), Click(1.0, 1.0)]
+    windows = [_logits([3, 5]), _logits([4, 3]), _logits([3, 5])]
+    method = GaussianGrouping()
+    monkeypatch.setattr(method, "click_logits", lambda fitted, scene, prompts: iter(windows))
+    config = GroupingSettings()
+    config.selection.click_votes = votes
+    fitted = FittedModel(np.zeros((1, 1)), np.zeros(1, np.int64), np.ones(1, bool), {}, {}, config)
+    prompts = dataclasses.make_dataclass("P", [("clicks", list)])(clicks)
+    assert method.click_selection(fitted, None, prompts) == expected

@@ -20,8 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmark.methods import FittedModel, Method, MethodError, click_selection, click_view
-from trase_bench_grouping.settings import GG_PRESETS, HULLS, SA4D_PRESETS, GroupingSettings
+from benchmark.methods import FittedModel, Method, MethodError, click_view, combine_clicks
+from trase_bench_grouping.settings import CLICK_VOTES, GG_PRESETS, HULLS, SA4D_PRESETS, GroupingSettings
 
 NO_TRACK = 0  # the tracked ids' class of pixels no track holds: a click on it selects nothing
 
@@ -45,6 +45,8 @@ class GaussianGrouping(Method):
             raise ConfigError(f"method.selection.hull={s.hull!r}: choose one of {', '.join(HULLS)}")
         if settings.render_rule not in ("alone", "visible"):
             raise ConfigError(f"method.render_rule={settings.render_rule!r}: choose alone or visible")
+        if s.click_votes not in CLICK_VOTES:
+            raise ConfigError(f"method.selection.click_votes={s.click_votes!r}: choose one of {', '.join(CLICK_VOTES)}")
 
     # -- learn -------------------------------------------------------------------------
     def learn(self, scene, gaussians, deformation, masks_dir: Path, config: GroupingSettings, work_dir: Path,
@@ -142,11 +144,11 @@ class GaussianGrouping(Method):
 
     # -- segment: click -> class -> gaussians ------------------------------------------
     selects_clusters = True
-    negative_clicks = True  # a negative click removes the class it reads (benchmark.methods.click_selection)
+    negative_clicks = True  # a negative click removes a selected class (click_selection)
 
-    def click_clusters(self, fitted: FittedModel, scene, prompts) -> list[int]:
-        """The class the classifier gives the identity rendered under each click (-1: a click
-        on too little alpha, or on class 0, "no track")."""
+    def click_logits(self, fitted: FittedModel, scene, prompts):
+        """Per click, the classifier's logits [K, C] of the K pixels of its window with enough
+        rendered alpha (None: a click on too little alpha)."""
         import torch
 
         from trase.prompts import geometry_at
@@ -155,7 +157,6 @@ class GaussianGrouping(Method):
         if fitted.gaussians is None:
             raise MethodError(f"{self.name} needs the fitted model's geometry to segment")
         sel, classifier = fitted.config.selection, self._classifier(fitted)
-        out = []
         for c in prompts.clicks:
             cam = click_view(scene, prompts, c).camera
             t = cam.time if c.time is None else float(c.time)
@@ -167,16 +168,40 @@ class GaussianGrouping(Method):
             col, row = int(np.clip(np.floor(c.u), 0, W - 1)), int(np.clip(np.floor(c.v), 0, H - 1))
             rad = int(sel.click_radius)
             rs, cs = slice(max(row - rad, 0), row + rad + 1), slice(max(col - rad, 0), col + rad + 1)
-            alpha = r.alpha[rs, cs].reshape(-1)
-            ok = alpha >= float(sel.min_alpha)
+            ok = r.alpha[rs, cs].reshape(-1) >= float(sel.min_alpha)
             if not bool(ok.any()):
-                out.append(-1)
+                yield None
                 continue
             with torch.no_grad():
-                votes = classifier(r.features[rs, cs].reshape(-1, enc.shape[1])[ok].float()).argmax(dim=1)
-            k = int(torch.mode(votes).values) if votes.numel() > 1 else int(votes[0])
-            out.append(k if k != NO_TRACK else -1)
-        return out
+                yield classifier(r.features[rs, cs].reshape(-1, enc.shape[1])[ok].float())
+
+    def click_clusters(self, fitted: FittedModel, scene, prompts) -> list[int]:
+        """The class the classifier gives the identity rendered under each click (-1: a click
+        on too little alpha, or on class 0, "no track")."""
+        return [vote(logits) for logits in self.click_logits(fitted, scene, prompts)]
+
+    def click_selection(self, fitted: FittedModel, scene, prompts) -> tuple[list[int], list[int]]:
+        """(the classes selected, the class of each click): clicks in order, a positive click's
+        class (its window's vote among the classes no negative click ruled out) added, a negative
+        click's (its vote among the classes selected) removed and ruled out. Under
+        ``selection.click_votes`` "any", benchmark.methods.click_selection's rule instead."""
+        if fitted.config.selection.click_votes == "any":
+            return combine_clicks(prompts.clicks, self.click_clusters(fitted, scene, prompts))
+        selected: list[int] = []
+        ruled_out: set[int] = set()
+        per_click = []
+        for click, logits in zip(prompts.clicks, self.click_logits(fitted, scene, prompts)):
+            if click.positive:
+                k = vote(logits, exclude=ruled_out)
+                if k >= 0 and k not in selected:
+                    selected.append(k)
+            else:
+                k = vote(logits, among=selected) if selected else -1
+                if k >= 0:
+                    ruled_out.add(k)
+                    selected.remove(k)
+            per_click.append(k)
+        return sorted(selected), per_click
 
     def selected_gaussians(self, fitted: FittedModel, classes: list[int], t: float) -> np.ndarray:
         """[N] bool: gaussians whose probability of a chosen class exceeds the threshold, then
@@ -218,7 +243,7 @@ class GaussianGrouping(Method):
 
     def segment(self, fitted: FittedModel, scene, prompts) -> list[np.ndarray]:
         """One bool [H, W] mask per test view: the gaussians of the classes the clicks chose."""
-        classes, per_click = click_selection(self, fitted, scene, prompts)  # negative clicks remove
+        classes, per_click = self.click_selection(fitted, scene, prompts)  # negative clicks remove
         fitted.stats["click_clusters"], fitted.stats["selected_clusters"] = per_click, classes
         return self.render_selection(fitted, scene, classes)
 
@@ -269,4 +294,24 @@ def inside_hull(points: np.ndarray, chosen: np.ndarray, outlier_factor: float) -
     return np.all(points @ eq[:, :3].T + eq[:, 3] <= HULL_TOLERANCE * scale, axis=1)
 
 
-__all__ = ["NO_TRACK", "SA4D", "GaussianGrouping", "inside_hull"]
+def vote(logits, exclude=(), among=None) -> int:
+    """The class most pixels of a click's window vote for (logits [K, C]; each pixel's argmax
+    among the allowed classes: not ``exclude``, only ``among`` where given); -1 for no window
+    or where the vote is NO_TRACK ("no track": nothing to select)."""
+    import torch
+
+    if logits is None:
+        return -1
+    allowed = torch.ones(logits.shape[1], dtype=torch.bool)
+    if among is not None:
+        allowed[:] = False
+        allowed[[k for k in among if 0 <= k < logits.shape[1]]] = True
+    allowed[[k for k in exclude if 0 <= k < logits.shape[1]]] = False
+    if not bool(allowed.any()):
+        return -1
+    votes = logits.masked_fill(~allowed, float("-inf")).argmax(dim=1)
+    k = int(torch.mode(votes).values) if votes.numel() > 1 else int(votes[0])
+    return k if k != NO_TRACK else -1
+
+
+__all__ = ["NO_TRACK", "SA4D", "GaussianGrouping", "inside_hull", "vote"]

@@ -59,6 +59,11 @@ class SelectionSettings:
     hull_outlier_factor: float = 1.0
     click_radius: int = 0  # the click's window: (2 r + 1)^2 pixels vote for the class
     min_alpha: float = 0.5  # a click on less rendered alpha than this chooses nothing
+    # "ruled-out": clicks taken in order, a positive click votes among the classes no negative
+    # click ruled out and a negative one among the classes selected (as TRASE's clicks); "any":
+    # each click votes among every class, then benchmark.methods.click_selection combines them
+    # (a negative click on a wrongly lit pixel then reads the class in front and changes nothing)
+    click_votes: str = "ruled-out"
 
 
 @dataclasses.dataclass
@@ -73,6 +78,7 @@ class GroupingSettings:
 
 
 HULLS = ("union", "filter", "none")
+CLICK_VOTES = ("ruled-out", "any")
 
 GG_PRESETS = PresetTable("gaussian-grouping", GroupingSettings, error=MethodError)
 GG_PRESETS.declare("paper", help="the public Gaussian Grouping code's defaults (config/gaussian_dataset/train.json)",
@@ -113,5 +119,5 @@ SA4D_PRESETS.declare("cpu", {"features.iterations": 500, "features.n_pixels": 20
 # 0.786): the steps differ per kind of rig
 SA4D_PRESETS.declare("cpu", {"features.iterations": 1000}, when=MULTIVIEW)
 
-__all__ = ["GG_PRESETS", "HULLS", "MONOCULAR", "SA4D_PRESETS", "GroupingSettings", "IdentitySettings",
+__all__ = ["CLICK_VOTES", "GG_PRESETS", "HULLS", "MONOCULAR", "SA4D_PRESETS", "GroupingSettings", "IdentitySettings",
            "SelectionSettings"]
