@@ -80,8 +80,8 @@ class TraseSettings:
     # "alone": the paper's rule (selected gaussians rendered without the rest); "visible": their
     # weight in the full render (occluded parts excluded), see trase.segment
     render_rule: str = "alone"
-    # gaussians whose compositing weight summed over the training images is below this take their
-    # seen neighbours' features before clustering (trase.unseen); 0: off, the paper's
+    # gaussians whose compositing weight summed over the training images (rendered once more in the fit
+    # stage: 200 s on the Neu3D format) is below this take their seen neighbours' features; 0: off, the paper's
     unseen_min_weight: float = 0.0
     unseen_neighbours: int = 16  # how many nearest seen gaussians give an unseen one its feature
 
