@@ -73,7 +73,7 @@ def render_methods_block(data: dict) -> str:
     pub = published_averages()
     pub_methods = list(dict.fromkeys([m for m in methods if any((m, f) in pub for f in formats)]
                                      + sorted({m for m, _ in pub})))  # measured ones first
-    lines += ["**Published** (the paper's Table 1: real sequences, SAM masks, its own geometry per method)", "",
+    lines += ["**Published** (the paper's Table 1: real sequences, SAM masks, its own geometry per method, a person's clicks)", "",
               "| method | " + " | ".join(NAMES[f] for f in formats) + " |", "|---|" + "---|" * len(formats)]
     for m in pub_methods:
         lines.append(f"| {m} | " + " | ".join(f"{pub[(m, f)]:.3f}" if (m, f) in pub else "—" for f in formats) + " |")
