@@ -170,35 +170,42 @@ def click_to_cluster(gaussians, deformation, camera: Camera, click: Click, label
     return -1 if gid < 0 else int(labels[gid])
 
 
-def clicks_to_clusters(gaussians, deformation, cameras: list[Camera], clicks: list[Click], labels: np.ndarray,
-                       **rule) -> tuple[list[int], list[int]]:
-    """A sequence of clicks, each in its view's camera (``cameras[i]`` for ``clicks[i]``) ->
-    (the clusters selected, sorted; the cluster of each click in order, -1 for none).
-
-    A positive click adds its cluster, chosen among those no negative click has ruled out. A
-    negative click removes the selected cluster under it (the rule's choice among the selected
-    ones; where none of them is there, the rule's choice among all) and keeps it out of later
-    clicks. ``rule``: click_to_cluster's keyword arguments."""
-    if len(cameras) != len(clicks):
-        raise PromptError(f"{len(clicks)} clicks need as many cameras, got {len(cameras)}")
-    all_ids = {int(k) for k in np.unique(np.asarray(labels, dtype=np.int64)) if k >= 0}
+def select_in_order(clicks: list[Click], pick, universe: set[int]) -> tuple[list[int], list[int]]:
+    """Clicks taken in order -> (the clusters selected, sorted; the cluster of each click, -1 for
+    none). ``pick(i, exclude)``: the cluster click ``i`` reads among those of ``universe`` not in
+    ``exclude`` (-1: none). A positive click adds its cluster, chosen among those no negative
+    click has ruled out. A negative click removes the selected cluster under it (its choice
+    among the selected ones; where none of them is there, its choice among all) and rules it out
+    of later clicks."""
     selected: list[int] = []
     excluded: set[int] = set()
     per_click = []
-    for camera, click in zip(cameras, clicks):
-        pick = functools.partial(click_to_cluster, gaussians, deformation, camera, click, labels, **rule)
+    for i, click in enumerate(clicks):
         if click.positive:
-            k = pick(exclude=excluded)
+            k = pick(i, excluded)
             if k >= 0 and k not in selected:
                 selected.append(k)
         else:
-            k = pick(exclude=all_ids - set(selected)) if selected else -1  # a selected cluster under it
-            k = k if k >= 0 else pick(exclude=excluded)
+            k = pick(i, universe - set(selected)) if selected else -1  # a selected cluster under it
+            k = k if k >= 0 else pick(i, excluded)
             if k >= 0:
                 excluded.add(k)
                 selected = [c for c in selected if c != k]
         per_click.append(k)
     return sorted(selected), per_click
+
+
+def clicks_to_clusters(gaussians, deformation, cameras: list[Camera], clicks: list[Click], labels: np.ndarray,
+                       **rule) -> tuple[list[int], list[int]]:
+    """A sequence of clicks, each in its view's camera (``cameras[i]`` for ``clicks[i]``) ->
+    (the clusters selected, sorted; the cluster of each click in order, -1 for none), taken in
+    order by select_in_order. ``rule``: click_to_cluster's keyword arguments."""
+    if len(cameras) != len(clicks):
+        raise PromptError(f"{len(clicks)} clicks need as many cameras, got {len(cameras)}")
+    all_ids = {int(k) for k in np.unique(np.asarray(labels, dtype=np.int64)) if k >= 0}
+    picks = [functools.partial(click_to_cluster, gaussians, deformation, camera, click, labels, **rule)
+             for camera, click in zip(cameras, clicks)]
+    return select_in_order(clicks, lambda i, exclude: picks[i](exclude=exclude), all_ids)
 
 
 @torch.no_grad()

@@ -196,8 +196,8 @@ def test_vote_among_the_allowed_classes():
     from trase_bench_grouping.method import vote
 
     window = _logits([3, 5, 2], [3, 5, 2], [5, 3, 2])
-    assert vote(window) == 3 and vote(window, exclude={3}) == 5 and vote(window, among=[2]) == 2
-    assert vote(None) == -1 and vote(window, among=[]) == -1
+    assert vote(window) == 3 and vote(window, exclude={3}) == 5 and vote(window, exclude=set(range(8)) - {2}) == 2
+    assert vote(None) == -1 and vote(window, exclude=set(range(8))) == -1
     assert vote(_logits([NO_TRACK, 4])) == -1 and vote(_logits([NO_TRACK, 4]), exclude={NO_TRACK}) == 4
 
 

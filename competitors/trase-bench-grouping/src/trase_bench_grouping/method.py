@@ -181,27 +181,18 @@ class GaussianGrouping(Method):
         return [vote(logits) for logits in self.click_logits(fitted, scene, prompts)]
 
     def click_selection(self, fitted: FittedModel, scene, prompts) -> tuple[list[int], list[int]]:
-        """(the classes selected, the class of each click): clicks in order, a positive click's
-        class (its window's vote among the classes no negative click ruled out) added, a negative
-        click's (its vote among the classes selected) removed and ruled out. Under
-        ``selection.click_votes`` "any", benchmark.methods.click_selection's rule instead."""
+        """(the classes selected, the class of each click): taken in order as TRASE takes its
+        clusters (trase.prompts.select_in_order), each click's window voting among the classes
+        allowed. Under ``selection.click_votes`` "any", each click votes among every class and
+        benchmark.methods.click_selection's rule combines them."""
+        from trase.prompts import select_in_order
+
         if fitted.config.selection.click_votes == "any":
             return combine_clicks(prompts.clicks, self.click_clusters(fitted, scene, prompts))
-        selected: list[int] = []
-        ruled_out: set[int] = set()
-        per_click = []
-        for click, logits in zip(prompts.clicks, self.click_logits(fitted, scene, prompts)):
-            if click.positive:
-                k = vote(logits, exclude=ruled_out)
-                if k >= 0 and k not in selected:
-                    selected.append(k)
-            else:
-                k = vote(logits, among=selected) if selected else -1
-                if k >= 0:
-                    ruled_out.add(k)
-                    selected.remove(k)
-            per_click.append(k)
-        return sorted(selected), per_click
+        windows = list(self.click_logits(fitted, scene, prompts))
+        n_classes = next((w.shape[1] for w in windows if w is not None), 0)
+        return select_in_order(list(prompts.clicks), lambda i, exclude: vote(windows[i], exclude),
+                               set(range(n_classes)))
 
     def selected_gaussians(self, fitted: FittedModel, classes: list[int], t: float) -> np.ndarray:
         """[N] bool: gaussians whose probability of a chosen class exceeds the threshold, then
@@ -294,18 +285,15 @@ def inside_hull(points: np.ndarray, chosen: np.ndarray, outlier_factor: float) -
     return np.all(points @ eq[:, :3].T + eq[:, 3] <= HULL_TOLERANCE * scale, axis=1)
 
 
-def vote(logits, exclude=(), among=None) -> int:
+def vote(logits, exclude=()) -> int:
     """The class most pixels of a click's window vote for (logits [K, C]; each pixel's argmax
-    among the allowed classes: not ``exclude``, only ``among`` where given); -1 for no window
-    or where the vote is NO_TRACK ("no track": nothing to select)."""
+    among the classes not in ``exclude``); -1 for no window, no class left, or a vote for
+    NO_TRACK ("no track": nothing to select)."""
     import torch
 
     if logits is None:
         return -1
     allowed = torch.ones(logits.shape[1], dtype=torch.bool)
-    if among is not None:
-        allowed[:] = False
-        allowed[[k for k in among if 0 <= k < logits.shape[1]]] = True
     allowed[[k for k in exclude if 0 <= k < logits.shape[1]]] = False
     if not bool(allowed.any()):
         return -1
