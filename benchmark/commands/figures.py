@@ -91,8 +91,8 @@ def figures(runs_dir, seeds, formats, geometries, collect_only, from_data, data_
 
 def write_page(path: Path, data: dict) -> None:
     """Rewrite the block ``path`` holds (benchmark.results.figures.page_markers) from ``data``."""
-    from benchmark.results.figures import page_markers, write_block
+    from benchmark.results.figures import page_markers, write_blocks
 
     markers, render = page_markers(path.read_text())
-    write_block(path, render(data), markers)
+    write_blocks(path, [(markers, render(data))])
     click.echo(f"wrote the figures block of {path}")

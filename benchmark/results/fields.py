@@ -74,9 +74,9 @@ def render_fields_block() -> str:
 
 def write_fields_page(page: Path) -> None:
     """Put the table between the page's FIELDS markers."""
-    from benchmark.results.figures import write_block
+    from benchmark.results.figures import write_blocks
 
-    write_block(Path(page), render_fields_block(), (FIELDS_BEGIN, FIELDS_END))
+    write_blocks(Path(page), [((FIELDS_BEGIN, FIELDS_END), render_fields_block())])
 
 
 if __name__ == "__main__":  # python -m benchmark.results.fields docs/reference/results-file.md

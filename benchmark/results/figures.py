@@ -203,11 +203,16 @@ def replace_block(text: str, block: str, where: str = PAGE, markers: tuple[str, 
     return f"{head}{begin}\n{block}{end}{tail}"
 
 
-def write_block(path: Path, block: str, markers: tuple[str, str] = (BEGIN, END)) -> None:
-    """Replace the block between ``markers`` in the page at ``path``, written atomically."""
+def write_blocks(path: Path, blocks: list[tuple[tuple[str, str], str]]) -> None:
+    """Replace each (markers, block)'s text between its markers in the page at ``path``: one
+    read, every block replaced in memory, one atomic write (a marker missing leaves the page as
+    it was)."""
     from benchmark.io import atomic_write_text
 
-    atomic_write_text(Path(path), replace_block(Path(path).read_text(), block, str(path), markers))
+    text = Path(path).read_text()
+    for markers, block in blocks:
+        text = replace_block(text, block, str(path), markers)
+    atomic_write_text(Path(path), text)
 
 
 def page_block(text: str, where: str = PAGE, markers: tuple[str, str] = (BEGIN, END)) -> str:

@@ -101,7 +101,7 @@ def write_perf_page(page: Path, data_path: Path, blocks: dict | None = None) -> 
     """Put the block rendered from the perf JSON ``data_path`` between the page's markers.
     ``blocks``: {(begin, end) markers: render(data) -> text}, those the page may hold (default:
     the performance page's PERF block; the perf command adds the skip page's)."""
-    from benchmark.results.figures import write_block
+    from benchmark.results.figures import write_blocks
 
     blocks = blocks or {(PERF_BEGIN, PERF_END): render_perf_block}
     text = Path(page).read_text()
@@ -113,9 +113,7 @@ def write_perf_page(page: Path, data_path: Path, blocks: dict | None = None) -> 
         data = json.loads(Path(data_path).read_text())
     except (OSError, ValueError) as exc:
         raise UserError(f"{data_path}: not a readable perf JSON file ({exc})") from None
-    rendered = [(markers, render(data)) for markers, render in found]  # all before any write
-    for markers, block in rendered:
-        write_block(Path(page), block, markers)
+    write_blocks(Path(page), [(markers, render(data)) for markers, render in found])
 
 
 __all__ = ["PERF_BEGIN", "PERF_END", "SUITES", "render_perf_block", "write_perf_page"]

@@ -252,3 +252,16 @@ def test_methods_block_gives_the_clicks_of_the_methods_measured_under_the_correc
     part = block.split("**Clicks, reconstructed geometry**")[1].split("**")[0]
     assert "| saga | 0.400 ± 0.100; 5.0 ± 1.0 / 7.0 ± 0.0 |" in part and "| trase |" not in part
     assert "0.766" in block and "°" in block.split("**Clicks")[0]  # the other cells: first clicks alone
+
+
+def test_blocks_are_written_together_or_not_at_all(tmp_path):
+    from benchmark.results.figures import write_blocks
+
+    page = tmp_path / "page.md"
+    page.write_text("a\n<!-- A:BEGIN -->\nold\n<!-- A:END -->\nb\n<!-- B:BEGIN -->\nold\n")  # B has no end
+    a, b = ("<!-- A:BEGIN -->", "<!-- A:END -->"), ("<!-- B:BEGIN -->", "<!-- B:END -->")
+    with pytest.raises(UserError, match="exactly one figures block"):
+        write_blocks(page, [(a, "new\n"), (b, "new\n")])
+    assert "old\n<!-- A:END -->" in page.read_text()  # the first block was not written alone
+    write_blocks(page, [(a, "new\n")])
+    assert page.read_text().startswith("a\n<!-- A:BEGIN -->\nnew\n<!-- A:END -->\nb\n")
