@@ -27,13 +27,19 @@ def _lca(a: int, b: int, parent_of: dict[int, int]) -> int:
     return b
 
 
+def _cluster_tree(condensed: np.ndarray) -> tuple[dict[int, int], dict[int, float]]:
+    """The condensed tree's clusters: (child -> parent, child -> lambda at its birth = 1 / distance)."""
+    tree = condensed[condensed["cluster_size"] > 1]
+    children = tree["child"].tolist()
+    return dict(zip(children, tree["parent"].tolist())), dict(zip(children, tree["value"].tolist()))
+
+
 def selected_nodes(condensed: np.ndarray, labels: np.ndarray) -> dict[int, int]:
     """label -> the condensed tree's node selected for it: the lowest common ancestor of the
     nodes its points fell out of (every point below a selected node carries its label)."""
     points = condensed[condensed["cluster_size"] == 1]
     fell_from = dict(zip(points["child"].tolist(), points["parent"].tolist()))
-    tree = condensed[condensed["cluster_size"] > 1]
-    parent_of = dict(zip(tree["child"].tolist(), tree["parent"].tolist()))
+    parent_of = _cluster_tree(condensed)[0]
     nodes: dict[int, int] = {}
     for p, label in enumerate(labels.tolist()):
         if label >= 0:
@@ -59,15 +65,13 @@ def epsilon_labels(single_linkage_tree, labels: np.ndarray, min_cluster_size: in
     """[S] labels of scikit-learn's HDBSCAN fitted at epsilon 0 (on ``single_linkage_tree``, its
     ``_single_linkage_tree_``) -> [S] labels after the epsilon merge, numbered as scikit-learn
     numbers them (by node id; -1 noise)."""
-    from sklearn.cluster._hdbscan._tree import _condense_tree, _do_labelling
-
     labels = np.asarray(labels)
     if epsilon <= 0 or labels.max(initial=-1) < 0:
         return labels
+    from sklearn.cluster._hdbscan._tree import _condense_tree, _do_labelling  # private: the merge only
+
     condensed = _condense_tree(single_linkage_tree, int(min_cluster_size))
-    tree = condensed[condensed["cluster_size"] > 1]
-    parent_of = dict(zip(tree["child"].tolist(), tree["parent"].tolist()))
-    birth = dict(zip(tree["child"].tolist(), tree["value"].tolist()))  # lambda = 1 / distance
+    parent_of, birth = _cluster_tree(condensed)
     root = int(condensed["parent"].min())
     children: dict[int, list[int]] = {}
     for child, parent in parent_of.items():

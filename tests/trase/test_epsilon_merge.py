@@ -57,13 +57,3 @@ def test_merges_as_scikit_learn_where_its_own_merge_runs(seed):
             assert np.array_equal(ours, theirs)
     assert merged  # the data has splits below the epsilons
 
-
-def test_a_merge_keeps_each_point_with_its_group():
-    rng = np.random.default_rng(0)
-    x = np.concatenate([g * 3 + 0.05 * rng.standard_normal(8) + 0.002 * rng.standard_normal((40, 8))
-                        for g in np.eye(8)[:4] for _ in range(3)])
-    hd, labels = _fit(x, 10)
-    merged = epsilon_labels(hd._single_linkage_tree_, labels, 10, 0.5)
-    truth = np.repeat(np.arange(4), 120)
-    assert len(set(labels.tolist())) == 12 and len(set(merged.tolist())) == 4
-    assert len(set(zip(merged.tolist(), truth.tolist()))) == 4
