@@ -61,6 +61,13 @@ def dataset(*keys: str) -> When:
     return When(f"dataset {'/'.join(keys)}", lambda c: c.dataset in keys)
 
 
+def images_below(pixels: int) -> When:
+    """The run's images hold fewer than ``pixels`` pixels each (W x H); false when the image
+    size is not known (a preset listed without a scene)."""
+    return When(f"images under {pixels:,} px", lambda c: c.image_size is not None
+                and int(c.image_size[0]) * int(c.image_size[1]) < pixels)
+
+
 @dataclasses.dataclass(frozen=True)
 class Derived:
     """A value computed from the context (a training scale from the image size, say)."""
@@ -248,4 +255,5 @@ def build(cls: type, data: dict) -> Any:
 
 
 __all__ = ["ALWAYS", "MONOCULAR", "MULTIVIEW", "OWN_CAPTURE", "Context", "Declaration", "Derived", "Preset",
-           "PresetError", "PresetTable", "Resolved", "When", "build", "dataset"]
+           "PresetError", "PresetTable", "Resolved", "When", "build", "dataset",
+           "images_below"]

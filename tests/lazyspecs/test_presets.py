@@ -5,7 +5,7 @@ import dataclasses
 
 import pytest
 
-from lazyspecs.presets import MONOCULAR, Context, Derived, PresetError, PresetTable, dataset
+from lazyspecs.presets import MONOCULAR, Context, Derived, PresetError, PresetTable, dataset, images_below
 
 
 @dataclasses.dataclass
@@ -42,6 +42,13 @@ def test_declarations_apply_in_order_where_their_condition_holds_over_the_base()
     assert multi == Outer(Inner(3, {"k": 1}), 0.1, 0)  # neither condition holds
     assert outer.resolve("cpu-old", Context()).config.lr == 0.2 and [p.name for p in outer.chain("cpu-old")] == [
         "paper", "cpu", "cpu-old"]
+
+
+def test_images_below_reads_the_image_area_and_is_false_without_a_size():
+    small = images_below(10_000)
+    assert small(Context(image_size=(64, 48))) and not small(Context(image_size=(160, 120)))
+    assert not small(Context(image_size=(100, 100))) and not small(Context())
+    assert small.label == "images under 10,000 px"
 
 
 def test_every_value_says_where_it_was_declared():

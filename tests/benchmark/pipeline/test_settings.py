@@ -73,7 +73,8 @@ def test_a_run_resolves_its_settings_once_per_sequence(monkeypatch, tmp_path):
     generate("hypernerf", tmp_path / "hypernerf" / "synthetic", seed=0, size="tiny")
     p = runner.prepare_sequence(opts, "synthetic")
     assert calls == [1]
-    assert p.name == f"c{p.settings.group_hash[:8]}-s2" and p.group == _settings().group_hash
+    assert p.name == f"c{p.settings.group_hash[:8]}-s2" and p.group == _settings(size=(64, 48)).group_hash
+    assert p.settings.method.unseen_min_weight == 0.5  # the tiny scene's images: the cpu preset's rule
 
 
 def test_stopping_settings_are_recorded_and_keyed_only_where_stopping_is_on():
