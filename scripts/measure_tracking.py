@@ -45,7 +45,7 @@ def measure(dataset: str, seed: int, size: str, root: Path, sweep: tuple = (), g
     from benchmark.pipeline.context import load_geometry
     from benchmark.pipeline.masks import make_mask_generator
     from benchmark.pipeline.settings import MaskSettings
-    from benchmark.pipeline.tracks import track_classical
+    from benchmark.pipeline.classical_tracker import track_classical
     from masks.track_merging import TrackVotes
 
     scene_dir = root / f"{dataset}-s{seed}-{size}"
