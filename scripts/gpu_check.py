@@ -164,6 +164,7 @@ def diagnose(seconds: float, variant: str, every: int = 100, until: int = 0,
     from benchmark.methods import get_method
     from benchmark.pipeline.settings import run_settings
     from trase.losses import psnr_of_mse
+    from trase.render_views import evaluate_psnr, render_view
 
     scene_dir = ensure_synthetic("hypernerf")
     scene = load_scene("hypernerf", scene_dir, gt_dir=scene_dir / "gt_masks")
@@ -261,7 +262,7 @@ def diagnose(seconds: float, variant: str, every: int = 100, until: int = 0,
                 "means_grad_max": None if g.means.grad is None else float(g.means.grad.abs().max()),
                 "deform_lr": tr.opt_d.param_groups[0]["lr"],
                 "time": round(float(step.camera.time), 4),
-                "psnr_canonical": round(psnr_of_mse(float(((rec.render_view(
+                "psnr_canonical": round(psnr_of_mse(float(((render_view(
                     g, None, step.camera, step.out.color.new_zeros(3), "auto", with_deform=False)[0].color.clamp(0, 1)
                     - step.gt) ** 2).mean())), 2),
                 "screen_grad_max": None if step.out.means2d.grad is None else float(
@@ -275,7 +276,7 @@ def diagnose(seconds: float, variant: str, every: int = 100, until: int = 0,
         gaussians, deform = rec.reconstruct(scene.train, scene.points, scene.point_colors, cfg, Path(tmp) / "model",
                                             resume=False, progress=False, max_seconds=seconds)
         trained = round(time.perf_counter() - t0, 1)
-        test_psnr = rec.evaluate_psnr(gaussians, deform, scene.test, near=cfg.near_plane) if scene.test else None
+        test_psnr = evaluate_psnr(gaussians, deform, scene.test, near=cfg.near_plane) if scene.test else None
         ceiling = None
         if scene.truth is not None:
             from benchmark.pipeline.context import load_geometry

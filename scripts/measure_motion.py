@@ -80,7 +80,7 @@ def view_psnrs(gaussians, deformation, views) -> tuple[np.ndarray, np.ndarray]:
     """Each training view's PSNR (dB) at its time (black background), and the times -> ([V], [V])."""
     import torch
 
-    from trase.reconstruct import evaluate_images
+    from trase.render_views import evaluate_images
 
     with torch.no_grad():
         ps = evaluate_images(gaussians, deformation, views, ssim_too=False)["per_view_psnr"]

@@ -108,7 +108,8 @@ def _run_stages(root: Path) -> None:
 
     from trase.features import FeatureConfig, train_features
     from trase.reconstruction_presets import reconstruction_preset
-    from trase.reconstruct import evaluate_psnr, reconstruct
+    from trase.reconstruct import reconstruct
+    from trase.render_views import evaluate_psnr
     from trase.segment import render_alpha, render_visible
 
     views, points, colors = _tiny_scene(root)

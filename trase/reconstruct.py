@@ -18,13 +18,13 @@ Deviations from the public trainer (documented because they change numbers sligh
 
 Beside it: the settings and schedules (``trase.reconstruction_config``), the training images
 (``trase.training_images``), densification (``trase.densify``: ``DensifyStrategy``), the
-log and progress bar (``trase.training_log``).
+log and progress bar (``trase.training_log``), the renders and their image measures
+(``trase.render_views``), the static gaussians' checks (``trase.static_checks``).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import functools
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -48,84 +48,21 @@ from trase.convergence import (
     view_name,
     write_summary,
 )
-from trase.deformation import DeformMLP, deformed, deformed_visible
-from trase.densify import DensifyStrategy, in_view, scene_extent
+from trase.deformation import DeformMLP
+from trase.densify import DensifyStrategy, scene_extent
 from trase.devices import resolve_device
 from trase.gaussians import GaussianModel
 from trase.io import atomic_torch_save, read_torch
 from trase.losses import l1_loss, mean_squared_error, opacity_entropy, psnr, psnr_of_mse, ssim
 from trase.reconstruction_config import ReconstructionConfig, expon_lr, time_noise_scale
+from trase.render_views import render_view
 from trase.resolution_schedule import ScaledViews, scaled_views
-from trase.training_images import ImageCache, load_image
+from trase.static_checks import check_static, restart_static_checks
+from trase.training_images import ImageCache
 from trase.training_log import ProgressBar, TrainLog
 
 if TYPE_CHECKING:
     from trase.render.types import RenderOutput
-
-
-# -- rendering ------------------------------------------------------------------------------
-def render_view(gaussians: GaussianModel, deformation, camera: Camera, background=None,
-                backend: str = "auto", time_offset: float = 0.0, with_deform: bool = True,
-                visible_only: bool = False, near: float | None = None):
-    """Render gaussians deformed to camera.time. Returns (RenderOutput, deformed means [N,3]).
-    ``near``: the rasterizer's near plane (``ReconstructionConfig.near_plane`` while training;
-    None: the camera's).
-
-    ``visible_only``: the deformation's gradients are computed for the gaussians the camera
-    can see only (``deformation.deformed_visible``; same image and gradients up to rounding).
-    """
-    from trase.render import rasterize
-
-    t = float(camera.time) + time_offset
-    deform = deformation if with_deform else None
-    if visible_only and deform is not None and gaussians.means.device.type == "cpu":
-        means, quats, scales = deformed_visible(gaussians, deform, t, functools.partial(in_view, camera=camera))
-    else:
-        means, quats, scales = deformed(gaussians, deform, t)
-    out = rasterize(
-        means, quats, scales, gaussians.opacities, camera,
-        colors=gaussians.sh_for_render(), sh_degree=gaussians.active_sh_degree,
-        background=background, backend=backend, near=near,
-    )
-    return out, means
-
-
-@torch.no_grad()
-def evaluate_psnr(gaussians: GaussianModel, deformation, views: Sequence, background=None,
-                  backend: str = "auto", downscale: float = 1.0, near: float | None = None) -> float:
-    """Mean over views of the PSNR (dB) of the clamped render against the view's image."""
-    if not views:
-        raise ValueError("evaluate_psnr: no views")
-    return evaluate_images(gaussians, deformation, views, background, backend, downscale, ssim_too=False,
-                           near=near)["psnr"]
-
-
-@torch.no_grad()
-def evaluate_images(gaussians: GaussianModel, deformation, views: Sequence, background=None,
-                    backend: str = "auto", downscale: float = 1.0, ssim_too: bool = True, lpips=None,
-                    near: float | None = None) -> dict:
-    """The field's image measures of the clamped renders against the views' images (alpha
-    composited over ``background``, black by default, as in training): mean PSNR (dB) and mean
-    SSIM (3DGS's 11x11 gaussian window, ``losses.ssim``) over the views, the views' PSNRs, and
-    with ``lpips`` (a ``trase.lpips.LPIPS``) the mean LPIPS. ``near``: the near plane the
-    geometry was trained with (``ReconstructionConfig.near_plane``; None: each view camera's)."""
-    if not views:
-        raise ValueError("evaluate_images: no views")
-    bg = torch.zeros(3) if background is None else torch.as_tensor(background, dtype=torch.float32).cpu()
-    dev = gaussians.means.device
-    psnrs, ssims, lps = [], [], []
-    for v in views:
-        cam = v.camera if downscale == 1 else v.camera.scaled(downscale)
-        gt = torch.from_numpy(load_image(Path(v.image_path), cam, bg.numpy())).to(dev)
-        out, _ = render_view(gaussians, deformation, cam, bg.to(dev), backend, near=near)
-        img = out.color.clamp(0, 1)
-        psnrs.append(psnr(img, gt))
-        if ssim_too:
-            ssims.append(float(ssim(img, gt)))
-        if lpips is not None:
-            lps.append(lpips(img, gt))
-    return {"psnr": float(np.mean(psnrs)), "ssim": float(np.mean(ssims)) if ssims else None,
-            "lpips": float(np.mean(lps)) if lps else None, "per_view_psnr": [float(x) for x in psnrs]}
 
 
 # -- training --------------------------------------------------------------------------------
@@ -382,7 +319,7 @@ def _train(tr: _Trainer, data: ImageCache, bg: torch.Tensor, cfg: Reconstruction
     early (after a checkpoint) once ``max_seconds`` have passed, or once the PSNR of the
     ``held`` views (their images, loaded once) has stopped rising (``tr.plateau``)."""
     log = TrainLog(out_dir / "train_log.csv", start)
-    _restart_static_checks(out_dir, start)
+    restart_static_checks(out_dir, start)
     bar = ProgressBar(progress, cfg.iterations, start)
     t0, c0 = time.perf_counter(), time.process_time()
     try:
@@ -403,7 +340,7 @@ def _train(tr: _Trainer, data: ImageCache, bg: torch.Tensor, cfg: Reconstruction
                 if carry is not None:
                     tr.static, tr.frozen = carry["static"], carry["frozen"]
                 _optimizer_step(tr, step.use_deform)
-                _check_static(tr, it, cfg, data, bg, backend, out_dir)
+                check_static(tr, it, cfg, data, bg, backend, out_dir)
                 converged = _converged(tr, it, cfg, held, bg, backend)
             if _checkpoint(tr, out_dir, it, cfg, t0, max_seconds, converged):
                 break
@@ -433,114 +370,6 @@ def _converged(tr: _Trainer, it: int, cfg: ReconstructionConfig, held: ImageCach
                                 .color.clamp(0, 1), gt)
                            for cam, gt in zip(held.cameras, held.images)]))
     return tr.plateau.observe(it, value, cap=cfg.iterations)
-
-
-STATIC_CHECKS_FILE = "static_checks.csv"  # a row per check: see STATIC_CHECKS_HEADER
-# freeze: 1 where any gaussian may freeze at the check; static: the static count after it; held:
-# the moving gaussians held back from freezing (all of them above the gap without a hold region)
-STATIC_CHECKS_HEADER = "iteration,time_gap_db,freeze,static,held\n"
-
-
-def _restart_static_checks(out_dir: Path, start: int) -> None:
-    """static_checks.csv as of iteration ``start``: a fresh run's is removed, a resumed run's
-    keeps the rows up to ``start`` (a file of another header is started over)."""
-    path = out_dir / STATIC_CHECKS_FILE
-    if not path.is_file():
-        return
-    lines = path.read_text().splitlines(keepends=True)
-    if start <= 0 or not lines or lines[0] != STATIC_CHECKS_HEADER:
-        path.unlink()
-        return
-    keep = [ln for ln in lines[1:] if ln.split(",", 1)[0].isdigit() and int(ln.split(",", 1)[0]) <= start]
-    path.write_text(STATIC_CHECKS_HEADER + "".join(keep))
-
-
-def _check_static(tr: _Trainer, it: int, cfg: ReconstructionConfig, data: ImageCache, bg: torch.Tensor,
-                  backend: str, out_dir: Path) -> None:
-    """On the schedule (``static_*`` settings), re-measure which gaussians move: the still ones
-    skip the network from the next step, the ones that move again are woken up. Above the time
-    gap nothing new freezes, or with ``static_hold_error`` nothing among the gaussians that draw
-    the lagging times' badly rendered pixels (``_hold_region``); each check is logged."""
-    if cfg.static_threshold <= 0 or tr.deform is None:
-        return
-    first = cfg.warm_up + cfg.static_from
-    if it < first or (it - first) % cfg.static_interval != 0:
-        return
-    from trase.static_gaussians import FROZEN_WIDTH, check_times, lagging_times, time_gap, update_static
-
-    g = tr.gaussians
-    if tr.static is None:
-        tr.static = torch.zeros(g.num_gaussians, dtype=torch.bool, device=g.means.device)
-        tr.frozen = torch.zeros(g.num_gaussians, FROZEN_WIDTH, device=g.means.device)
-    times = check_times([c.time for c in data.cameras])
-    gap, held = None, 0
-    freeze: bool | torch.Tensor = True
-    if cfg.static_time_gap > 0:
-        ps, ts = _views_psnr(tr, data, times, bg, backend, cfg.near_plane)
-        gap = time_gap(ps, ts)
-        lagging = lagging_times(ps, ts, cfg.static_time_gap)  # not empty exactly when gap > static_time_gap
-        if lagging:
-            # held back: the moving rows that would otherwise be free to freeze
-            hold = (_hold_region(tr, data, lagging, bg, backend, cfg.static_hold_error, cfg.near_plane)
-                    if cfg.static_hold_error > 0 else torch.ones_like(tr.static))
-            freeze, held = ~hold, int((hold & ~tr.static).sum())
-    tr.static, tr.frozen, _ = update_static(tr.deform, g.means.detach(), g.scales.detach(), times,
-                                            tr.strategy.extent, cfg.static_threshold, tr.static, tr.frozen, freeze)
-    if gap is not None:  # what held the freezing back, check by check
-        path = out_dir / STATIC_CHECKS_FILE
-        new = not path.exists()
-        with path.open("a") as f:
-            if new:
-                f.write(STATIC_CHECKS_HEADER)
-            may_freeze = bool(torch.as_tensor(freeze).any())  # a bool, or the rows free to freeze
-            f.write(f"{it},{gap:.3f},{int(may_freeze)},{tr.n_static},{held}\n")
-
-
-@torch.no_grad()
-def _views_psnr(tr: _Trainer, data: ImageCache, times: list[float], bg: torch.Tensor, backend: str,
-                near: float) -> tuple[list[float], list[float]]:
-    """PSNR (dB) and time of each training view at ``times`` (a static check's)."""
-    keep = {round(float(t), 9) for t in times}
-    deformation = tr.deformation()
-    ps, ts = [], []
-    for cam, gt in zip(data.cameras, data.images):
-        if round(float(cam.time), 9) in keep:
-            ps.append(psnr(render_view(tr.gaussians, deformation, cam, bg, backend, near=near)[0].color.clamp(0, 1), gt))
-            ts.append(cam.time)
-    return ps, ts
-
-
-def _hold_region(tr: _Trainer, data: ImageCache, lagging: set[float], bg: torch.Tensor, backend: str,
-                 error: float, near: float) -> torch.Tensor:
-    """[N] bool: the gaussians that draw a pixel of a lagging time's training view whose colour
-    is off by more than ``error`` (mean absolute error over the channels): the gradient of that
-    region's error reaches their opacity or their colour (the colour's as well, since the
-    rasterizer caps a pixel's alpha and an opaque gaussian's opacity gets no gradient where it
-    is capped). Where a motion is not learned, these are typically the mover where it is drawn
-    and what is drawn where it should be."""
-    from trase.deformation import deformed
-    from trase.render import rasterize
-
-    g = tr.gaussians
-    deformation = tr.deformation()
-    hold = torch.zeros(g.num_gaussians, dtype=torch.bool, device=g.means.device)
-    for cam, gt in zip(data.cameras, data.images):
-        if round(float(cam.time), 9) not in lagging:
-            continue
-        with torch.no_grad():
-            means, quats, scales = deformed(g, deformation, float(cam.time))
-        colors = g.sh_for_render().detach().clone().requires_grad_(True)  # [N, K, 3]
-        opacity = g.opacities.detach().clone().requires_grad_(True)  # [N]
-        with torch.enable_grad():
-            out = rasterize(means, quats, scales, opacity, cam, colors=colors, sh_degree=g.active_sh_degree,
-                            background=bg, backend=backend, near=near)
-            err = (out.color - gt).abs().mean(dim=-1)  # [H, W]
-            region = (out.color.detach().clamp(0, 1) - gt).abs().mean(dim=-1) > error
-            if not bool(region.any()):
-                continue
-            (err * region).sum().backward()
-        hold |= (opacity.grad != 0) | (colors.grad != 0).flatten(1).any(dim=1)
-    return hold
 
 
 def _checkpoint(tr: _Trainer, out_dir: Path, it: int, cfg: ReconstructionConfig, t0: float,

@@ -51,7 +51,8 @@ def child(out: str, size: str, iterations: int, feature_steps: int) -> None:
     from benchmark.perf.reconstruct import runner_train_config
     from trase.checkpoint import load_tabulated_geometry
     from trase.features import FeatureConfig, train_features
-    from trase.reconstruct import ReconstructionConfig, evaluate_psnr, reconstruct
+    from trase.reconstruct import ReconstructionConfig, reconstruct
+    from trase.render_views import evaluate_psnr
 
     spec = get_dataset("hypernerf")
     scene_dir = ensure_synthetic("hypernerf", size=size)

@@ -110,7 +110,7 @@ def test_lpips(fit_dir: Path, scene_dir: Path, sets: list[str], lpips) -> float:
     from benchmark.config import merge, parse_overrides, typed
     from benchmark.pipeline.context import recorded_render_near
     from trase.checkpoint import load_model
-    from trase.reconstruct import evaluate_images
+    from trase.render_views import evaluate_images
 
     rec = json.loads((fit_dir / "fit.json").read_text())
     capture = merge(CaptureOptions(holdout="layout").to_dict(), parse_overrides(sets).get("capture", {}), "capture.")

@@ -63,7 +63,8 @@ def _train_and_score(scene, preset: str, train: dict, budget_s: float, iteration
     import numba
 
     from trase.checkpoint import available_iterations, load_model
-    from trase.reconstruct import ReconstructionConfig, evaluate_psnr, reconstruct
+    from trase.reconstruct import ReconstructionConfig, reconstruct
+    from trase.render_views import evaluate_psnr
 
     train = {**train, "checkpoint_interval": interval}
     if iterations is not None:  # the quick smoke run: a few steps of the same schedule

@@ -21,7 +21,8 @@ def run(ctx: SequenceRun) -> list[StageRecord]:
 
     def work(d: Path) -> dict:
         from trase.devices import peak_memory_mib, reset_peak_memory, resolve_device
-        from trase.reconstruct import evaluate_images, reconstruct
+        from trase.reconstruct import reconstruct
+        from trase.render_views import evaluate_images
 
         src = geometry.source
         device = resolve_device(geometry.train.device) if src == "reconstruct" else "cpu"

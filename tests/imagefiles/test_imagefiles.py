@@ -69,7 +69,7 @@ def test_a_mask_is_the_alpha_of_a_cut_out_else_its_non_zero_pixels(tmp_path):
 def test_mask_generation_and_reconstruction_see_the_same_picture(tmp_path):
     """An RGBA training image: the picture masks are cut from is the reconstruction's, rounded."""
     from trase.camera import Camera, intrinsics
-    from trase.reconstruct import load_image
+    from trase.training_images import load_image
 
     rng = np.random.default_rng(1)
     bgra = rng.integers(0, 256, (6, 8, 4), dtype=np.uint8)

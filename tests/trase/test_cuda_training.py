@@ -15,7 +15,8 @@ from trase.reconstruction_presets import reconstruction_preset
 from trase.checkpoint import load_model
 from trase.features import FeatureConfig, train_features
 from trase.gaussians import GaussianModel
-from trase.reconstruct import evaluate_psnr, reconstruct
+from trase.reconstruct import reconstruct
+from trase.render_views import evaluate_psnr
 
 pytestmark = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
 

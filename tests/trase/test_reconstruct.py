@@ -14,10 +14,8 @@ from trase.reconstruction_presets import reconstruction_preset
 from trase.checkpoint import CheckpointError, available_iterations, load_model
 from trase.deformation import DeformMLP
 from trase.gaussians import GaussianModel
-from trase.reconstruct import (
-    evaluate_psnr,
-    reconstruct,
-)
+from trase.reconstruct import reconstruct
+from trase.render_views import evaluate_psnr
 
 CFG = reconstruction_preset(
     "cpu", iterations=40, warm_up=15, densify_from=10, densify_until=35, densify_interval=10,
@@ -103,7 +101,7 @@ def test_bad_image_is_a_one_line_error(scene, tmp_path):
 
 def _grads(g, deform, cam, visible_only):
     from trase.losses import l1_loss
-    from trase.reconstruct import render_view
+    from trase.render_views import render_view
 
     for p in [g.means, *deform.parameters()]:
         p.grad = None
@@ -117,7 +115,7 @@ def test_visible_only_deformation_gives_the_same_image_and_gradients():
     from recon_scene import make_cameras, make_gt
 
     from trase.camera import Camera
-    from trase.reconstruct import in_view
+    from trase.densify import in_view
 
     g, _ = make_gt(n=300)
     g.means.requires_grad_(True)
@@ -150,7 +148,7 @@ def test_visible_only_deformation_gives_the_same_image_and_gradients():
 
 def test_the_near_plane_leaves_gaussians_nearer_than_it_undrawn_and_without_gradient():
     from trase.camera import Camera
-    from trase.reconstruct import render_view
+    from trase.render_views import render_view
 
     # two gaussians on the optical axis: one 0.1 in front of the camera, one 2 units away
     g = GaussianModel.from_points(np.array([[0.0, 0.0, 0.1], [0.3, 0.0, 2.0]]), None, sh_degree=0)

@@ -17,7 +17,8 @@ from recon_scene import write_scene
 from trase.reconstruction_presets import reconstruction_preset
 from trase.checkpoint import load_model
 from trase.deformation import DeformMLP, deformed, deformed_visible
-from trase.reconstruct import ReconstructionConfig, evaluate_psnr, reconstruct
+from trase.reconstruct import ReconstructionConfig, reconstruct
+from trase.render_views import evaluate_psnr
 from trase.static_gaussians import (
     PartlyStaticDeformation,
     check_times,
@@ -202,12 +203,12 @@ def test_training_with_static_gaussians_saves_reloads_and_resumes(tmp_path):
 
 
 def test_a_hold_region_keeps_exactly_the_gaussians_drawing_bad_pixels_from_freezing(tmp_path, monkeypatch):
-    import trase.reconstruct as rec
+    import trase.static_checks as checks
     import trase.static_gaussians as sg
 
     views, pts, _, _ = write_scene(tmp_path / "images", num=6, size=24)
     seen = []  # per check: (hold [N], static before, static after)
-    real_hold, real_update = rec._hold_region, sg.update_static
+    real_hold, real_update = checks.hold_region, sg.update_static
 
     def hold_region(*a, **k):
         h = real_hold(*a, **k)
@@ -221,7 +222,7 @@ def test_a_hold_region_keeps_exactly_the_gaussians_drawing_bad_pixels_from_freez
             seen[-1] += [static.clone(), out[0].clone()]
         return out
 
-    monkeypatch.setattr(rec, "_hold_region", hold_region)
+    monkeypatch.setattr(checks, "hold_region", hold_region)
     monkeypatch.setattr(sg, "update_static", update_static)
     out = tmp_path / "region"
     out.mkdir()
@@ -276,7 +277,7 @@ def test_the_hold_region_is_the_gaussians_that_draw_the_bad_pixels(backend):
 
     from trase.camera import Camera, intrinsics, look_at
     from trase.gaussians import GaussianModel
-    from trase.reconstruct import _hold_region
+    from trase.static_checks import hold_region
     from trase.render import rasterize
 
     cam = Camera(K=intrinsics(30, 30, 16, 12), w2c=look_at(np.array([0, -3.0, 0.0]), np.zeros(3)),
@@ -294,6 +295,6 @@ def test_the_hold_region_is_the_gaussians_that_draw_the_bad_pixels(backend):
                        backend=backend).color
     tr = SimpleNamespace(gaussians=g, deformation=lambda: None)
     data = SimpleNamespace(cameras=[cam], images=[gt])
-    hold = _hold_region(tr, data, {0.5}, bg, backend, error=0.2, near=0.01)
+    hold = hold_region(tr, data, {0.5}, bg, backend, error=0.2, near=0.01)
     assert hold.tolist() == [False, True, False]
-    assert not _hold_region(tr, data, {0.25}, bg, backend, error=0.2, near=0.01).any()  # no view at a lagging time
+    assert not hold_region(tr, data, {0.25}, bg, backend, error=0.2, near=0.01).any()  # no view at a lagging time

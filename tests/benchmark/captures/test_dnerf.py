@@ -54,7 +54,7 @@ def test_fit_measures_the_held_out_and_validation_views_on_the_runs_background(h
 
     from benchmark.captures.fit import FitOptions, fit_capture, next_steps
     from trase.checkpoint import load_model
-    from trase.reconstruct import evaluate_images
+    from trase.render_views import evaluate_images
 
     fast = ["geometry.train.iterations=60", "method.features.iterations=30", "geometry.train.white_background=true"]
     fit_json = fit_capture(FitOptions(hook, tmp_path / "fit", holdout="layout", overrides=fast,

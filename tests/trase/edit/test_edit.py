@@ -29,7 +29,7 @@ from trase.edit import (
 )
 from trase.edit.rigid import quat_mul, transform_gaussians
 from trase.gaussians import GaussianModel
-from trase.reconstruct import render_view
+from trase.render_views import render_view
 
 
 def rgb(model: EditableModel, cam: Camera) -> np.ndarray:
