@@ -200,7 +200,7 @@ def run(ctx: SequenceRun) -> list[StageRecord]:
                         {"fit": fit_rec.key, "prompts": prompts_rec.key, "gt": ctx.gt_key})
 
     def work(d: Path) -> dict:
-        from trase.deformation import memoised
+        from trase.memoised_deformation import memoised
 
         gaussians, deformation = ctx.geometry
         # every test view is rendered many times over (click sets, oracle, pictures): offsets once per time

@@ -88,7 +88,7 @@ def label_ceiling(gaussians, deformation, scene, gts: Sequence[np.ndarray], rule
                   threshold: float = 0.5):
     """-> (ScoreResult "v1" of the truth-labelled gaussians on the test views, info dict)."""
     from benchmark.scoring import score_masks
-    from trase.deformation import memoised
+    from trase.memoised_deformation import memoised
     from trase.segment import RULES, render_alpha, render_visible
 
     ids, paths, n_ids = synthetic_truth(scene)
