@@ -44,3 +44,13 @@ def peak_memory_mib(device: torch.device | str) -> float | None:
     if torch.device(device).type != "cuda":
         return None
     return round(torch.cuda.max_memory_allocated(device) / 2**20, 1)
+
+
+def geometry_on(gaussians, deformation, dev: torch.device):
+    """The frozen geometry on ``dev``: the caller's own objects when already there, else copies
+    (the caller's stay where they are)."""
+    if gaussians.means.device == dev:
+        return gaussians, deformation
+    import copy
+
+    return gaussians.copy().to(dev), (None if deformation is None else copy.deepcopy(deformation).to(dev))

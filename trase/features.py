@@ -24,9 +24,10 @@ import torch
 
 from masks.sampling import sample_masks, sample_pixels
 from trase.camera import Camera
-from trase.devices import resolve_device
+from trase.devices import geometry_on, resolve_device
 from trase.fastpath import RasterizerPath, ViewWeights
 from trase.feature_config import FeatureConfig  # re-exported: the config of train_features
+from trase.feature_run_state import FeatureCheckpoint, FeatureProgress
 from trase.gaussians import rgb_to_sh_dc
 from trase.objectives import PixelSample, get_objective
 from trase.smoothing import NORM_EPS, knn_indices, smooth_features
@@ -154,7 +155,7 @@ def train_features(
     (a killed or requeued job resumes inside the stage); removed when training ends."""
     from trase.threads import torch_threads
 
-    ckpt = None if checkpoint is None else _Checkpoint(Path(checkpoint), checkpoint_every_s)
+    ckpt = None if checkpoint is None else FeatureCheckpoint(Path(checkpoint), checkpoint_every_s)
     with torch_threads(config.torch_threads):
         return _train(gaussians, deformation, views, load_masks, config, cache_dir, progress, log_every, ckpt)
 
@@ -163,7 +164,7 @@ def _train(gaussians, deformation, views, load_masks, config, cache_dir, progres
     n = gaussians.num_gaussians
     _check_config(config)
     dev = resolve_device(config.device)
-    gaussians, deformation = _on_device(gaussians, deformation, dev)
+    gaussians, deformation = geometry_on(gaussians, deformation, dev)
     rng = np.random.default_rng(config.seed)
     gen = torch.Generator().manual_seed(config.seed)  # CPU draws, moved: alike on every device
     feats = torch.nn.Parameter(init_features(n, config.dim, gen).to(dev))  # [N, D]
@@ -339,51 +340,8 @@ class _Criterion:
         return self.plateau.due(done) and self.plateau.observe(done, self.value(feats), cap=self.step.config.iterations)
 
 
-class _Checkpoint:
-    """The feature loop's state in one file: features, Adam's moments, the next step, both
-    random streams, the history and the training seconds so far. Saved atomically every
-    ``every_s`` seconds; a file for other features (count or width) is not resumed from."""
-
-    def __init__(self, path: Path, every_s: float) -> None:
-        self.path, self.every_s = path, float(every_s)
-        self.last = time.perf_counter()
-
-    def load(self, feats: torch.nn.Parameter, opt, step: _FeatureStep,
-             criterion: _Criterion | None = None) -> tuple[int, list[dict], float]:
-        """Restore into ``feats``/``opt``/``step``'s generators (and the criterion's checks) ->
-        (next step, history, seconds)."""
-        if not self.path.is_file():
-            return 0, [], 0.0
-        state = torch.load(self.path, map_location="cpu", weights_only=False)
-        if tuple(state["features"].shape) != tuple(feats.shape):
-            return 0, [], 0.0
-        with torch.no_grad():
-            feats.copy_(state["features"].to(feats.device))
-        opt.load_state_dict(state["optimizer"])
-        step.rng.bit_generator.state = state["rng"]
-        step.gen.set_state(state["gen"])
-        if criterion is not None:
-            criterion.plateau.restore(state.get("plateau"))
-        return int(state["step"]), list(state["history"]), float(state["seconds"])
-
-    def maybe_save(self, feats, opt, step: _FeatureStep, next_step: int, history: list[dict], seconds: float,
-                   criterion: _Criterion | None = None) -> None:
-        if time.perf_counter() - self.last < self.every_s:
-            return
-        from trase.io import atomic_torch_save
-
-        atomic_torch_save({"features": feats.detach().cpu(), "optimizer": opt.state_dict(), "step": next_step,
-                           "rng": step.rng.bit_generator.state, "gen": step.gen.get_state(),
-                           "history": history, "seconds": seconds,
-                           **({"plateau": criterion.plateau.state()} if criterion is not None else {})}, self.path)
-        self.last = time.perf_counter()
-
-    def remove(self) -> None:
-        self.path.unlink(missing_ok=True)
-
-
 def _optimise(feats: torch.nn.Parameter, step: _FeatureStep, views: Sequence, progress: bool,
-              log_every: int, ckpt: _Checkpoint | None = None,
+              log_every: int, ckpt: FeatureCheckpoint | None = None,
               criterion: _Criterion | None = None) -> tuple[list[dict], float, int, int]:
     """``config.iterations`` Adam steps on features [N, D] in place, fewer where ``criterion``
     says the loss has converged -> (history every ``log_every`` steps and the last, seconds of
@@ -392,7 +350,7 @@ def _optimise(feats: torch.nn.Parameter, step: _FeatureStep, views: Sequence, pr
     opt = torch.optim.Adam([feats], lr=config.lr, eps=config.eps)
     start, history, before = ckpt.load(feats, opt, step, criterion) if ckpt is not None else (0, [], 0.0)
     done = start
-    bar = _progress(progress, config.iterations)
+    bar = FeatureProgress(progress, config.iterations)
     if bar is not None and start:
         bar.p.update(bar.task, completed=start)
     t1 = time.perf_counter()
@@ -431,36 +389,3 @@ def _result(feats: torch.Tensor, knn: torch.Tensor, history: list[dict], timings
     with torch.no_grad():
         saved = smooth_features(feats.detach(), knn, None).cpu()
     return TrainResult(saved, feats.detach().cpu().clone(), history, timings, path.stats(), stopping)
-
-
-def _on_device(gaussians, deformation, dev: torch.device):
-    """The frozen geometry on ``dev``: the caller's own objects when already there, else copies
-    (the caller's stay where they are)."""
-    if gaussians.means.device == dev:
-        return gaussians, deformation
-    import copy
-
-    return gaussians.copy().to(dev), (None if deformation is None else copy.deepcopy(deformation).to(dev))
-
-
-class _progress:
-    """A rich progress bar (or nothing when disabled)."""
-
-    def __new__(cls, enabled: bool, total: int):
-        if not enabled:
-            return None
-        return super().__new__(cls)
-
-    def __init__(self, enabled: bool, total: int) -> None:
-        from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
-
-        self.p = Progress(TextColumn("features"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
-                          TextColumn("loss {task.fields[loss]:.4f}"), TimeRemainingColumn(), transient=True)
-        self.task = self.p.add_task("features", total=total, loss=0.0)
-        self.p.start()
-
-    def advance(self, loss: float) -> None:
-        self.p.update(self.task, advance=1, loss=loss)
-
-    def close(self) -> None:
-        self.p.stop()
