@@ -65,8 +65,9 @@ def profile(sizes: list[tuple[int, int, int]], device: str, repeats: int, tf32: 
     from trase.deformation import DeformMLP, deformed
     from trase.gaussians import GaussianModel
     from trase.losses import l1_loss, ssim
-    from trase.reconstruct import ReconstructionConfig, _make_optimizers
+    from trase.reconstruct import ReconstructionConfig
     from trase.render import rasterize
+    from trase.trainer import make_optimizers
 
     cuda = device == "cuda"
     sync = torch.cuda.synchronize if cuda else (lambda: None)
@@ -78,7 +79,7 @@ def profile(sizes: list[tuple[int, int, int]], device: str, repeats: int, tf32: 
         # zero heads: offsets as small as a trained network's (the random initialisation's
         # ~0.1-0.5 scene units make every gaussian cover hundreds of tiles, and the steps change them)
         deform = DeformMLP.preset("paper").zero_heads().to(device)
-        opt_g, opt_d = _make_optimizers(g, deform, ReconstructionConfig.paper())
+        opt_g, opt_d = make_optimizers(g, deform, ReconstructionConfig.paper())
         gt = torch.rand(h, w, 3, device=device)
         bg = torch.zeros(3, device=device)
         backend = "auto" if cuda else "torch"

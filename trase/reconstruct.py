@@ -19,7 +19,8 @@ Deviations from the public trainer (documented because they change numbers sligh
 Beside it: the settings and schedules (``trase.reconstruction_config``), the training images
 (``trase.training_images``), densification (``trase.densify``: ``DensifyStrategy``), the
 log and progress bar (``trase.training_log``), the renders and their image measures
-(``trase.render_views``), the static gaussians' checks (``trase.static_checks``).
+(``trase.render_views``), the static gaussians' checks (``trase.static_checks``), the
+trainer's state and its file beside each checkpoint (``trase.trainer``).
 """
 
 from __future__ import annotations
@@ -34,15 +35,9 @@ import numpy as np
 import torch
 
 from trase.camera import Camera
-from trase.checkpoint import (
-    CheckpointError,
-    available_iterations,
-    load_model,
-    save_model,
-)
+from trase.checkpoint import available_iterations
 from trase.convergence import (
     STOP_FILE,
-    Plateau,
     held_out_indices,
     none_held_out,
     view_name,
@@ -52,12 +47,12 @@ from trase.deformation import DeformMLP
 from trase.densify import DensifyStrategy, scene_extent
 from trase.devices import resolve_device
 from trase.gaussians import GaussianModel
-from trase.io import atomic_torch_save, read_torch
-from trase.losses import l1_loss, mean_squared_error, opacity_entropy, psnr, psnr_of_mse, ssim
+from trase.losses import l1_loss, mean_squared_error, opacity_entropy, psnr, ssim
 from trase.reconstruction_config import ReconstructionConfig, expon_lr, time_noise_scale
 from trase.render_views import render_view
-from trase.resolution_schedule import ScaledViews, scaled_views
+from trase.resolution_schedule import scaled_views
 from trase.static_checks import check_static, restart_static_checks
+from trase.trainer import Trainer, new_trainer, resumed_trainer, save_trainer
 from trase.training_images import ImageCache
 from trase.training_log import ProgressBar, TrainLog
 
@@ -66,175 +61,11 @@ if TYPE_CHECKING:
 
 
 # -- training --------------------------------------------------------------------------------
-def _make_optimizers(g: GaussianModel, deform: DeformMLP, cfg: ReconstructionConfig):
-    groups = [
-        {"params": [g.means], "lr": cfg.position_lr_init * cfg.spatial_lr_scale, "name": "means"},
-        {"params": [g.sh_dc], "lr": cfg.feature_lr, "name": "sh_dc"},
-        {"params": [g.sh_rest], "lr": cfg.feature_lr / 20.0, "name": "sh_rest"},
-        {"params": [g.opacity_logits], "lr": cfg.opacity_lr, "name": "opacity_logits"},
-        {"params": [g.log_scales], "lr": cfg.scaling_lr, "name": "log_scales"},
-        {"params": [g.quats], "lr": cfg.rotation_lr, "name": "quats"},
-    ]
-    opt_g = torch.optim.Adam(groups, lr=0.0, eps=1e-15, fused=True)
-    if deform is None:  # a motionless capture: plain 3DGS
-        return opt_g, None
-    opt_d = torch.optim.Adam(
-        [{"params": list(deform.parameters()), "lr": cfg.position_lr_init * cfg.spatial_lr_scale, "name": "deform"}],
-        lr=0.0, eps=1e-15, fused=True,
-    )
-    return opt_g, opt_d
-
-
-def _state_path(out_dir: Path, iteration: int) -> Path:
-    """The sidecar trainer state of the checkpoint at ``iteration``."""
-    return out_dir / "trainer_state" / f"iteration_{iteration}.pt"
-
-
-# what a trainer-state file must hold to resume (beside "iteration")
-_STATE_KEYS = ("active_sh_degree", "opt_g", "opt_d", *DensifyStrategy.STATE_KEYS, "rng", "view_stack",
-               "ema_loss", "ema_psnr")
-
-
-@dataclasses.dataclass
-class _Trainer:
-    """Everything the loop changes from one iteration to the next: what a checkpoint saves and
-    a resumed run restores, so a resumed run continues bit for bit."""
-
-    gaussians: GaussianModel
-    deform: DeformMLP | None  # None: a motionless capture, trained as plain 3DGS
-    opt_g: torch.optim.Optimizer  # the gaussians' parameters, one group each (_make_optimizers)
-    opt_d: torch.optim.Optimizer | None  # the deformation network's
-    strategy: DensifyStrategy
-    gen: torch.Generator  # the run's draws: view order, time noise, splits
-    view_stack: list[int]  # views left in the current random pass (popped from the end)
-    ema_loss: float = 0.0  # smoothed loss and training PSNR (dB), for the log
-    ema_psnr: float = 0.0
-    # (iteration, loss [], squared error []) of the steps not yet folded into the smoothed
-    # values: read from the device only when the log or a checkpoint needs them (``fold``)
-    pending: list = dataclasses.field(default_factory=list)
-    # static gaussians (trase.static_gaussians; None until the first check): [N] bool and
-    # their frozen offsets [N, 10]
-    static: torch.Tensor | None = None
-    frozen: torch.Tensor | None = None
-    plateau: Plateau | None = None  # the stopping checks (stop_interval > 0)
-    scaled: ScaledViews | None = None  # the views at each iteration's size (a resolution schedule)
-
-    def deformation(self):
-        """What renders this step: the network, or the network for the moving gaussians only."""
-        if self.deform is None or self.static is None:  # static rows not measured yet
-            return self.deform
-        from trase.static_gaussians import PartlyStaticDeformation
-
-        return PartlyStaticDeformation(self.deform, self.static, self.frozen)
-
-    @property
-    def n_static(self) -> int:
-        return 0 if self.static is None else int(self.static.sum())
-
-    def fold(self) -> None:
-        """The pending steps' loss and PSNR folded into ema_loss / ema_psnr, in order: one
-        transfer from the device for all of them."""
-        if not self.pending:
-            return
-        values = torch.stack([torch.stack([loss.double(), mse]) for _, loss, mse in self.pending]).cpu().tolist()
-        for (it, _, _), (lv, mse) in zip(self.pending, values):
-            pv = psnr_of_mse(mse)
-            self.ema_loss = lv if it == 1 else 0.4 * lv + 0.6 * self.ema_loss
-            self.ema_psnr = pv if it == 1 else 0.4 * pv + 0.6 * self.ema_psnr
-        self.pending.clear()
-
-    def state_dict(self, it: int) -> dict:
-        """The trainer-state file's contents (keys and order as ever: old files still load)."""
-        self.fold()
-        return {
-            "iteration": it,
-            "active_sh_degree": self.gaussians.active_sh_degree,
-            "opt_g": self.opt_g.state_dict(),
-            "opt_d": None if self.opt_d is None else self.opt_d.state_dict(),
-            **self.strategy.state_dict(),
-            "rng": self.gen.get_state(),
-            "view_stack": torch.tensor(self.view_stack, dtype=torch.int64),
-            "ema_loss": self.ema_loss, "ema_psnr": self.ema_psnr,
-            **({} if self.static is None else {"static": self.static.cpu(), "frozen": self.frozen.cpu()}),
-            **({} if self.plateau is None else {"plateau": self.plateau.state()}),
-        }
-
-
 def is_motionless(views: Sequence) -> bool:
     """Every view at one time (a static capture, ``capture.time=static``): nothing for a
     deformation network to learn, so the scene trains as plain 3DGS."""
     times = {round(float(v.camera.time), 9) for v in views}
     return len(times) <= 1
-
-
-def _new_trainer(points, point_colors, cfg: ReconstructionConfig, dev, strategy: DensifyStrategy,
-                 gen: torch.Generator, static: bool = False) -> _Trainer:
-    """A run from the point cloud: gaussians and network initialised on the CPU (alike on
-    every device), then moved; ``static``: no network (plain 3DGS)."""
-    gaussians = GaussianModel.from_points(points, point_colors, sh_degree=cfg.sh_degree)
-    deform = None
-    if not static:
-        deform = DeformMLP.preset(cfg.deform_preset, scale_rule=cfg.deform_scale_rule)
-        if cfg.deform_zero_init:
-            deform.zero_heads()
-        deform = deform.to(dev)
-    gaussians = gaussians.to(dev)
-    opt_g, opt_d = _make_optimizers(gaussians, deform, cfg)
-    strategy.initialize_state(gaussians.num_gaussians, dev)
-    plateau = Plateau(cfg.stop_rule()) if cfg.stop_interval > 0 else None
-    return _Trainer(gaussians, deform, opt_g, opt_d, strategy, gen, [], plateau=plateau)
-
-
-def _resumed_trainer(out_dir: Path, start: int, cfg: ReconstructionConfig, dev,
-                     strategy: DensifyStrategy, gen: torch.Generator, static: bool = False) -> _Trainer:
-    """The run saved at iteration ``start``: its model and its trainer state (CheckpointError
-    when either is missing, unreadable or incomplete)."""
-    gaussians, deform = load_model(out_dir, start)
-    from trase.static_gaussians import PartlyStaticDeformation
-
-    if isinstance(deform, PartlyStaticDeformation):
-        deform = deform.net  # its static rows come back with the trainer state
-    if deform is None and not static:
-        raise CheckpointError(f"{out_dir}: checkpoint {start} has no deformation network to resume")
-    if deform is not None and static:
-        raise CheckpointError(f"{out_dir}: checkpoint {start} has a deformation network, but every view is at one "
-                              "time (a motionless capture trains none): remove the folder to start over")
-    gaussians = gaussians.to(dev)
-    sp = _state_path(out_dir, start)
-    if not sp.is_file():
-        raise CheckpointError(f"{sp}: trainer state for iteration {start} is missing; cannot resume")
-    state = read_torch(sp, CheckpointError, "unreadable trainer state")
-    lost = [k for k in _STATE_KEYS if not isinstance(state, dict) or k not in state]
-    if lost:
-        raise CheckpointError(f"{sp}: trainer state lacks {', '.join(lost)}")
-    try:
-        strategy.load_state_dict(state, gaussians.num_gaussians, dev)
-    except ValueError as exc:
-        raise CheckpointError(f"{sp}: {exc}") from None
-    gaussians.active_sh_degree = int(state["active_sh_degree"])
-    if deform is not None:
-        deform = deform.to(dev)
-        deform.scale_rule = cfg.deform_scale_rule  # the run's rule (older checkpoints do not record it)
-        deform.train()
-    opt_g, opt_d = _make_optimizers(gaussians, deform, cfg)
-    opt_g.load_state_dict(state["opt_g"])
-    if opt_d is not None:
-        opt_d.load_state_dict(state["opt_d"])
-    gen.set_state(state["rng"])
-    tr = _Trainer(gaussians, deform, opt_g, opt_d, strategy, gen, [int(i) for i in state["view_stack"]],
-                  float(state["ema_loss"]), float(state["ema_psnr"]))
-    if "static" in state:
-        tr.static, tr.frozen = state["static"].to(dev), state["frozen"].to(dev)
-    if cfg.stop_interval > 0:
-        tr.plateau = Plateau(cfg.stop_rule())
-        tr.plateau.restore(state.get("plateau"))
-    return tr
-
-
-def _save(tr: _Trainer, out_dir: Path, it: int, cfg: ReconstructionConfig) -> None:
-    """Trainer state, then the model in the public layout (its PLY last: marks it complete)."""
-    atomic_torch_save(tr.state_dict(it), _state_path(out_dir, it))
-    save_model(out_dir, tr.gaussians, tr.deformation(), it, white_background=cfg.white_background)
 
 
 def reconstruct(
@@ -289,9 +120,9 @@ def _reconstruct(views, points, point_colors, config, out_dir, resume, progress,
     start = existing[-1] if existing else 0
     static = is_motionless(views)
     if existing:
-        tr = _resumed_trainer(out_dir, start, cfg, dev, strategy, gen, static)
+        tr = resumed_trainer(out_dir, start, cfg, dev, strategy, gen, static)
     else:
-        tr = _new_trainer(points, point_colors, cfg, dev, strategy, gen, static)
+        tr = new_trainer(points, point_colors, cfg, dev, strategy, gen, static)
     if not held:
         tr.plateau = None  # none held out (too few views, or no stop possible): the full schedule
     tr.scaled = scaled_views(data, cfg, len(points))
@@ -312,7 +143,7 @@ def _reconstruct(views, points, point_colors, config, out_dir, resume, progress,
     return tr.gaussians, tr.deformation()
 
 
-def _train(tr: _Trainer, data: ImageCache, bg: torch.Tensor, cfg: ReconstructionConfig, out_dir: Path,
+def _train(tr: Trainer, data: ImageCache, bg: torch.Tensor, cfg: ReconstructionConfig, out_dir: Path,
            start: int, progress: bool, backend: str, max_seconds: float | None,
            held: ImageCache | None = None) -> None:
     """Iterations start + 1 .. cfg.iterations: a step, its bookkeeping, checkpoints; stops
@@ -358,7 +189,7 @@ def _first_check(cfg: ReconstructionConfig) -> int | None:
     return first if cfg.stop_rule().can_stop_before(cfg.iterations, first) else None
 
 
-def _converged(tr: _Trainer, it: int, cfg: ReconstructionConfig, held: ImageCache | None, bg: torch.Tensor,
+def _converged(tr: Trainer, it: int, cfg: ReconstructionConfig, held: ImageCache | None, bg: torch.Tensor,
                backend: str) -> bool:
     """On the stopping schedule (past the warm-up): the held-out views' mean PSNR (the clamped
     renders, as ``evaluate_images`` measures it), recorded; True when the run should stop after
@@ -372,19 +203,19 @@ def _converged(tr: _Trainer, it: int, cfg: ReconstructionConfig, held: ImageCach
     return tr.plateau.observe(it, value, cap=cfg.iterations)
 
 
-def _checkpoint(tr: _Trainer, out_dir: Path, it: int, cfg: ReconstructionConfig, t0: float,
+def _checkpoint(tr: Trainer, out_dir: Path, it: int, cfg: ReconstructionConfig, t0: float,
                 max_seconds: float | None, converged: bool = False) -> bool:
     """Save on the checkpoint schedule, at the end and where the run ``converged`` (then True:
     stop); True (stop) once ``max_seconds`` have passed since ``t0`` (time.perf_counter),
     counting the save, after saving this iteration."""
     due = it % cfg.checkpoint_interval == 0 or it == cfg.iterations or converged
     if due:
-        _save(tr, out_dir, it, cfg)
+        save_trainer(tr, out_dir, it, cfg)
     if converged:
         return True
     if max_seconds is not None and time.perf_counter() - t0 > max_seconds:
         if not due:
-            _save(tr, out_dir, it, cfg)
+            save_trainer(tr, out_dir, it, cfg)
         return True
     return False
 
@@ -401,7 +232,7 @@ class _Step:
     use_deform: bool  # past the warm-up: the network trains this step
 
 
-def _schedule(tr: _Trainer, it: int, cfg: ReconstructionConfig) -> None:
+def _schedule(tr: Trainer, it: int, cfg: ReconstructionConfig) -> None:
     """Iteration ``it``'s learning rates (means and network decay exponentially) and SH band."""
     for grp in tr.opt_g.param_groups:
         if grp["name"] == "means":
@@ -415,7 +246,7 @@ def _schedule(tr: _Trainer, it: int, cfg: ReconstructionConfig) -> None:
         g.active_sh_degree = min(g.active_sh_degree + 1, g.max_sh_degree)
 
 
-def _forward_backward(tr: _Trainer, it: int, data: ImageCache, bg: torch.Tensor, cfg: ReconstructionConfig,
+def _forward_backward(tr: Trainer, it: int, data: ImageCache, bg: torch.Tensor, cfg: ReconstructionConfig,
                       backend: str) -> _Step:
     """Iteration ``it`` up to its backward: the next view of the random pass, rendered at its
     time plus the annealed time noise (after the warm-up), L1 + D-SSIM (+ opacity entropy)."""
@@ -442,13 +273,13 @@ def _forward_backward(tr: _Trainer, it: int, data: ImageCache, bg: torch.Tensor,
     return _Step(cam, gt, out, means_t, loss, use_deform)
 
 
-def _record(tr: _Trainer, it: int, step: _Step) -> None:
+def _record(tr: Trainer, it: int, step: _Step) -> None:
     """Keep this step's loss and squared error (on the device) for the smoothed values the log
-    shows (``_Trainer.fold``)."""
+    shows (``Trainer.fold``)."""
     tr.pending.append((it, step.loss.detach(), mean_squared_error(step.out.color.clamp(0, 1), step.gt)))
 
 
-def _optimizer_step(tr: _Trainer, use_deform: bool) -> None:
+def _optimizer_step(tr: Trainer, use_deform: bool) -> None:
     """Adam steps (the network's only past the warm-up), then the gradients cleared."""
     tr.opt_g.step()
     tr.opt_g.zero_grad(set_to_none=True)

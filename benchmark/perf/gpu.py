@@ -47,8 +47,9 @@ def reconstruction_step(n: int, width: int, height: int, repeats: int) -> dict:
     from trase.deformation import DeformMLP, deformed
     from trase.gaussians import GaussianModel
     from trase.losses import l1_loss, ssim
-    from trase.reconstruct import ReconstructionConfig, _make_optimizers
+    from trase.reconstruct import ReconstructionConfig
     from trase.render import rasterize
+    from trase.trainer import make_optimizers
 
     sc, cam = make_scene(n, width, height, 0)
     g = GaussianModel.from_points(sc["means"].numpy(), sc["colors"].numpy(), sh_degree=3).cuda()
@@ -58,7 +59,7 @@ def reconstruction_step(n: int, width: int, height: int, repeats: int) -> dict:
     # tiles, and the steps change that: on an H100, 25 of ~45 ms went to gsplat's tile
     # intersection and sort, and medians drifted between 27 and 48 ms from one call to the next
     deform = DeformMLP.preset("paper").zero_heads().cuda()
-    opt_g, opt_d = _make_optimizers(g, deform, ReconstructionConfig.paper())
+    opt_g, opt_d = make_optimizers(g, deform, ReconstructionConfig.paper())
     gt = torch.rand(height, width, 3, device="cuda")
     bg = torch.zeros(3, device="cuda")
 

@@ -5,7 +5,6 @@ import numpy as np
 import pytest
 import torch
 
-from trase.reconstruction_presets import reconstruction_preset
 from trase.camera import Camera, intrinsics, look_at
 from trase.deformation import DeformMLP
 from trase.densify import (
@@ -15,6 +14,7 @@ from trase.densify import (
     screen_grad_norm,
 )
 from trase.gaussians import GaussianModel
+from trase.reconstruction_presets import reconstruction_preset
 
 
 def test_screen_grad_norm_recovers_pixel_gradient():
@@ -37,12 +37,12 @@ def test_screen_grad_norm_recovers_pixel_gradient():
 def _densify_points_under_cap(cap: int) -> tuple[GaussianModel, np.ndarray]:
     """200 gaussians, gradients rising with the row (row 0 below the threshold), densified once
     under ``cap``."""
-    from trase.reconstruct import _make_optimizers
+    from trase.trainer import make_optimizers
 
     pts = np.random.default_rng(0).uniform(-1, 1, (200, 3))
     g = GaussianModel.from_points(pts, None, sh_degree=0)
     cfg = reconstruction_preset("cpu", max_gaussians=cap, min_opacity=0.0)
-    opt, _ = _make_optimizers(g, DeformMLP.preset("small"), cfg)
+    opt, _ = make_optimizers(g, DeformMLP.preset("small"), cfg)
     grads = torch.linspace(0.0, 1.0, 200)
     grads[0] = 0.0  # 199 candidates above the 0.0004 threshold
     densify_and_prune(g, opt, cfg, grads, torch.ones(200), 1.0, False, torch.Generator().manual_seed(0))
@@ -71,13 +71,13 @@ def test_screen_grad_norm_is_ndc_units_of_the_pixel_gradient():
 def _strategy(statistic: str, n: int = 40, extent: float = 1.0,
               **cfg_kw) -> tuple[GaussianModel, Camera, DensifyStrategy, object]:
     """n gaussians in front of a 40x30 camera, a strategy with fresh state and the optimizer."""
-    from trase.reconstruct import _make_optimizers
+    from trase.trainer import make_optimizers
 
     pts = np.random.default_rng(0).uniform(-0.5, 0.5, (n, 3))
     g = GaussianModel.from_points(pts, None, sh_degree=0)
     cam = Camera(K=intrinsics(40, 40, 20, 15), w2c=look_at(np.array([0.3, -3, 0.5]), np.zeros(3)), width=40, height=30)
     cfg = reconstruction_preset("cpu", densify_statistic=statistic, **cfg_kw)
-    opt, _ = _make_optimizers(g, DeformMLP.preset("small"), cfg)
+    opt, _ = make_optimizers(g, DeformMLP.preset("small"), cfg)
     s = DensifyStrategy(cfg, extent=extent)
     s.initialize_state(g.num_gaussians, "cpu")
     return g, cam, s, opt
@@ -204,7 +204,7 @@ def test_strategy_state_round_trips_through_a_trainer_state_file(tmp_path):
 def test_rows_carried_through_densification_follow_their_gaussians():
     """Clones and split children get their parent's row of a carried tensor (static flags),
     pruned gaussians lose theirs."""
-    from trase.reconstruct import _make_optimizers
+    from trase.trainer import make_optimizers
 
     rng = np.random.default_rng(1)
     pts = rng.uniform(-1, 1, (60, 3))
@@ -213,7 +213,7 @@ def test_rows_carried_through_densification_follow_their_gaussians():
         g.log_scales[:30] = -8.0  # small: cloned; the others large: split
         g.opacity_logits[::7] = -20.0  # transparent: pruned
     cfg = reconstruction_preset("cpu", min_opacity=0.005)
-    opt, _ = _make_optimizers(g, DeformMLP.preset("small"), cfg)
+    opt, _ = make_optimizers(g, DeformMLP.preset("small"), cfg)
     before_means, before_scales = g.means.detach().clone(), g.log_scales.detach().clone()
     grads = torch.zeros(60)
     grads[10:50] = 1.0  # candidates: 10..29 cloned, 30..49 split
