@@ -8,6 +8,7 @@ its stopping criterion (its ``plateau``, ``trase.convergence.Plateau``) or None.
 
 from __future__ import annotations
 
+import contextlib
 import time
 from pathlib import Path
 
@@ -57,27 +58,21 @@ class FeatureCheckpoint:
         self.path.unlink(missing_ok=True)
 
 
-class FeatureProgress:
-    """A rich progress bar (or nothing when disabled)."""
+@contextlib.contextmanager
+def feature_progress(enabled: bool, total: int, start: int = 0):
+    """A rich progress bar over a feature loop's ``total`` steps, ``start`` of them done (a
+    resumed loop) -> advance(loss), loss a 0-d tensor read only where the bar is shown; nothing
+    where not ``enabled``."""
+    if not enabled:
+        yield lambda loss: None
+        return
+    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
-    def __new__(cls, enabled: bool, total: int):
-        if not enabled:
-            return None
-        return super().__new__(cls)
-
-    def __init__(self, enabled: bool, total: int) -> None:
-        from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
-
-        self.p = Progress(TextColumn("features"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
-                          TextColumn("loss {task.fields[loss]:.4f}"), TimeRemainingColumn(), transient=True)
-        self.task = self.p.add_task("features", total=total, loss=0.0)
-        self.p.start()
-
-    def advance(self, loss: float) -> None:
-        self.p.update(self.task, advance=1, loss=loss)
-
-    def close(self) -> None:
-        self.p.stop()
+    bar = Progress(TextColumn("features"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
+                   TextColumn("loss {task.fields[loss]:.4f}"), TimeRemainingColumn(), transient=True)
+    task = bar.add_task("features", total=total, completed=start, loss=0.0)
+    with bar:
+        yield lambda loss: bar.update(task, advance=1, loss=float(loss.detach()))
 
 
-__all__ = ["FeatureCheckpoint", "FeatureProgress"]
+__all__ = ["FeatureCheckpoint", "feature_progress"]

@@ -27,7 +27,7 @@ from trase.camera import Camera
 from trase.devices import geometry_on, resolve_device
 from trase.fastpath import RasterizerPath, ViewWeights
 from trase.feature_config import FeatureConfig  # re-exported: the config of train_features
-from trase.feature_run_state import FeatureCheckpoint, FeatureProgress
+from trase.feature_run_state import FeatureCheckpoint, feature_progress
 from trase.gaussians import rgb_to_sh_dc
 from trase.objectives import PixelSample, get_objective
 from trase.smoothing import NORM_EPS, knn_indices, smooth_features
@@ -350,11 +350,8 @@ def _optimise(feats: torch.nn.Parameter, step: _FeatureStep, views: Sequence, pr
     opt = torch.optim.Adam([feats], lr=config.lr, eps=config.eps)
     start, history, before = ckpt.load(feats, opt, step, criterion) if ckpt is not None else (0, [], 0.0)
     done = start
-    bar = FeatureProgress(progress, config.iterations)
-    if bar is not None and start:
-        bar.p.update(bar.task, completed=start)
     t1 = time.perf_counter()
-    try:
+    with feature_progress(progress, config.iterations, start) as advance:
         for it in range(start, config.iterations):
             vi, ms, sample = step.draw()
             loss, stats = step.loss(feats, vi, ms, sample)
@@ -368,15 +365,11 @@ def _optimise(feats: torch.nn.Parameter, step: _FeatureStep, views: Sequence, pr
             stop = criterion is not None and criterion.check(done, feats.detach())
             if it % log_every == 0 or it == config.iterations - 1 or stop:
                 history.append({"step": it, "loss": float(loss.detach()), **stats})
-            if bar is not None:
-                bar.advance(float(loss.detach()))
+            advance(loss)
             if stop:
                 break
             if ckpt is not None and it + 1 < config.iterations:
                 ckpt.maybe_save(feats, opt, step, it + 1, history, before + time.perf_counter() - t1, criterion)
-    finally:
-        if bar is not None:
-            bar.close()
     if ckpt is not None:
         ckpt.remove()
     return history, before + time.perf_counter() - t1, start, done

@@ -147,7 +147,7 @@ def _optimise(encoder, classifier, path, positions: _Positions, ids: dict, cams:
               log_every: int) -> list[dict]:
     """``cfg.iterations`` Adam steps on the encodings and the classifier -> the history."""
     from masks.sampling import sample_pixels
-    from trase.feature_run_state import FeatureProgress
+    from trase.feature_run_state import feature_progress
 
     dev = positions.xyz.device
     usable = list(ids)
@@ -155,8 +155,7 @@ def _optimise(encoder, classifier, path, positions: _Positions, ids: dict, cams:
                              "eps": cfg.eps}])
     opt_cls = torch.optim.Adam(classifier.parameters(), lr=cfg.classifier_lr, eps=cfg.classifier_eps)
     history: list[dict] = []
-    bar = FeatureProgress(progress, int(cfg.iterations))
-    try:
+    with feature_progress(progress, int(cfg.iterations)) as advance:
         for it in range(int(cfg.iterations)):
             vi = usable[int(rng.integers(len(usable)))]
             cam, (H, W) = cams[vi]
@@ -183,11 +182,7 @@ def _optimise(encoder, classifier, path, positions: _Positions, ids: dict, cams:
                 raise IdentityTrainingError(f"identity loss became non-finite at step {it} (view {views[vi].name})")
             if it % log_every == 0 or it == cfg.iterations - 1:
                 history.append({"step": it, "loss": float(loss.detach()), **stats})
-            if bar is not None:
-                bar.advance(float(loss.detach()))
-    finally:
-        if bar is not None:
-            bar.close()
+            advance(loss)
     return history
 
 

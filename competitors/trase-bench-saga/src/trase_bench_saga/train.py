@@ -189,13 +189,12 @@ def _optimise(feats, gate, knn, path, masks: _ViewsMasks, qmap, upper: float, cf
               gen: torch.Generator, progress: bool, log_every: int) -> list[dict]:
     """``cfg.iterations`` Adam steps on the features and the gate together, every usable view
     once per round in random order -> the history."""
-    from trase.feature_run_state import FeatureProgress
+    from trase.feature_run_state import feature_progress
 
     opt = torch.optim.Adam([feats, *gate.parameters()], lr=cfg.lr, eps=cfg.eps)
     stack: list[int] = []
     history: list[dict] = []
-    bar = FeatureProgress(progress, int(cfg.iterations))
-    try:
+    with feature_progress(progress, int(cfg.iterations)) as advance:
         for it in range(cfg.iterations):
             if not stack:
                 stack = [int(k) for k in rng.permutation(len(masks.usable))]
@@ -213,11 +212,7 @@ def _optimise(feats, gate, knn, path, masks: _ViewsMasks, qmap, upper: float, cf
             if it % log_every == 0 or it == cfg.iterations - 1:
                 history.append({"step": it, "loss": float(loss.detach()), "norm": float(norms.mean().detach()),
                                 "pixels": n_pixels, **stats})
-            if bar is not None:
-                bar.advance(float(loss.detach()))
-    finally:
-        if bar is not None:
-            bar.close()
+            advance(loss)
     return history
 
 
