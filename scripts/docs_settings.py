@@ -30,6 +30,22 @@ def preset_table(preset: str, keys: list[str]) -> list[str]:
     return lines
 
 
+SIZED = {"the tiny synthetic scenes, 64 x 48 px": (64, 48), "the small synthetic scenes, 160 x 120 px": (160, 120)}
+
+
+def sized_table(preset: str, keys: list[str]) -> list[str]:
+    """A markdown table of the settings whose value at an image size (SIZED) differs from the
+    one resolved without a size (the tables above), with the condition that declared it."""
+    lines = ["| images | benchmark | setting | value | declared where |", "|---|---|---|---|---|"]
+    for label, size in SIZED.items():
+        for k in keys:
+            plain = {key: v for key, v, _ in resolve_rows(k, "trase", preset, None, None, [])}
+            for key, v, src in resolve_rows(k, "trase", preset, None, size, []):
+                if plain.get(key) != v and not src.startswith("default (") and not key.endswith(".seed"):
+                    lines.append(f"| {label} | {k} | `{key}` | `{json.dumps(v, default=str)}` | {src} |")
+    return lines
+
+
 def page() -> str:
     keys = list(DATASETS)
     out = ["# Settings and presets", "",
@@ -42,6 +58,10 @@ def page() -> str:
     out += [f"| `{p.name}` | {p.help}{f' (from `{p.base}`)' if p.base else ''} |" for p in GEOMETRY_PRESETS]
     for preset in RUN_PRESETS:
         out += ["", f"## `{preset}`: settings away from the defaults", "", *preset_table(preset, keys)]
+        sized = sized_table(preset, keys)
+        if len(sized) > 2:
+            out += ["", f"Where the `{preset}` preset follows the images' size, the values at two sizes:", "",
+                    *sized]
     return "\n".join(out) + "\n"
 
 
