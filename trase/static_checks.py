@@ -3,8 +3,6 @@ gaussians move is measured again, the still ones skip the deformation network fr
 step and the ones that move again are woken up; each check is logged in ``static_checks.csv``.
 The measures of motion and the frozen rows: ``trase.static_gaussians``.
 
-``tr`` below is the trainer of ``trase.reconstruct`` (its gaussians, network, static rows and
-densification strategy); ``data`` a ``trase.training_images.ImageCache``.
 """
 
 from __future__ import annotations
@@ -16,6 +14,8 @@ import torch
 from trase.losses import psnr
 from trase.reconstruction_config import ReconstructionConfig
 from trase.render_views import render_view
+from trase.trainer import Trainer
+from trase.training_images import ImageCache
 
 STATIC_CHECKS_FILE = "static_checks.csv"  # a row per check: see STATIC_CHECKS_HEADER
 # freeze: 1 where any gaussian may freeze at the check; static: the static count after it; held:
@@ -37,7 +37,7 @@ def restart_static_checks(out_dir: Path, start: int) -> None:
     path.write_text(STATIC_CHECKS_HEADER + "".join(keep))
 
 
-def check_static(tr, it: int, cfg: ReconstructionConfig, data, bg: torch.Tensor,
+def check_static(tr: Trainer, it: int, cfg: ReconstructionConfig, data: ImageCache, bg: torch.Tensor,
                   backend: str, out_dir: Path) -> None:
     """On the schedule (``static_*`` settings), re-measure which gaussians move: the still ones
     skip the network from the next step, the ones that move again are woken up. Above the time
@@ -85,7 +85,7 @@ def check_static(tr, it: int, cfg: ReconstructionConfig, data, bg: torch.Tensor,
 
 
 @torch.no_grad()
-def views_psnr(tr, data, times: list[float], bg: torch.Tensor, backend: str,
+def views_psnr(tr: Trainer, data: ImageCache, times: list[float], bg: torch.Tensor, backend: str,
                 near: float) -> tuple[list[float], list[float]]:
     """PSNR (dB) and time of each training view at ``times`` (a static check's)."""
     keep = {round(float(t), 9) for t in times}
@@ -98,7 +98,7 @@ def views_psnr(tr, data, times: list[float], bg: torch.Tensor, backend: str,
     return ps, ts
 
 
-def hold_region(tr, data, lagging: set[float], bg: torch.Tensor, backend: str,
+def hold_region(tr: Trainer, data: ImageCache, lagging: set[float], bg: torch.Tensor, backend: str,
                  error: float, near: float) -> torch.Tensor:
     """[N] bool: the gaussians that draw a pixel of a lagging time's training view whose colour
     is off by more than ``error`` (mean absolute error over the channels): the gradient of that

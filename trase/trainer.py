@@ -21,6 +21,8 @@ from trase.resolution_schedule import ScaledViews
 
 
 def make_optimizers(g: GaussianModel, deform: DeformMLP, cfg: ReconstructionConfig):
+    """Adam over the gaussians' parameters (a group each, the public trainer's rates) and over
+    the network (None for a motionless capture); the schedules set the rates each step."""
     groups = [
         {"params": [g.means], "lr": cfg.position_lr_init * cfg.spatial_lr_scale, "name": "means"},
         {"params": [g.sh_dc], "lr": cfg.feature_lr, "name": "sh_dc"},
