@@ -10,6 +10,7 @@ import mkdocs_gen_files
 
 from benchmark.commands.presets import resolve_rows
 from benchmark.datasets import DATASETS
+from benchmark.datasets.synthetic import SIZES
 from benchmark.pipeline.settings import GEOMETRY_PRESETS
 
 RUN_PRESETS = ("cpu", "paper")
@@ -30,19 +31,27 @@ def preset_table(preset: str, keys: list[str]) -> list[str]:
     return lines
 
 
-SIZED = {"the tiny synthetic scenes, 64 x 48 px": (64, 48), "the small synthetic scenes, 160 x 120 px": (160, 120)}
+SIZED = ("tiny", "small")  # the synthetic scenes whose test-view sizes the tables below resolve
+
+
+def test_view_size(dataset: str, size: str) -> tuple[int, int]:
+    """(W, H) of a synthetic scene's test views: half its rig's native size, as the loader reads it."""
+    rig = SIZES[dataset][size]
+    return rig.width // 2, rig.height // 2
 
 
 def sized_table(preset: str, keys: list[str]) -> list[str]:
-    """A markdown table of the settings whose value at an image size (SIZED) differs from the
-    one resolved without a size (the tables above), with the condition that declared it."""
-    lines = ["| images | benchmark | setting | value | declared where |", "|---|---|---|---|---|"]
-    for label, size in SIZED.items():
-        for k in keys:
-            plain = {key: v for key, v, _ in resolve_rows(k, "trase", preset, None, None, [])}
-            for key, v, src in resolve_rows(k, "trase", preset, None, size, []):
+    """A markdown table of the settings whose value at a synthetic scene's test-view size (SIZED)
+    differs from the one resolved without a size (the table above), with the condition that
+    declared it."""
+    lines = ["| scene | benchmark | setting | value | declared where |", "|---|---|---|---|---|"]
+    for k in keys:
+        plain = {key: v for key, v, _ in resolve_rows(k, "trase", preset, None, None, [])}
+        for size in SIZED:
+            w, h = test_view_size(k, size)
+            for key, v, src in resolve_rows(k, "trase", preset, None, (w, h), []):
                 if plain.get(key) != v and not src.startswith("default (") and not key.endswith(".seed"):
-                    lines.append(f"| {label} | {k} | `{key}` | `{json.dumps(v, default=str)}` | {src} |")
+                    lines.append(f"| {size}, {w} x {h} px | {k} | `{key}` | `{json.dumps(v, default=str)}` | {src} |")
     return lines
 
 
@@ -60,7 +69,7 @@ def page() -> str:
         out += ["", f"## `{preset}`: settings away from the defaults", "", *preset_table(preset, keys)]
         sized = sized_table(preset, keys)
         if len(sized) > 2:
-            out += ["", f"Where the `{preset}` preset follows the images' size, the values at two sizes:", "",
+            out += ["", f"Where the `{preset}` preset follows the images' size, its values on the synthetic scenes:", "",
                     *sized]
     return "\n".join(out) + "\n"
 

@@ -15,7 +15,15 @@ from __future__ import annotations
 import dataclasses
 
 from benchmark.methods import MethodError
-from lazyspecs.presets import MONOCULAR, MULTIVIEW, OWN_CAPTURE, Context, PresetTable, dataset, images_below
+from lazyspecs.presets import (
+    MONOCULAR,
+    MULTIVIEW,
+    OWN_CAPTURE,
+    Context,
+    PresetTable,
+    dataset,
+    images_below,
+)
 from trase.feature_config import CPU_MAX_PIXELS, FEATURE_PRESETS, FeatureConfig
 from trase.prompts import FRONT_SHARE
 from trase.reconstruction_presets import CPU_MAX_GAUSSIANS
@@ -149,27 +157,28 @@ TRASE_PRESETS.declare("cpu", when=MONOCULAR, render_rule="visible")
 # keeps its schedule: its held-out PSNR still rises at 4000 iterations.
 TRASE_PRESETS.declare("cpu", {"features.stop_interval": 250, "features.stop_patience": 2,
                               "features.stop_min_delta": 0.01})
-# Scenes of small images (the tiny synthetic scenes: 64 x 48 px, 3-6 monocular views): the
-# gaussians drawn into almost no training pixel take their seen neighbours' features before
-# clustering (trase.unseen). Why: there about half of the gaussians sum a compositing weight
-# under 0.5 over the training views, their features stay near their random start and the
+# Scenes of small images: the tiny synthetic scenes' test views hold 1,728-3,072 px (48 x 36 to
+# 64 x 48), the small scenes' 12,288-19,200 px (128 x 96 to 160 x 120); nothing between was
+# measured, and 10,000 lies between.
+TINY_IMAGES = images_below(10_000)
+# There the gaussians drawn into almost no training pixel take their seen neighbours' features
+# before clustering (trase.unseen). Why: about half of a tiny scene's gaussians sum a compositing
+# weight under 0.5 over the training views, their features stay near their random start and the
 # clusters mix the objects with the floor and walls. Chosen on the seed-1 tiny scenes of all
 # five formats, ground-truth geometry: mIoU 0.798 -> 0.856 (NeRF-DS format), 0.827 -> 0.879
 # (HyperNeRF), 0.533 -> 0.559 (Neu3D), 0.460 -> 0.494 (Immersive), 0.605 -> 0.696
-# (Technicolor). Not on larger images: at 160 x 120 px (the small scenes) 3-5% of the
-# gaussians are that unseen, the clusters do not change on the seed-1 scenes, and the weights
-# cost a render of every training image (200 s on the Neu3D format). Nothing between 3,072 and
-# 19,200 px per image was measured; 10,000 lies between (docs/notes/corrective-clicks.md).
-TRASE_PRESETS.declare("cpu", when=images_below(10_000), unseen_min_weight=0.5)
+# (Technicolor). Not on larger images: on the small monocular scenes 3-5% of the gaussians are
+# that unseen and the seed-1 scenes' clusters do not change, and the weights cost a render of
+# every training image (200 s on the Neu3D format) (docs/notes/corrective-clicks.md).
+TRASE_PRESETS.declare("cpu", when=TINY_IMAGES, unseen_min_weight=0.5)
 # ... and render the selection by its weight in the full render (render_rule "visible") on every
-# rig, as the monocular rigs do above. Why: at 64 x 48 px an object covers 12-234 px of a
-# multi-view test view, and its gaussians rendered alone are predicted on 0.41-0.62 px outside
-# the ground truth for each pixel inside it (parts hidden behind other objects, and their
-# extent at this size). Chosen on the seed-1 tiny scenes of the multi-view formats, ground-truth
-# geometry, with the rule above: mIoU 0.559 -> 0.584 (Neu3D format), 0.494 -> 0.599
-# (Immersive), 0.696 -> 0.840 (Technicolor); on their 160 x 120 px scenes "visible" did not help
-# (the render rule's note above).
-TRASE_PRESETS.declare("cpu", when=images_below(10_000), render_rule="visible")
+# rig, as the monocular rigs do above. Why: on the tiny multi-view scenes (48 x 36 and 64 x 34
+# px test views) the objects' gaussians rendered alone are predicted on 0.41-0.62 px outside the
+# ground truth for each pixel inside it (parts hidden behind other objects, and their extent at
+# this size). Chosen on the seed-1 tiny scenes of the multi-view formats, ground-truth geometry,
+# with the rule above: mIoU 0.559 -> 0.584 (Neu3D format), 0.494 -> 0.599 (Immersive), 0.696 ->
+# 0.840 (Technicolor); on their small scenes "visible" did not help (the render rule's note above).
+TRASE_PRESETS.declare("cpu", when=TINY_IMAGES, render_rule="visible")
 
 
 def trase_settings(preset: str, dataset: str | None, monocular: bool = True) -> TraseSettings:
@@ -183,4 +192,4 @@ def trase_settings(preset: str, dataset: str | None, monocular: bool = True) -> 
     return TRASE_PRESETS.resolve(preset, Context(dataset=dataset, monocular=monocular)).config
 
 
-__all__ = ["CLICK_RULE", "TRASE_PRESETS", "ClickSettings", "ClusteringSettings", "TraseSettings", "trase_settings"]
+__all__ = ["CLICK_RULE", "TINY_IMAGES", "TRASE_PRESETS", "ClickSettings", "ClusteringSettings", "TraseSettings", "trase_settings"]

@@ -72,7 +72,7 @@ def train_identity(gaussians, deformation, views: Sequence, load_ids: Callable, 
         timings = {"prepare": time.perf_counter() - t0}
         t1 = time.perf_counter()
         history = _optimise(encoder, classifier, path, _Positions(gaussians, deformation, cams, temporal), ids, cams,
-                            views, cfg, temporal, gen, rng, progress, log_every)
+                            views, cfg, gen, rng, progress, log_every)
         train = time.perf_counter() - t1
         timings.update(train=train, per_step=train / max(int(cfg.iterations), 1))
         return IdentityResult(encoder.cpu(), classifier.cpu(), history, timings, path.stats())
@@ -143,15 +143,14 @@ class _Positions:
 
 
 def _optimise(encoder, classifier, path, positions: _Positions, ids: dict, cams: dict, views: Sequence, cfg,
-              temporal: bool, gen: torch.Generator, rng: np.random.Generator, progress: bool,
-              log_every: int) -> list[dict]:
+              gen: torch.Generator, rng: np.random.Generator, progress: bool, log_every: int) -> list[dict]:
     """``cfg.iterations`` Adam steps on the encodings and the classifier -> the history."""
     from masks.sampling import sample_pixels
     from trase.feature_run_state import feature_progress
 
     dev = positions.xyz.device
     usable = list(ids)
-    opt = torch.optim.Adam([{"params": encoder.parameters(), "lr": cfg.field_lr if temporal else cfg.lr,
+    opt = torch.optim.Adam([{"params": encoder.parameters(), "lr": cfg.field_lr if positions.temporal else cfg.lr,
                              "eps": cfg.eps}])
     opt_cls = torch.optim.Adam(classifier.parameters(), lr=cfg.classifier_lr, eps=cfg.classifier_eps)
     history: list[dict] = []
