@@ -22,11 +22,28 @@ import numpy as np
 from trase.epsilon_merge import epsilon_labels
 
 METHODS = ("hdbscan", "dbscan", "kmeans")
+# the keyword arguments each algorithm reads; a key none of them reads is an error (a typo, or an
+# option of the library this module does not pass on, which would otherwise change nothing)
+PARAMS = {"hdbscan": ("min_cluster_size", "min_samples", "cluster_selection_epsilon"),
+          "dbscan": ("eps", "min_samples"),
+          "kmeans": ("n_clusters", "n_init")}
 NORM_EPS = 1e-12
 
 
 class ClusteringError(ValueError):
     user_facing = True
+
+
+def check_params(method: str, params: dict) -> None:
+    """ClusteringError for an unknown ``method`` or a parameter no algorithm reads. A parameter
+    of another algorithm is allowed: a run that switches algorithms keeps its preset's keys."""
+    if method not in METHODS:
+        raise ClusteringError(f"unknown clustering method {method!r}; choose one of {', '.join(METHODS)}")
+    read = {k for keys in PARAMS.values() for k in keys}
+    unknown = sorted(set(params) - read)
+    if unknown:
+        raise ClusteringError(f"clustering parameter {', '.join(map(repr, unknown))} is read by no algorithm; "
+                              f"{method} reads {', '.join(PARAMS[method])}")
 
 
 @dataclasses.dataclass
@@ -99,8 +116,7 @@ def cluster(
     **params,
 ) -> Clustering:
     """Cluster normalised features [N, D] and assign every gaussian to a cluster."""
-    if method not in METHODS:
-        raise ClusteringError(f"unknown clustering method {method!r}; choose one of {', '.join(METHODS)}")
+    check_params(method, params)
     if not 0 < fraction <= 1:
         raise ClusteringError(f"clustering fraction must be in (0, 1], got {fraction}")
     fn = normalise(features)

@@ -44,6 +44,14 @@ def test_degenerate_inputs():
         cluster(np.ones((3, 2)), method="spectral")
 
 
+def test_a_parameter_no_algorithm_reads_is_refused():
+    x = np.random.default_rng(0).random((40, 4))
+    with pytest.raises(ClusteringError, match="'cluster_selection_method' is read by no algorithm"):
+        cluster(x, cluster_selection_method="leaf")
+    # another algorithm's key is allowed: a run that switches algorithms keeps its preset's keys
+    assert cluster(x, method="kmeans", n_clusters=3, min_cluster_size=50).n_clusters == 3
+
+
 def test_filter_by_similarity():
     f = np.array([[1, 0], [1, 0.1], [0.2, 1.0], [0, 1], [0, 0]], np.float32)
     labels = np.array([0, 0, 0, 1, 1])

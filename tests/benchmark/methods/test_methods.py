@@ -117,6 +117,16 @@ def test_cpu_preset_clustering_and_steps():
     assert paper.render_rule == "alone"  # the paper's rule
 
 
+def test_a_clustering_parameter_no_algorithm_reads_is_refused_before_any_stage():
+    from benchmark.config import ConfigError
+
+    cfg = TraseMethod().settings("cpu", "hypernerf")
+    TraseMethod().check_settings(cfg)
+    cfg.clustering.params = {**cfg.clustering.params, "cluster_selection_method": "leaf"}
+    with pytest.raises(ConfigError, match="method.clustering: clustering parameter 'cluster_selection_method'"):
+        TraseMethod().check_settings(cfg)
+
+
 def test_render_rule_visible_under_the_cpu_preset_on_a_monocular_rig_only():
     m = TraseMethod()
     rules = {(preset, mono): m.settings(preset, None, monocular=mono).render_rule
