@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmark.errors import UserError
-from benchmark.scene.text_prompt import TextRequest
+from benchmark.protocol.text_request import TextRequest
 
 CLICK = re.compile(r"(?P<view>.+):(?P<x>-?\d+(\.\d*)?),(?P<y>-?\d+(\.\d*)?)")
 
@@ -123,7 +123,7 @@ def select_clicks(fit_dir: Path | str, clicks: list[str], out_dir: Path | str | 
     {"clusters", "per_click", "per_mask", "masks": {view: bool [H, W]}}. ``unclicks``: negative
     clicks, taken before the clicks: the cluster under each is kept out, so a click where it
     blends with another picks the other (``per_click`` lists them first). ``text``: a
-    benchmark.scene.text_prompt.TextRequest, each phrase's choice in ``per_text``."""
+    benchmark.protocol.text_request.TextRequest, each phrase's choice in ``per_text``."""
     from benchmark.io import atomic_directory, atomic_write_bytes
     from benchmark.methods import click_selection
     from benchmark.protocol.prompts import BenchmarkPrompts

@@ -68,9 +68,7 @@ def figures(runs_dir, seeds, formats, geometries, collect_only, from_data, data_
     geometries = tuple(geometries) or GEOMETRIES
     methods = tuple(methods) or ("trase",)
     if not collect_only:
-        from benchmark.results.figures import run_all
-
-        run_all(Path(runs_dir), parse_seeds(seeds), formats, geometries, progress=not quiet, methods=methods)
+        run_figure_runs(Path(runs_dir), parse_seeds(seeds), formats, geometries, progress=not quiet, methods=methods)
     data = collect(Path(runs_dir), formats, geometries, methods)
     if update:
         if not Path(data_path).is_file():
@@ -87,6 +85,20 @@ def figures(runs_dir, seeds, formats, geometries, collect_only, from_data, data_
     click.echo(f"wrote {data_path}")
     if page:
         write_page(Path(page), data)
+
+
+def run_figure_runs(out_dir: Path, seeds: list[int], formats, geometries, progress: bool, methods) -> None:
+    """Every (method, format, geometry) main-protocol run for every seed, into ``out_dir``
+    (stages cached, so methods share a scene's masks and geometry; a run already there with
+    this config is kept, so an interrupted measurement resumes where it stopped)."""
+    from benchmark.runner import RunOptions, run
+
+    for method in methods:
+        for geo in geometries:
+            for ds in formats:
+                overrides = [] if geo == "reconstruct" else ["geometry.source=ground-truth"]
+                run(RunOptions(method=method, dataset=ds, out_dir=out_dir, overrides=overrides, seeds=seeds,
+                               progress=progress, keep_existing=True))
 
 
 def write_page(path: Path, data: dict) -> None:

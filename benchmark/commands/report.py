@@ -10,6 +10,7 @@ from click.core import ParameterSource
 from benchmark.commands import old_spelling
 from benchmark.errors import UserError
 from benchmark.results.report import make_report
+from benchmark.scene.render import selection_clip
 
 
 @click.command()
@@ -41,7 +42,7 @@ def report(run_dir: str | None, method: str | None, dataset: str | None, sequenc
         if given:
             raise click.UsageError(f"--run names the run; leave out {', '.join(given)}")
         run = load_run(Path(run_dir))
-        click.echo(f"wrote {make_report(Path(run['_dir']))}")
+        click.echo(f"wrote {make_report(Path(run['_dir']), selection_clip)}")
         return
     missing = [k for k, v in named.items() if v is None]
     if missing:
@@ -62,4 +63,4 @@ def report(run_dir: str | None, method: str | None, dataset: str | None, sequenc
                             f"({', '.join(Path(r['_dir']).name for r in mains)}); choose one with --name")
         # the lowest seed (its siblings' scores are in the report), newest if rerun
         run = newest_per_seed(mains)[0]
-    click.echo(f"wrote {make_report(Path(run['_dir']))}")
+    click.echo(f"wrote {make_report(Path(run['_dir']), selection_clip)}")

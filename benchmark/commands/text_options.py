@@ -33,8 +33,8 @@ def text_options(f):
 
 
 def text_request(mask_rule, detector, segmenter, min_score, texts=(), text_view=None):
-    """The options' benchmark.scene.text_prompt.TextRequest (no phrases without --text; its
+    """The options' benchmark.protocol.text_request.TextRequest (no phrases without --text; its
     rule is --mask's too)."""
-    from benchmark.scene.text_prompt import TextRequest
+    from benchmark.protocol.text_request import TextRequest
 
     return TextRequest(tuple(texts), text_view, mask_rule, detector, segmenter, min_score)

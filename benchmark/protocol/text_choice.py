@@ -1,5 +1,5 @@
 """A phrase's choice in a scene: its 2D mask in the best-scoring of some views, lifted to
-clusters. What ``select``/``edit``/the viewer (benchmark.scene.text_prompt) and the text protocol
+clusters. What ``select``/``edit``/the viewer (benchmark.protocol.text_request) and the text protocol
 (benchmark.protocol.text) share.
 
 The paper's text prompt: a grounded detector and SAM make a 2D mask from the text in a novel

@@ -1,9 +1,9 @@
 """The figures pages, measured by one command and rendered from their data, never typed.
 
 ``trase-bench figures`` runs ``trase`` (or any ``--method``) on the five built-in formats with
-reconstructed and with ground-truth geometry, for several run seeds, summarises the runs (mean
-± std over seeds of test PSNR, geometry ceiling, oracle, mIoU, click-set median and worst,
-clustering agreement) into a data file (``docs/figures.json``) with the commit and machine,
+reconstructed and with ground-truth geometry, for several run seeds (benchmark.commands.figures).
+This module summarises the runs (mean ± std over seeds of test PSNR, geometry ceiling, oracle,
+mIoU, click-set median and worst, clustering agreement) into a data file (``docs/figures.json``) with the commit and machine,
 and rewrites a page's block from that file: between the FIGURES markers trase's table
 (docs/figures.md), between the METHODS markers every method's mIoU side by side with the
 paper's published averages and both orders (docs/competitors.md). A test renders each block
@@ -39,21 +39,6 @@ BEGIN = "<!-- FIGURES:BEGIN (trase-bench figures --write-page; do not edit by ha
 END = "<!-- FIGURES:END -->"
 METHODS_BEGIN = "<!-- METHODS:BEGIN (trase-bench figures --method ... --write-page; do not edit by hand) -->"
 METHODS_END = "<!-- METHODS:END -->"
-
-
-def run_all(out_dir: Path, seeds: list[int], formats=FORMATS, geometries=GEOMETRIES, progress: bool = True,
-            methods=("trase",)) -> None:
-    """Every (method, format, geometry) main-protocol run for every seed, into ``out_dir``
-    (stages cached, so methods share a scene's masks and geometry; a run already there with
-    this config is kept, so an interrupted measurement resumes where it stopped)."""
-    from benchmark.runner import RunOptions, run
-
-    for method in methods:
-        for geo in geometries:
-            for ds in formats:
-                overrides = [] if geo == "reconstruct" else ["geometry.source=ground-truth"]
-                run(RunOptions(method=method, dataset=ds, out_dir=Path(out_dir), overrides=overrides, seeds=seeds,
-                               progress=progress, keep_existing=True))
 
 
 def collect(out_dir: Path, formats=FORMATS, geometries=GEOMETRIES, methods=("trase",)) -> dict:

@@ -14,6 +14,7 @@ from __future__ import annotations
 import base64
 import html
 import json
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -100,24 +101,13 @@ def _seed_section(record: dict, run_dir: Path) -> str:
             f"<th>chosen</th></tr>{rows}</table>")
 
 
-CLIP_FRAMES = 24  # test views in the report's clip, evenly spread in time
-
-
-def _clip(run_dir: Path) -> tuple[str, str]:
-    """(html, note): an animated WebP of the run's selection over its test views in time order
-    (``trase-bench render --mode selection --selected``), or why there is none."""
-    import tempfile
-
-    from benchmark.scene.folders import open_scene_folder, resolve_selection
-    from benchmark.scene.render import RenderOptions, render_frames
-
+def _clip(run_dir: Path, render_clip) -> tuple[str, str]:
+    """(html, note): the animated WebP ``render_clip(run_dir)`` makes of the run's selection, or
+    why there is none."""
+    if render_clip is None:
+        return "", "No clip: this report was made without a renderer."
     try:
-        folder = open_scene_folder(run_dir)
-        _, sel = resolve_selection(folder, selected=True) if folder.selected else ([], None)
-        opts = RenderOptions(mode="selection", frames=CLIP_FRAMES, mp4=False)
-        with tempfile.TemporaryDirectory() as tmp:
-            res = render_frames(folder, opts, Path(tmp), sel, progress=False)
-            data = Path(res["preview"]).read_bytes()
+        data = render_clip(run_dir)
     except Exception as exc:  # the report stands without its clip, and says why
         if not getattr(exc, "user_facing", False):
             raise
@@ -190,11 +180,11 @@ def _is_external(record: dict) -> bool:
     return (record.get("run") or {}).get("kind") == "external"
 
 
-def _clip_section(record: dict, run_dir: Path) -> str:
+def _clip_section(record: dict, run_dir: Path, render_clip) -> str:
     """The clip of the run's selection; none for external predictions (no model to render)."""
     if _is_external(record):
         return ""
-    clip, clip_note = _clip(run_dir)
+    clip, clip_note = _clip(run_dir, render_clip)
     return f"""<h2>Clip</h2><p>The selected objects tinted over the test views in time order
 (<code>trase-bench render --run {html.escape(str(run_dir))} --mode selection --selected</code>).
 {html.escape(clip_note)}</p>{clip}"""
@@ -216,8 +206,10 @@ def _method_sections(record: dict, run_dir: Path) -> str:
 <p>{_model_line(record)}</p>"""
 
 
-def make_report(run_dir: str | Path) -> Path:
-    """Write ``report.html`` and ``report/*.png`` into ``run_dir``; returns the HTML path."""
+def make_report(run_dir: str | Path, render_clip: Callable[[Path], bytes] | None = None) -> Path:
+    """Write ``report.html`` and ``report/*.png`` into ``run_dir``; returns the HTML path.
+    ``render_clip``: run folder -> an animated WebP of its selection over its test views
+    (benchmark.scene.render.selection_clip; the renderer sits above this module)."""
     run_dir = Path(run_dir)
     record = load_results(run_dir / "results.json")
     tiles, missing_images = _frame_tiles(record, run_dir)
@@ -242,7 +234,7 @@ pre{{background:#f6f6f6;padding:8px;overflow:auto;font-size:12px}}</style></head
 &middot; {m['n_frames']} test frames</p>
 <p>{html.escape(run_line)}</p>
 <p>{' '.join(html.escape(n) for n in notes)}</p>
-{_clip_section(record, run_dir)}
+{_clip_section(record, run_dir, render_clip)}
 <h2>Test views</h2><p>green: correct object pixels, red: false positives, blue: missed.</p>
 {''.join(tiles)}
 <h2>Per-frame scores</h2>{img_tag(plot, 'per-frame IoU')}

@@ -20,7 +20,7 @@ import torch
 
 from benchmark.errors import UserError
 from benchmark.io import read_json
-from benchmark.scene.text_prompt import TextRequest
+from benchmark.protocol.text_request import TextRequest
 
 EDIT_FILE, VIEWS_FILE = "edit.json", "views.json"
 
@@ -161,7 +161,7 @@ def resolve_selection(folder: SceneFolder, clusters: str | None = None, clicks: 
     """(cluster ids, [N] bool or None when nothing was asked) from ``--clusters``,
     ``--click VIEW:X,Y`` (the method's click rule; pixel centres), ``--mask VIEW:PATH`` (the
     clusters a 2D mask covers, ``trase.prompts.mask_to_clusters``), ``--selected`` (the
-    clusters the run's prompts chose) and ``text`` (a benchmark.scene.text_prompt.TextRequest;
+    clusters the run's prompts chose) and ``text`` (a benchmark.protocol.text_request.TextRequest;
     its phrases' TextChoice go to ``found`` where given)."""
     from benchmark.captures.select import mask_prompt, parse_click
     from trase.edit import by_click, by_clusters, by_mask

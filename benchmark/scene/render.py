@@ -117,4 +117,23 @@ def write_webp(frames: list[np.ndarray], path: str, fps: float, max_width: int =
                  quality=80)
 
 
-__all__ = ["CAMERA_PATHS", "RenderOptions", "path_cameras", "render_frames", "write_mp4", "write_webp"]
+CLIP_FRAMES = 24  # test views in a report's clip, evenly spread in time
+
+
+def selection_clip(run_dir: Path) -> bytes:
+    """An animated WebP of a run's selection over its test views in time order (``trase-bench
+    render --run DIR --mode selection --selected``): the clip a run's report embeds."""
+    import tempfile
+
+    from benchmark.scene.folders import open_scene_folder, resolve_selection
+
+    folder = open_scene_folder(run_dir)
+    _, sel = resolve_selection(folder, selected=True) if folder.selected else ([], None)
+    opts = RenderOptions(mode="selection", frames=CLIP_FRAMES, mp4=False)
+    with tempfile.TemporaryDirectory() as tmp:
+        res = render_frames(folder, opts, Path(tmp), sel, progress=False)
+        return Path(res["preview"]).read_bytes()
+
+
+__all__ = ["CAMERA_PATHS", "CLIP_FRAMES", "RenderOptions", "path_cameras", "render_frames", "selection_clip", "write_mp4",
+           "write_webp"]

@@ -54,7 +54,7 @@ class SceneViewer:
         from trase.visualize import MODES, Painter, look_centre
 
         self.folder = folder
-        # text prompts: a benchmark.scene.text_prompt.TextRequest (its models, rule and score),
+        # text prompts: a benchmark.protocol.text_request.TextRequest (its models, rule and score),
         # its segmenter loaded on the first phrase
         self.text = text
         self.segmenter = None
@@ -283,7 +283,7 @@ class SceneViewer:
         """Add the clusters the text field's phrase selects in the client's current view (the
         paper's text prompt: detector box -> mask -> lifted to clusters)."""
         from benchmark.protocol.text_choice import text_choice
-        from benchmark.scene.text_prompt import TextRequest
+        from benchmark.protocol.text_request import TextRequest
         from masks.maskset import MaskError
 
         phrase = self.gui_text.value.strip()

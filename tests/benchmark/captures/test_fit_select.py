@@ -198,7 +198,7 @@ def test_fit_exports_a_folder_that_select_reads(capture_dirs, tmp_path):
 def _a_phrase_selects_what_its_mask_covers(out, view, method, fitted, scene, k, clusters, tmp_path):
     """A phrase whose detector box and mask are cluster ``k``'s selects what that mask does,
     recorded with its view and rule."""
-    from benchmark.scene.text_prompt import TextRequest
+    from benchmark.protocol.text_request import TextRequest
     from masks.text import Detection, TextSegmenter
 
     names = [w.name for w in scene.test]

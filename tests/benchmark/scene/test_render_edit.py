@@ -103,8 +103,9 @@ def test_errors_are_one_line(run_dir, tmp_path, capsys, args, message):
 
 def test_report_carries_a_clip_of_the_selection(run_dir):
     from benchmark.results.report import make_report
+    from benchmark.scene.render import selection_clip
 
-    page = make_report(run_dir).read_text()
+    page = make_report(run_dir, selection_clip).read_text()
     assert page.count("data:image/webp;base64") == 1 and "No clip" not in page
     assert (run_dir / "report" / "clip.webp").stat().st_size > 0
 

@@ -5,7 +5,7 @@ import json
 
 from benchmark.protocol.text import _TruthModel
 from benchmark.scene.folders import EDIT_FILE
-from benchmark.scene.text_prompt import TextRequest
+from benchmark.protocol.text_request import TextRequest
 from masks.text import TextSegmenter
 
 
