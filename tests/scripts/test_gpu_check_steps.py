@@ -6,9 +6,19 @@ from pathlib import Path
 
 import torch
 
-_spec = importlib.util.spec_from_file_location("gpu_check", Path(__file__).parents[2] / "scripts" / "gpu_check.py")
-gpu_check = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(gpu_check)
+import pytest
+
+SCRIPTS = Path(__file__).parents[2] / "scripts"
+
+
+def _load(name: str):
+    spec = importlib.util.spec_from_file_location(name, SCRIPTS / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+gpu_check = _load("gpu_check_steps")
 
 
 class _Check:
@@ -97,3 +107,12 @@ def test_the_figures_of_a_rerun_are_read_from_the_results_with_its_settings(tmp_
     assert gpu_check._run_figures(tmp_path, "method.render_rule=visible")["results"]["which"] == "rerun"
     assert "results" not in gpu_check._run_figures(tmp_path, "method.render_rule=other")
     assert p_base.is_file()
+
+
+def test_the_check_loads_its_modules_from_beside_it(capsys):
+    """scripts/gpu_check.py runs from anywhere: its steps and workers are found beside it."""
+    check = _load("gpu_check")
+    assert check.profile.__module__ == "gpu_check_workers" and check.Check.__module__ == "gpu_check_steps"
+    with pytest.raises(SystemExit) as done:
+        check.main(["watch", "--help"])
+    assert done.value.code == 0 and "--variants" in capsys.readouterr().out
