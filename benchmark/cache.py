@@ -24,8 +24,8 @@ import shutil
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 from benchmark import numerics as numeric_modes
 from benchmark.io import atomic_write_json, read_json
@@ -191,7 +191,7 @@ class PeakMemory:
             self.peak_mb = max(self.peak_mb, current_rss_mb())
             self._stop.wait(self.interval)
 
-    def __enter__(self) -> "PeakMemory":
+    def __enter__(self) -> PeakMemory:  # noqa: PYI034 - typing.Self needs Python 3.11
         self.peak_mb = current_rss_mb()
         self._thread = threading.Thread(target=self._poll, daemon=True)
         self._thread.start()

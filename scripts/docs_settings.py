@@ -57,12 +57,12 @@ def sized_table(preset: str, keys: list[str]) -> list[str]:
 
 def page() -> str:
     keys = list(DATASETS)
-    out = ["# Settings and presets", "",
-           "Generated from the preset tables when the site is built. A run resolves one preset "
-           "(`--set preset=NAME`; `auto`: `paper` where torch sees a GPU, `cpu` elsewhere) for its "
-           "benchmark; `--set KEY=VALUE` overrides any setting. A blank cell keeps the config "
-           "class's default. `trase-bench presets --preset P --dataset D` prints the same with the "
-           "file and line that declared each value; the guide is [Presets](../settings.md).", ""]
+    intro = ("Generated from the preset tables when the site is built. A run resolves one preset "
+             "(`--set preset=NAME`; `auto`: `paper` where torch sees a GPU, `cpu` elsewhere) for its "
+             "benchmark; `--set KEY=VALUE` overrides any setting. A blank cell keeps the config "
+             "class's default. `trase-bench presets --preset P --dataset D` prints the same with the "
+             "file and line that declared each value; the guide is [Presets](../settings.md).")
+    out = ["# Settings and presets", "", intro, ""]
     out += ["## The presets", "", "| preset | what it is |", "|---|---|"]
     out += [f"| `{p.name}` | {p.help}{f' (from `{p.base}`)' if p.base else ''} |" for p in GEOMETRY_PRESETS]
     for preset in RUN_PRESETS:

@@ -39,7 +39,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # the check's modules beside it
 
-from gpu_check_steps import (  # noqa: E402
+from gpu_check_steps import (
     CUDA_TESTS,
     REPO,
     SIZES,
@@ -59,7 +59,7 @@ from gpu_check_steps import (  # noqa: E402
     machine,
     run_progress,
 )
-from gpu_check_workers import DIAG_VARIANTS, diagnose, profile  # noqa: E402
+from gpu_check_workers import DIAG_VARIANTS, diagnose, profile
 
 
 def run_all(args) -> int:
@@ -123,8 +123,9 @@ def diagnose_all(args) -> int:
     chk = Check(out, args.seconds * (n_var if args.sequential else 1) + 200)
     chk.result["machine"] = machine()
     chk.save()
-    scene = subprocess.Popen([sys.executable, "-c", "from benchmark.datasets.synthetic.cache import ensure_synthetic; "
-                              "print(ensure_synthetic('hypernerf'))"], cwd=REPO, env={**os.environ, **_py()})
+    scene = subprocess.Popen([sys.executable, "-c", ("from benchmark.datasets.synthetic.cache import ensure_synthetic; "
+                                                     "print(ensure_synthetic('hypernerf'))")], cwd=REPO,
+                             env={**os.environ, **_py()})
     pre = subprocess.Popen([sys.executable, "-m", "trase.precompile"], cwd=REPO, env={**os.environ, **_py()})
     if chk.result["machine"]["gpu"]:
         build_gsplat(chk)
@@ -133,7 +134,7 @@ def diagnose_all(args) -> int:
     procs = {}
     watch = ["--until", str(args.until), "--window", args.window, "--every", str(args.every)]
     for v in args.variants.split(","):
-        log = open(chk.logs / f"diag_{v}.log", "w")
+        log = open(chk.logs / f"diag_{v}.log", "w")  # noqa: SIM115 - open while the child writes to it
         procs[v] = subprocess.Popen([sys.executable, str(REPO / "scripts" / "gpu_check.py"), "diagnose", "--seconds",
                                      str(args.seconds), "--variant", v, "--json", str(out / f"diag_{v}.json"), *watch],
                                     cwd=REPO, env={**os.environ, **_py()}, stdout=log, stderr=subprocess.STDOUT)
@@ -173,7 +174,7 @@ def watch_all(args) -> int:
                "--variant", variant, "--json", str(js), "--until", str(args.until), "--every", str(args.every),
                *(["--near", near] if near else [])]
         print(f"[{time.monotonic() - chk.t0:6.1f} s] diag {label}: {share:.0f} s of training", flush=True)
-        log = open(chk.logs / f"diag_{label}.log", "w")
+        log = open(chk.logs / f"diag_{label}.log", "w")  # noqa: SIM115 - open while the child writes to it
         p = subprocess.Popen(cmd, cwd=REPO, env={**os.environ, **_py()}, stdout=log, stderr=subprocess.STDOUT)
         _collect_diag(chk, out, label, p, share + args.overhead - 5 if cuda else share + 120)
     if tests:  # after the watched runs, in the time kept for them

@@ -48,7 +48,7 @@ class Check:
         with open(log, "w") as f:
             try:
                 rc = subprocess.run(cmd, cwd=REPO, stdout=f, stderr=subprocess.STDOUT, timeout=max(timeout, 1),
-                                    env={**os.environ, **(env or {})}).returncode
+                                    env={**os.environ, **(env or {})}, check=False).returncode
             except subprocess.TimeoutExpired:
                 rc = "timeout"
         rec = {"rc": rc, "seconds": round(time.monotonic() - t, 1), "log_tail": log.read_text()[-1500:]}
@@ -143,11 +143,13 @@ def _start(args):
 
 def _scene_kernels_and_gsplat(chk, cuda: bool, reuse: str | None = None, save: str | None = None) -> None:
     """The built-in scene made and the numba kernels compiled on the CPU, beside gsplat's build."""
-    background = [subprocess.Popen(cmd, cwd=REPO, env={**os.environ, **_py()}, stdout=open(chk.logs / f"{name}.log", "w"),
+    make_scene = ("from benchmark.datasets.synthetic.cache import ensure_synthetic; "
+                  "print(ensure_synthetic('hypernerf'))")
+    jobs = (("scene", [sys.executable, "-c", make_scene]), ("precompile", [sys.executable, "-m", "trase.precompile"]))
+    background = [subprocess.Popen(cmd, cwd=REPO, env={**os.environ, **_py()},
+                                   stdout=open(chk.logs / f"{name}.log", "w"),  # noqa: SIM115 - the child's log
                                    stderr=subprocess.STDOUT)
-                  for name, cmd in (("scene", [sys.executable, "-c", "from benchmark.datasets.synthetic.cache import "
-                                               "ensure_synthetic; print(ensure_synthetic('hypernerf'))"]),
-                                    ("precompile", [sys.executable, "-m", "trase.precompile"]))]
+                  for name, cmd in jobs]
     if cuda:
         build_gsplat(chk, reuse, save)
     for p in background:

@@ -21,40 +21,11 @@ def profile(sizes: list[tuple[int, int, int]], device: str, repeats: int, tf32: 
     import torch
 
     torch.backends.cuda.matmul.allow_tf32 = tf32
-    from benchmark.perf.raster import make_scene
-    from trase.deformation import DeformMLP, deformed
-    from trase.gaussians import GaussianModel
-    from trase.losses import l1_loss, ssim
-    from trase.reconstruct import ReconstructionConfig
-    from trase.render import rasterize
-    from trase.trainer import make_optimizers
-
     cuda = device == "cuda"
     sync = torch.cuda.synchronize if cuda else (lambda: None)
     rows = []
     for n, w, h in sizes:
-        sc, cam = make_scene(n, w, h, 0)
-        g = GaussianModel.from_points(sc["means"].numpy(), sc["colors"].numpy(), sh_degree=3).to(device)
-        g.active_sh_degree = 3
-        # zero heads: offsets as small as a trained network's (the random initialisation's
-        # ~0.1-0.5 scene units make every gaussian cover hundreds of tiles, and the steps change them)
-        deform = DeformMLP.preset("paper").zero_heads().to(device)
-        opt_g, opt_d = make_optimizers(g, deform, ReconstructionConfig.paper())
-        gt = torch.rand(h, w, 3, device=device)
-        bg = torch.zeros(3, device=device)
-        backend = "auto" if cuda else "torch"
-
-        def step():
-            m, q, s = deformed(g, deform, 0.5)
-            out = rasterize(m, q, s, g.opacities, cam, colors=g.sh_for_render(), sh_degree=3, background=bg,
-                            backend=backend)
-            loss = 0.8 * l1_loss(out.color, gt) + 0.2 * (1.0 - ssim(out.color, gt))
-            loss.backward()
-            opt_g.step()
-            opt_d.step()
-            opt_g.zero_grad(set_to_none=True)
-            opt_d.zero_grad(set_to_none=True)
-
+        step = _iteration(n, w, h, device)
         for _ in range(3):
             step()
         sync()
@@ -72,13 +43,51 @@ def profile(sizes: list[tuple[int, int, int]], device: str, repeats: int, tf32: 
                      "min_ms": round(1e3 * min(times), 3),
                      "peak_gpu_mib": round(torch.cuda.max_memory_allocated() / 2**20, 1) if cuda else None,
                      **_profiled(step, sync, cuda)})
-        del g, deform, opt_g, opt_d
+        del step  # the model and its optimizers with it
         if cuda:
             torch.cuda.empty_cache()
     import trase
 
     return {"device": torch.cuda.get_device_name() if cuda else "cpu", "repeats": repeats,
             "trase_from": str(Path(trase.__file__).parent), "tf32": tf32, "sizes": rows}
+
+
+def _iteration(n: int, w: int, h: int, device: str):
+    """perf gpu's reconstruction iteration as a callable: the deformation network, render,
+    L1 + D-SSIM, backward, both Adam steps, on ``n`` gaussians at ``w`` x ``h``."""
+    import torch
+
+    from benchmark.perf.raster import make_scene
+    from trase.deformation import DeformMLP, deformed
+    from trase.gaussians import GaussianModel
+    from trase.losses import l1_loss, ssim
+    from trase.reconstruct import ReconstructionConfig
+    from trase.render import rasterize
+    from trase.trainer import make_optimizers
+
+    sc, cam = make_scene(n, w, h, 0)
+    g = GaussianModel.from_points(sc["means"].numpy(), sc["colors"].numpy(), sh_degree=3).to(device)
+    g.active_sh_degree = 3
+    # zero heads: offsets as small as a trained network's (the random initialisation's
+    # ~0.1-0.5 scene units make every gaussian cover hundreds of tiles, and the steps change them)
+    deform = DeformMLP.preset("paper").zero_heads().to(device)
+    opt_g, opt_d = make_optimizers(g, deform, ReconstructionConfig.paper())
+    gt = torch.rand(h, w, 3, device=device)
+    bg = torch.zeros(3, device=device)
+    backend = "auto" if device == "cuda" else "torch"
+
+    def step():
+        m, q, s = deformed(g, deform, 0.5)
+        out = rasterize(m, q, s, g.opacities, cam, colors=g.sh_for_render(), sh_degree=3, background=bg,
+                        backend=backend)
+        loss = 0.8 * l1_loss(out.color, gt) + 0.2 * (1.0 - ssim(out.color, gt))
+        loss.backward()
+        opt_g.step()
+        opt_d.step()
+        opt_g.zero_grad(set_to_none=True)
+        opt_d.zero_grad(set_to_none=True)
+
+    return step
 
 
 def _profiled(step, sync, cuda: bool) -> dict:

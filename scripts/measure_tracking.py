@@ -42,10 +42,10 @@ def measure(dataset: str, seed: int, size: str, root: Path, sweep: tuple = (), g
     import masks as masklib
     from benchmark.datasets import load_scene
     from benchmark.datasets.synthetic import generate
+    from benchmark.pipeline.classical_tracker import track_classical
     from benchmark.pipeline.context import load_geometry
     from benchmark.pipeline.masks import make_mask_generator
     from benchmark.pipeline.settings import MaskSettings
-    from benchmark.pipeline.classical_tracker import track_classical
     from masks.track_merging import TrackVotes
 
     scene_dir = root / f"{dataset}-s{seed}-{size}"

@@ -11,7 +11,7 @@ from benchmark.cli import COMMANDS
 ROOT = Path(__file__).resolve().parents[1]
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]  # user pages; docs/notes/ keeps history
 # code: fenced blocks and inline code spans; in it a command, then its words up to the line's end
-CODE = re.compile(r"```.*?```|`[^`\n]+`", re.S)
+CODE = re.compile(r"```.*?```|`[^`\n]+`", re.DOTALL)
 INVOCATION = re.compile(r"(?:^|[\s$/])trase-bench ([a-z][a-z-]*)([^\n|]*)", re.MULTILINE)
 
 

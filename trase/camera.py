@@ -197,8 +197,8 @@ class Camera:
         return dataclasses.replace(
             self,
             K=K,
-            width=int(round(self.width / factor)),
-            height=int(round(self.height / factor)),
+            width=round(self.width / factor),
+            height=round(self.height / factor),
         )
 
     def with_time(self, time: float) -> Camera:

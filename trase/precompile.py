@@ -107,8 +107,8 @@ def _run_stages(root: Path) -> None:
     import torch
 
     from trase.features import FeatureConfig, train_features
-    from trase.reconstruction_presets import reconstruction_preset
     from trase.reconstruct import reconstruct
+    from trase.reconstruction_presets import reconstruction_preset
     from trase.render_views import evaluate_psnr
     from trase.segment import render_alpha, render_visible
 

@@ -30,7 +30,7 @@ def score(pred_dir: str, gt_dir: str, metric: str, as_json: bool) -> None:
         click.echo(json.dumps(result.to_dict(), indent=2))
         return
     d = result.to_dict()
-    fmt = lambda x: "n/a" if x is None else f"{x:.4f}"  # noqa: E731
+    fmt = lambda x: "n/a" if x is None else f"{x:.4f}"
     official = metric == "official"
     click.echo(f"metric     {d['metric_version']}")
     click.echo(f"frames     {d['n_frames']}" + (" scored" if official else ""))

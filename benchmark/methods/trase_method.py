@@ -62,8 +62,8 @@ class TraseMethod(Method):
               progress: bool = True) -> tuple[np.ndarray, dict]:
         """Train per-gaussian features [N, D] on frozen geometry -> (features, info)."""
         import masks as masklib
-        from trase.devices import peak_memory_mib, reset_peak_memory, resolve_device
         from benchmark.methods import checkpoint_seconds
+        from trase.devices import peak_memory_mib, reset_peak_memory, resolve_device
         from trase.features import train_features
 
         work_dir = Path(work_dir)

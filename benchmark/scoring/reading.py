@@ -105,7 +105,7 @@ def read_mask(path: str | Path) -> np.ndarray:
     if path.suffix.lower() == ".npy":
         try:
             arr = np.load(path, allow_pickle=False)
-        except Exception as exc:  # numpy raises several types for corrupt files
+        except Exception as exc:  # noqa: BLE001 - numpy raises several types for corrupt files
             raise ScoringError(f"{path}: unreadable .npy ({exc.__class__.__name__})") from None
     else:
         import cv2

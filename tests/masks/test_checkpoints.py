@@ -23,7 +23,7 @@ class _Server:
         srv = self
 
         class Handler(http.server.BaseHTTPRequestHandler):
-            def do_GET(self):  # noqa: N802 - the http.server API
+            def do_GET(self):
                 srv.requests += 1
                 rng = self.headers.get("Range")
                 srv.ranges.append(rng)

@@ -32,9 +32,9 @@ def tiny_owlv2(folder: Path) -> Path:
     (folder / "merges.txt").write_text("#version: 0.2\n")
     tokenizer = CLIPTokenizer(str(folder / "vocab.json"), str(folder / "merges.txt"), pad_token="!")
     torch.manual_seed(0)
-    small = dict(hidden_size=32, intermediate_size=64, num_hidden_layers=2, num_attention_heads=2)
+    small = {"hidden_size": 32, "intermediate_size": 64, "num_hidden_layers": 2, "num_attention_heads": 2}
     text = dict(small, vocab_size=len(vocab), max_position_embeddings=16, bos_token_id=0, eos_token_id=1, pad_token_id=2)
-    model = Owlv2ForObjectDetection(Owlv2Config(text_config=text, vision_config=dict(small, image_size=64, patch_size=16),
+    model = Owlv2ForObjectDetection(Owlv2Config(text_config=text, vision_config={**small, "image_size": 64, "patch_size": 16},
                                                 projection_dim=32))
     model.save_pretrained(folder)
     Owlv2Processor(image_processor=Owlv2ImageProcessor(size={"height": 64, "width": 64}),
@@ -49,12 +49,12 @@ def tiny_sam(folder: Path) -> Path:
 
     torch.manual_seed(0)
     config = SamConfig(
-        vision_config=dict(hidden_size=32, intermediate_size=64, num_hidden_layers=2, num_attention_heads=2, image_size=64,
-                           patch_size=16, output_channels=32, window_size=2, global_attn_indexes=[1], num_pos_feats=16,
-                           mlp_dim=64),
-        prompt_encoder_config=dict(hidden_size=32, image_size=64, patch_size=16, mask_input_channels=4),
-        mask_decoder_config=dict(hidden_size=32, num_hidden_layers=2, num_attention_heads=2, mlp_dim=64,
-                                 iou_head_hidden_dim=32))
+        vision_config={"hidden_size": 32, "intermediate_size": 64, "num_hidden_layers": 2, "num_attention_heads": 2,
+                       "image_size": 64, "patch_size": 16, "output_channels": 32, "window_size": 2,
+                       "global_attn_indexes": [1], "num_pos_feats": 16, "mlp_dim": 64},
+        prompt_encoder_config={"hidden_size": 32, "image_size": 64, "patch_size": 16, "mask_input_channels": 4},
+        mask_decoder_config={"hidden_size": 32, "num_hidden_layers": 2, "num_attention_heads": 2, "mlp_dim": 64,
+                             "iou_head_hidden_dim": 32})
     SamModel(config).save_pretrained(folder)
     SamProcessor(image_processor=SamImageProcessor(size={"longest_edge": 64}, pad_size={"height": 64, "width": 64},
                                                    mask_size={"longest_edge": 16},

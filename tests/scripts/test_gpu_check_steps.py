@@ -4,9 +4,8 @@ import tarfile
 import types
 from pathlib import Path
 
-import torch
-
 import pytest
+import torch
 
 SCRIPTS = Path(__file__).parents[2] / "scripts"
 

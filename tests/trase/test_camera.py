@@ -8,7 +8,7 @@ from trase.camera import Camera, CameraError, intrinsics, look_at
 
 
 def _cam(**kw):
-    base = dict(K=intrinsics(100.0, 100.0, 40.0, 30.0), w2c=np.eye(4), width=80, height=60)
+    base = {"K": intrinsics(100.0, 100.0, 40.0, 30.0), "w2c": np.eye(4), "width": 80, "height": 60}
     base.update(kw)
     return Camera(**base)
 

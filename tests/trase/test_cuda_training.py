@@ -11,11 +11,11 @@ import torch
 
 from tests.trase.helpers import exact_masks, tiny_scene
 from tests.trase.recon_scene import write_scene
-from trase.reconstruction_presets import reconstruction_preset
 from trase.checkpoint import load_model
 from trase.features import FeatureConfig, train_features
 from trase.gaussians import GaussianModel
 from trase.reconstruct import reconstruct
+from trase.reconstruction_presets import reconstruction_preset
 from trase.render_views import evaluate_psnr
 
 pytestmark = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")

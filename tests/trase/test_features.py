@@ -123,7 +123,7 @@ def test_norm_regulariser_sees_the_whole_view_unless_told_sampled(tmp_path, monk
     masks = {v.name: exact_masks(gm, deform, ids, v) for v in views}
     for rule in ("image", "sampled"):
         rec = _Recorder()
-        monkeypatch.setattr(tf, "get_objective", lambda name, **kw: rec)
+        monkeypatch.setattr(tf, "get_objective", lambda name, rec=rec, **kw: rec)
         cfg = FeatureConfig(dim=4, iterations=6, n_pixels=100, n_masks=3, knn=4, knn_keep=2,
                             norm_reg_pixels=rule, fastpath=True)
         train_features(gm, deform, views, lambda v: masks[v.name], cfg, cache_dir=tmp_path / rule, progress=False)

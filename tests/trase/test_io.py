@@ -1,3 +1,5 @@
+from pathlib import Path
+
 import pytest
 
 from trase.io import atomic_directory, atomic_path, atomic_write_text
@@ -19,6 +21,6 @@ def test_failed_write_leaves_old_file(tmp_path):
     p = tmp_path / "f.txt"
     atomic_write_text(p, "old")
     with pytest.raises(RuntimeError), atomic_path(p) as tmp:
-        open(tmp, "w").write("half")
+        Path(tmp).write_text("half")
         raise RuntimeError
     assert p.read_text() == "old" and [x.name for x in tmp_path.iterdir()] == ["f.txt"]

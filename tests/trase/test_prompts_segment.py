@@ -391,7 +391,7 @@ def test_best_iou_clusters_is_the_best_subset():
         outside = rng.integers(0, 20, k).astype(float)
         area = float(inside.sum() + rng.integers(0, 10))
 
-        def iou(sel):
+        def iou(sel, inside=inside, outside=outside, area=area):
             return inside[list(sel)].sum() / (area + outside[list(sel)].sum()) if sel else 0.0
 
         best = max(iou(c) for n in range(k + 1) for c in itertools.combinations(range(k), n))

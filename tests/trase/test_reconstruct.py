@@ -10,11 +10,11 @@ import torch
 from recon_scene import write_scene
 
 from imagefiles import ImageFileError
-from trase.reconstruction_presets import reconstruction_preset
 from trase.checkpoint import CheckpointError, available_iterations, load_model
 from trase.deformation import DeformMLP
 from trase.gaussians import GaussianModel
 from trase.reconstruct import reconstruct
+from trase.reconstruction_presets import reconstruction_preset
 from trase.render_views import evaluate_psnr
 
 CFG = reconstruction_preset(

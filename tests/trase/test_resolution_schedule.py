@@ -2,6 +2,7 @@
 spectrum, the size and cap of each iteration, area downscaling, and a reconstruction under them."""
 
 import dataclasses
+import itertools
 import sys
 from pathlib import Path
 
@@ -44,7 +45,7 @@ def test_the_size_rises_to_full_at_until_and_the_cap_grows_with_it():
     s = ResolutionSchedule([1.0, 2.0, 4.0], [1.0, 0.9, 0.8], until=1000, grow_primitives=True,
                            max_gaussians=16000, start_gaussians=500)
     factors = [s.factor_at(it) for it in range(0, 1200, 50)]
-    assert factors[0] == 4.0 and all(a >= b for a, b in zip(factors, factors[1:])) and s.factor_at(1000) == 1.0
+    assert factors[0] == 4.0 and all(a >= b for a, b in itertools.pairwise(factors)) and s.factor_at(1000) == 1.0
     assert s.factor_at(400) == 2.0  # wanted 0.88: the 2x band holds 0.9
     assert s.cap_at(0) == 1000 and s.cap_at(400) == 4000 and s.cap_at(1000) == 16000
     assert dataclasses.replace(s, start_gaussians=3000).cap_at(0) == 3000  # never below the start

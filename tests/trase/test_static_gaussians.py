@@ -14,10 +14,10 @@ import pytest
 import torch
 from recon_scene import write_scene
 
-from trase.reconstruction_presets import reconstruction_preset
 from trase.checkpoint import load_model
 from trase.deformation import DeformMLP, deformed, deformed_visible
 from trase.reconstruct import ReconstructionConfig, reconstruct
+from trase.reconstruction_presets import reconstruction_preset
 from trase.render_views import evaluate_psnr
 from trase.static_gaussians import (
     PartlyStaticDeformation,
@@ -52,7 +52,7 @@ def test_partly_static_matches_the_network_on_moving_rows_and_freezes_the_others
     scales = torch.full((40, 3), 0.05)
     times = check_times([0.0, 0.25, 0.5, 0.75, 1.0, 1.0])
     assert times == [0.0, 0.25, 0.5, 0.75, 1.0]
-    mv, mean = motion(net, xyz, scales, times, extent=1.0)
+    mv, _ = motion(net, xyz, scales, times, extent=1.0)
     assert torch.all(mv[xyz[:, 0] <= 0] == 0) and torch.all(mv[xyz[:, 0] > 0] > 0.1)
     static, frozen, counts = update_static(net, xyz, scales, times, 1.0, 1e-3, torch.zeros(40, dtype=torch.bool),
                                            torch.zeros(40, 10))
@@ -129,8 +129,8 @@ def test_lagging_times_are_those_more_than_the_gap_below_the_median_time():
         ts = torch.randint(0, 4, (7,), generator=gen).float().tolist()
         for g in (time_gap(ps, ts), time_gap(ps, ts) - 1e-9, 1.0, 3.0):
             assert bool(lagging_times(ps, ts, g)) == (time_gap(ps, ts) > g)
-    for bad in (dict(static_hold_error=-0.1), dict(static_hold_error=1.0, static_time_gap=5.0),
-                dict(static_hold_error=0.2)):  # negative; no pixel is off by 1; no gap to act above
+    for bad in ({"static_hold_error": -0.1}, {"static_hold_error": 1.0, "static_time_gap": 5.0},
+                {"static_hold_error": 0.2}):  # negative; no pixel is off by 1; no gap to act above
         with pytest.raises(ValueError, match="static_hold_error"):
             ReconstructionConfig(**bad)
 
@@ -277,8 +277,8 @@ def test_the_hold_region_is_the_gaussians_that_draw_the_bad_pixels(backend):
 
     from trase.camera import Camera, intrinsics, look_at
     from trase.gaussians import GaussianModel
-    from trase.static_checks import hold_region
     from trase.render import rasterize
+    from trase.static_checks import hold_region
 
     cam = Camera(K=intrinsics(30, 30, 16, 12), w2c=look_at(np.array([0, -3.0, 0.0]), np.zeros(3)),
                  width=32, height=24, time=0.5)

@@ -15,9 +15,9 @@ sys.path.insert(0, str(Path(__file__).parent))
 from recon_scene import write_scene
 
 from tests.trase.helpers import exact_masks, tiny_scene
-from trase.reconstruction_presets import reconstruction_preset
 from trase.features import FeatureConfig, train_features
 from trase.reconstruct import reconstruct
+from trase.reconstruction_presets import reconstruction_preset
 
 pytestmark = pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="needs 2 numba threads")
 

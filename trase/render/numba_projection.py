@@ -98,7 +98,7 @@ def project_forward(means, quats, scales, Rw, tw, near, fx, fy, cx, cy, skew, xl
     lam_out [N] largest eigenvalue of the dilated 2D covariance (for the screen radius)."""
     for n in prange(means.shape[0]):
         T, Sig, M, R = _work_arrays()
-        p0, p1, z, in_front, xn, yn, _xc, _yc, _qn, _qw, _qx, _qy, _qz = _setup(
+        _p0, _p1, z, in_front, xn, yn, _xc, _yc, _qn, _qw, _qx, _qy, _qz = _setup(
             n, means, quats, scales, Rw, tw, near, fx, fy, cx, cy, skew, xlo, xhi, ylo, yhi, T, Sig, M, R)
         c00, c01, c11 = _cov2d(T, Sig)
         a = c00 + EPS2D
@@ -131,7 +131,7 @@ def project_backward(means, quats, scales, Rw, tw, near, fx, fy, cx, cy, skew, x
     """Gradients of means2d / conics / depths -> d_means [N, 3], d_quats [N, 4], d_scales [N, 3]."""
     for n in prange(means.shape[0]):
         T, Sig, M, R = _work_arrays()
-        p0, p1, z, in_front, xn, yn, xc, yc, qnorm, qw, qx, qy, qz = _setup(
+        _p0, _p1, z, _in_front, xn, yn, xc, yc, qnorm, qw, qx, qy, qz = _setup(
             n, means, quats, scales, Rw, tw, near, fx, fy, cx, cy, skew, xlo, xhi, ylo, yhi, T, Sig, M, R)
         dp0 = 0.0
         dp1 = 0.0

@@ -53,7 +53,7 @@ def spread(items: Sequence, k: int) -> list:
     n = len(items)
     if n <= k:
         return list(items)
-    return [items[int(round(i * (n - 1) / (k - 1)))] for i in range(k)] if k > 1 else [items[0]]
+    return [items[round(i * (n - 1) / (k - 1))] for i in range(k)] if k > 1 else [items[0]]
 
 
 def _alpha(geom: dict, camera, t_index: int) -> np.ndarray:

@@ -27,7 +27,7 @@ def test_builtin_methods_are_listed_without_importing_them(capsys):
     rows = {line.split()[0]: line for line in lines[1:] if line.startswith("  ")}
     assert BUILT_IN <= set(rows) and err == ""
     # anything else comes from an installed package (the competitors under competitors/), not built in
-    assert all(not rows[name].split(None, 2)[1] == "built-in" for name in set(rows) - BUILT_IN)
+    assert all(rows[name].split(None, 2)[1] != "built-in" for name in set(rows) - BUILT_IN)
     assert rows["trase"].split(None, 2)[1:] == ["built-in", "soft-mined contrastive objective (TRASE)"]
     # in a fresh process: the listing imports no method's module (nor torch)
     code = ("import sys; from benchmark.cli import main; main(['methods']); "

@@ -203,8 +203,8 @@ def test_an_update_replaces_only_its_cells_and_marks_those_from_another_machine(
 def test_figures_update_merges_into_its_data_file_and_needs_one(tmp_path, monkeypatch, capsys):
     import json
 
-    import benchmark.results.figures as figures
     from benchmark.cli import main
+    from benchmark.results import figures
 
     old = _methods_data()
     old["machine"]["instruction_sets"] = ["torch AVX512, numba znver5"]

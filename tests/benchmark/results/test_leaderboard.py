@@ -91,7 +91,7 @@ def test_official_metric_with_v1_beside_where_it_differs(tmp_path):
 def test_real_average_only_when_every_sequence_ran(tmp_path):
     write(tmp_path, record("trase", "nerfds", "as_novel_view", 0.8, 0.9, variant="real"))
     t = build_tables(_main_runs(tmp_path), "real")[0]
-    row = dict((r[0], r[1]) for r in t.rows)
+    row = {r[0]: r[1] for r in t.rows}
     nerfds = t.groups.index("NeRF-DS-Mask")
     assert row["trase [a]"][2 * nerfds] is None  # 1 of 5 sequences: no average
     assert row["trase (published)"][2 * nerfds] == pytest.approx(0.8773, abs=1e-3)
@@ -99,7 +99,7 @@ def test_real_average_only_when_every_sequence_ran(tmp_path):
     for seq in ("basin_novel_view", "cup_novel_view", "plate_novel_view", "press_novel_view"):
         write(tmp_path, record("trase", "nerfds", seq, 0.6, 0.9, variant="real"))
     t = build_tables(_main_runs(tmp_path), "real")[0]
-    row = dict((r[0], r[1]) for r in t.rows)
+    row = {r[0]: r[1] for r in t.rows}
     assert row["trase [a]"][2 * nerfds] == pytest.approx((0.8 + 4 * 0.6) / 5)
 
 

@@ -4,8 +4,8 @@ stand-ins in place of the downloaded models."""
 import json
 
 from benchmark.protocol.text import _TruthModel
-from benchmark.scene.folders import EDIT_FILE
 from benchmark.protocol.text_request import TextRequest
+from benchmark.scene.folders import EDIT_FILE
 from masks.text import TextSegmenter
 
 

@@ -12,11 +12,11 @@ pytest.importorskip("trase_bench_grouping")
 
 from trase_bench_grouping.method import NO_TRACK, SA4D, GaussianGrouping, inside_hull
 from trase_bench_grouping.settings import GroupingSettings
-from masks.tracked import ids_path, save_ids
 
 from benchmark.methods import FittedModel, check_method_class
 from benchmark.protocol.prompts import make_benchmark_prompts
 from benchmark.scoring import score_masks
+from masks.tracked import ids_path, save_ids
 from tests.trase.helpers import exact_masks, tiny_scene
 from trase.deformation import deformed
 from trase.render import rasterize

@@ -4,16 +4,15 @@ tell the objects apart at the small scale and join them at the large one."""
 import dataclasses
 
 import numpy as np
-import pytest
-
-from benchmark.protocol.prompts import interior_points
-from masks.maskset import MaskSet
-from tests.trase.helpers import exact_masks, tiny_scene
 from trase_bench_saga.inference import gated, rendered_feature, select_by_query
 from trase_bench_saga.objective import gate_from_dict
 from trase_bench_saga.settings import SAGA_PRESETS, SagaFeatures
 from trase_bench_saga.train import train_saga
+
+from benchmark.protocol.prompts import interior_points
 from lazyspecs.presets import Context
+from masks.maskset import MaskSet
+from tests.trase.helpers import exact_masks, tiny_scene
 
 
 def test_gated_features_are_unit_and_gates_pick_channels():

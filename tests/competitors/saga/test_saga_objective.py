@@ -6,7 +6,6 @@ import math
 import numpy as np
 import pytest
 import torch
-
 from trase_bench_saga.objective import (
     MAX_PAIR_WEIGHT,
     ScaleGate,
