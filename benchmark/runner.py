@@ -10,7 +10,6 @@ c<config hash>), with predictions beside them.
 from __future__ import annotations
 
 import dataclasses
-import os
 import sys
 import time
 from pathlib import Path
@@ -222,9 +221,14 @@ def run(opts: RunOptions) -> list[Path]:
 
 
 def default_sequences(spec, data_root: Path | None) -> list[str | None]:
-    """The paper's sequences present under the data root; if none, the synthetic default."""
+    """The paper's sequences present under the data root; if none, the synthetic default, said
+    on stderr where a data root was given (a layout the loader does not know looks empty)."""
+    from benchmark.datasets import data_root as real_root
     from benchmark.datasets import find_scene_dir
 
-    root = data_root or (Path(os.environ["TRASE_DATA"]) if os.environ.get("TRASE_DATA") else None)
+    root = real_root(data_root)
     found = [s for s in spec.sequences if root and find_scene_dir(spec.key, s, root)]
+    if root is not None and not found:
+        print(f"note: no {spec.key} sequence under {root} (looked in {root / spec.key}/ and "
+              f"{root / spec.display_name}/); running the built-in synthetic scene", file=sys.stderr, flush=True)
     return found or [None]

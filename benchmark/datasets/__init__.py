@@ -10,7 +10,7 @@ Public API::
 """
 
 from benchmark.datasets.errors import DatasetError
-from benchmark.datasets.layout import align_gt, find_gt_dir, find_scene_dir
+from benchmark.datasets.layout import align_gt, data_root, find_gt_dir, find_scene_dir
 from benchmark.datasets.loader import load_scene
 from benchmark.datasets.registry import DATASETS, DatasetSpec, get_dataset, nerfies_time
 from benchmark.datasets.scene import Scene, View
@@ -22,6 +22,7 @@ __all__ = [
     "Scene",
     "View",
     "align_gt",
+    "data_root",
     "find_gt_dir",
     "find_scene_dir",
     "get_dataset",

@@ -10,6 +10,7 @@ Subdirectories of ``gt_masks`` (per-object ground truth) are ignored when aligni
 
 from __future__ import annotations
 
+import os
 import re
 from pathlib import Path
 
@@ -17,6 +18,21 @@ from benchmark.datasets.errors import fail
 from benchmark.datasets.registry import get_dataset
 
 _GT_NAME = re.compile(r"^(\d{5})\.png$")
+
+
+def data_root(given: Path | str | None) -> Path | None:
+    """The root of the real data: ``given`` (``--data-root``), else ``$TRASE_DATA``, else None.
+    A root named but missing is an error: without it a run would silently use the built-in
+    synthetic scene in place of the data the user meant."""
+    if given is not None:
+        root, named = Path(given), "--data-root"
+    elif os.environ.get("TRASE_DATA"):
+        root, named = Path(os.environ["TRASE_DATA"]), "$TRASE_DATA"
+    else:
+        return None
+    if not root.is_dir():
+        raise fail(root, f"no such directory (the data root given by {named})")
+    return root
 
 
 def find_scene_dir(dataset: str, sequence: str, data_root: Path | str) -> Path | None:

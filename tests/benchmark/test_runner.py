@@ -123,6 +123,22 @@ def test_unknown_setting_is_an_error(data_root, tmp_path, capsys):
     assert "unknown setting" in capsys.readouterr().err
 
 
+def test_a_missing_data_root_is_an_error_and_an_empty_one_is_said(tmp_path, capsys, monkeypatch):
+    from benchmark.datasets import get_dataset
+    from benchmark.runner import default_sequences
+
+    monkeypatch.delenv("TRASE_DATA", raising=False)
+    args = ["run", "--method", "trase", "--dataset", "hypernerf", "--data-root", str(tmp_path / "nowhere"),
+            "--runs", str(tmp_path / "runs"), "--quiet"]
+    assert main(args) == 1
+    assert "nowhere: no such directory (the data root given by --data-root)" in capsys.readouterr().err
+    assert not (tmp_path / "runs").exists()
+    assert default_sequences(get_dataset("hypernerf"), tmp_path) == [None]  # no sequence there: the synthetic one
+    assert "note: no hypernerf sequence under" in capsys.readouterr().err
+    assert default_sequences(get_dataset("hypernerf"), None) == [None]  # no root given: nothing to say
+    assert capsys.readouterr().err == ""
+
+
 def test_overrides_parse_and_merge():
     o = parse_overrides(["a.b=3", "a.c=true", "d=text", "e=[1, 2]"])
     assert o == {"a": {"b": 3, "c": True}, "d": "text", "e": [1, 2]}

@@ -105,14 +105,12 @@ def find_or_generate(dataset: str, sequence: str | None = None,
     exists; a real sequence name that is missing is
     an error listing where it looked. ``precompile``: as for ``ensure_synthetic``.
     """
+    from benchmark.datasets import data_root as real_root
     from benchmark.datasets import find_scene_dir, get_dataset
 
     spec = get_dataset(dataset)
-    roots = []
-    if data_root is not None:
-        roots.append(Path(data_root))
-    elif os.environ.get("TRASE_DATA"):
-        roots.append(Path(os.environ["TRASE_DATA"]))
+    root = real_root(data_root)
+    roots = [] if root is None else [root]
     seq = sequence if sequence is not None else sequence_name("small")
     synthetic = parse_sequence_name(seq)
     if synthetic is None:

@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 import pytest
 
-from benchmark.datasets import load_scene
+from benchmark.datasets import DatasetError, load_scene
 from benchmark.datasets.synthetic import (
     DATASET_KEYS,
     GENERATOR_VERSION,
@@ -388,7 +388,15 @@ def test_ensure_synthetic_uses_trase_cache(tmp_path, monkeypatch):
 def test_find_or_generate(tmp_path, monkeypatch):
     monkeypatch.setenv("TRASE_BENCH_CACHE", str(tmp_path / "cache"))
     monkeypatch.delenv("TRASE_DATA", raising=False)
+    # a data root named but missing: an error, not the synthetic scene in its place
+    with pytest.raises(DatasetError, match=r"data: no such directory \(the data root given by --data-root\)"):
+        find_or_generate("hypernerf", "synthetic-tiny", tmp_path / "data")
+    monkeypatch.setenv("TRASE_DATA", str(tmp_path / "elsewhere"))
+    with pytest.raises(DatasetError, match=r"elsewhere: no such directory \(the data root given by \$TRASE_DATA\)"):
+        find_or_generate("hypernerf", "synthetic-tiny", None)
+    monkeypatch.delenv("TRASE_DATA")
     # no real data: the synthetic default
+    (tmp_path / "data").mkdir()
     d, variant = find_or_generate("hypernerf", "synthetic-tiny", tmp_path / "data")
     assert variant == "synthetic" and d == tmp_path / "cache" / "synthetic" / "hypernerf" / f"v{GENERATOR_VERSION}" / SEQ
     # a named real sequence that is missing: error naming where it looked
