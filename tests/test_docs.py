@@ -25,6 +25,20 @@ def test_relative_links_resolve():
     assert not broken, broken
 
 
+def test_the_settings_guides_excerpt_is_what_the_presets_command_prints(capsys):
+    """docs/settings.md quotes `trase-bench presets --preset cpu --dataset neu3d`, file and line
+    of each value included: a move in the preset tables must move the quote too."""
+    from benchmark.cli import main
+
+    text = (ROOT / "docs" / "settings.md").read_text()
+    excerpt = re.search(r"An excerpt of the second.*?```text\n(.*?)```", text, flags=re.DOTALL)
+    assert excerpt, "the settings guide's excerpt is missing"
+    assert main(["presets", "--preset", "cpu", "--dataset", "neu3d"]) == 0
+    printed = set(capsys.readouterr().out.splitlines())
+    quoted = excerpt.group(1).splitlines()
+    assert quoted and not [line for line in quoted if line not in printed]
+
+
 def test_the_library_guides_imports_run():
     text = (ROOT / "docs" / "library.md").read_text()
     blocks = re.findall(r"```python\n(.*?)```", text, flags=re.DOTALL)
