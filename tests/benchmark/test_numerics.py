@@ -57,6 +57,7 @@ def test_a_run_in_a_process_loaded_under_another_mode_stops_before_any_stage(tmp
 
     # torch fixes its kernel level at its first use: here, in portable mode, whatever ran before
     assert torch.backends.cpu.get_cpu_capability() == "AVX2"
+    (tmp_path / "data").mkdir()  # a data root without real data: the built-in scene
     with numerics.environment("portable"):
         rc = main(["run", "--method", "trase", "--dataset", "hypernerf", "--data-root", str(tmp_path / "data"),
                    "--runs", str(tmp_path / "runs"), "--quiet", "--set", "machine.numerics=native"])
