@@ -88,6 +88,18 @@ def checkpoint_seconds(default: float = 30.0) -> float:
     return value
 
 
+def check_clustering(clustering) -> None:
+    """ConfigError for a method's ``clustering`` settings (method, params) that
+    trase.clustering.cluster would refuse: said before any stage, not after the features."""
+    from benchmark.config import ConfigError
+    from trase.clustering import ClusteringError, check_params
+
+    try:
+        check_params(str(clustering.method), dict(clustering.params))
+    except ClusteringError as e:
+        raise ConfigError(f"--set method.clustering: {e}") from None
+
+
 def register_method(name: str) -> Callable:
     """Class decorator: name a Method class (``cls.name``) and register it (``get_method``)."""
 
@@ -291,5 +303,5 @@ def click_view(scene, prompts, click):
     raise MethodError(f"prompt view {name!r} is not a test view of {scene.root}")
 
 
-__all__ = ["ENTRY_POINT_GROUP", "METHODS", "FittedModel", "Method", "MethodError", "check_method_class",
-           "click_selection", "click_view", "combine_clicks", "get_method", "register_method", "takes_negative_clicks"]
+__all__ = ["ENTRY_POINT_GROUP", "METHODS", "FittedModel", "Method", "MethodError", "check_clustering",
+           "check_method_class", "click_selection", "click_view", "combine_clicks", "get_method", "register_method", "takes_negative_clicks"]

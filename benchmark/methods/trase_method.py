@@ -44,12 +44,9 @@ class TraseMethod(Method):
 
     def check_settings(self, settings: TraseSettings) -> None:
         from benchmark.config import ConfigError
-        from trase.clustering import ClusteringError, check_params
+        from benchmark.methods import check_clustering
 
-        try:
-            check_params(str(settings.clustering.method), dict(settings.clustering.params))
-        except ClusteringError as e:
-            raise ConfigError(f"--set method.clustering: {e}") from None
+        check_clustering(settings.clustering)
         if not float(settings.unseen_min_weight) >= 0:
             raise ConfigError(f"--set method.unseen_min_weight={settings.unseen_min_weight!r}: a weight >= 0 (0: off)")
         if isinstance(settings.unseen_neighbours, bool) or int(settings.unseen_neighbours) < 1:

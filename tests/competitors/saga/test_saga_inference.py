@@ -75,6 +75,19 @@ def test_presets_paper_are_the_public_defaults_and_cpu_is_smaller():
     assert SAGA_PRESETS.resolve("cpu", Context(dataset="neu3d", monocular=False)).config.render_rule == "alone"
 
 
+def test_a_clustering_parameter_no_algorithm_reads_is_refused_before_any_stage():
+    import pytest
+    from trase_bench_saga.method import SagaMethod
+
+    from benchmark.config import ConfigError
+
+    cfg = SAGA_PRESETS.resolve("cpu", Context(dataset="hypernerf")).config
+    SagaMethod().check_settings(cfg)
+    cfg.clustering.params = {**cfg.clustering.params, "cluster_selection_method": "leaf"}
+    with pytest.raises(ConfigError, match="method.clustering: clustering parameter 'cluster_selection_method'"):
+        SagaMethod().check_settings(cfg)
+
+
 def test_mask_scales_come_from_rendered_depth():
     from trase_bench_saga.train import view_scales
 

@@ -29,6 +29,9 @@ class SagaMethod(Method):
 
     def check_settings(self, settings: SagaSettings) -> None:
         from benchmark.config import ConfigError
+        from benchmark.methods import check_clustering
+
+        check_clustering(settings.clustering)
 
         f, inf = settings.features, settings.inference
         if f.norm_pixels not in ("image", "sampled"):
