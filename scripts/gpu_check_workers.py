@@ -54,7 +54,9 @@ def profile(sizes: list[tuple[int, int, int]], device: str, repeats: int, tf32: 
 
 def _iteration(n: int, w: int, h: int, device: str):
     """perf gpu's reconstruction iteration as a callable: the deformation network, render,
-    L1 + D-SSIM, backward, both Adam steps, on ``n`` gaussians at ``w`` x ``h``."""
+    L1 + D-SSIM, backward, both Adam steps, on ``n`` gaussians at ``w`` x ``h``. A copy of
+    benchmark.perf.gpu.reconstruction_step's step on any device, kept here on purpose: this
+    harness also times older checkouts, whose perf module may differ or be missing."""
     import torch
 
     from benchmark.perf.raster import make_scene

@@ -2,7 +2,6 @@
 gaussians move is measured again, the still ones skip the deformation network from the next
 step and the ones that move again are woken up; each check is logged in ``static_checks.csv``.
 The measures of motion and the frozen rows: ``trase.static_gaussians``.
-
 """
 
 from __future__ import annotations

@@ -101,7 +101,7 @@ def _seed_section(record: dict, run_dir: Path) -> str:
             f"<th>chosen</th></tr>{rows}</table>")
 
 
-def _clip(run_dir: Path, render_clip) -> tuple[str, str]:
+def _clip(run_dir: Path, render_clip: Callable[[Path], bytes] | None) -> tuple[str, str]:
     """(html, note): the animated WebP ``render_clip(run_dir)`` makes of the run's selection, or
     why there is none."""
     if render_clip is None:
@@ -180,7 +180,7 @@ def _is_external(record: dict) -> bool:
     return (record.get("run") or {}).get("kind") == "external"
 
 
-def _clip_section(record: dict, run_dir: Path, render_clip) -> str:
+def _clip_section(record: dict, run_dir: Path, render_clip: Callable[[Path], bytes] | None) -> str:
     """The clip of the run's selection; none for external predictions (no model to render)."""
     if _is_external(record):
         return ""

@@ -17,7 +17,7 @@ def _load(name: str):
     return module
 
 
-gpu_check = _load("gpu_check_steps")
+steps = _load("gpu_check_steps")
 
 
 class _Check:
@@ -52,14 +52,14 @@ def test_a_saved_build_is_unpacked_with_its_times_and_the_sources_dated_before_i
     (package / "cuda" / "csrc").mkdir(parents=True)
     (package / "__init__.py").write_text("")
     (package / "cuda" / "csrc" / "Adam.cu").write_text("")
-    monkeypatch.setattr(gpu_check, "EXTENSIONS_DIR", str(tmp_path / "ext"))
+    monkeypatch.setattr(steps, "EXTENSIONS_DIR", str(tmp_path / "ext"))
     monkeypatch.setattr(torch.cuda, "get_device_capability", lambda: (9, 0))  # an H100/H200
     monkeypatch.setattr(importlib.util, "find_spec",
                         lambda name: types.SimpleNamespace(origin=str(package / "__init__.py")))
     monkeypatch.setattr(os, "environ", dict(os.environ))
     chk = _Check()
     saved = tmp_path / "again.tar.gz"
-    rec = gpu_check.build_gsplat(chk, reuse=str(archive), save=str(saved))
+    rec = steps.build_gsplat(chk, reuse=str(archive), save=str(saved))
     so = tmp_path / "ext" / "gsplat_cuda" / "gsplat_cuda.so"
     assert so.read_bytes() == b"so" and so.stat().st_mtime == 1.9e9
     assert (package / "cuda" / "csrc" / "Adam.cu").stat().st_mtime < so.stat().st_mtime
@@ -71,10 +71,10 @@ def test_a_saved_build_is_unpacked_with_its_times_and_the_sources_dated_before_i
 
 
 def test_without_an_archive_the_build_compiles_as_before(tmp_path, monkeypatch):
-    monkeypatch.setattr(gpu_check, "EXTENSIONS_DIR", str(tmp_path / "ext"))
+    monkeypatch.setattr(steps, "EXTENSIONS_DIR", str(tmp_path / "ext"))
     monkeypatch.setattr(torch.cuda, "get_device_capability", lambda: (9, 0))  # an H100/H200
     monkeypatch.setattr(os, "environ", dict(os.environ))
-    rec = gpu_check.build_gsplat(_Check(), reuse=str(tmp_path / "missing.tar.gz"))
+    rec = steps.build_gsplat(_Check(), reuse=str(tmp_path / "missing.tar.gz"))
     assert rec["reused_archive"] is False
 
 
@@ -90,7 +90,7 @@ def test_a_cut_run_reports_each_stage_and_the_geometry_checkpoint_it_resumes_fro
     for it in (1000, 2000):
         _touch(cache / "geometry" / "k2.partial" / "model" / "point_cloud" / f"iteration_{it}" / "point_cloud.ply")
     _touch(cache / "geometry" / "k2.partial" / "model" / "point_cloud" / "iteration_3000" / "unfinished.tmp")
-    assert gpu_check.run_progress(tmp_path) == {"geometry": [{"state": "cut", "checkpoint": 2000}],
+    assert steps.run_progress(tmp_path) == {"geometry": [{"state": "cut", "checkpoint": 2000}],
                                                 "masks": [{"state": "done"}]}
 
 
@@ -102,14 +102,14 @@ def test_the_figures_of_a_rerun_are_read_from_the_results_with_its_settings(tmp_
     p_rerun = _touch(tmp_path / "trase" / "hypernerf" / "synthetic" / "c2" / "results.json", json.dumps(rerun))
     p_base = _touch(tmp_path / "trase" / "hypernerf" / "synthetic" / "c1" / "results.json", json.dumps(base))
     os.utime(p_rerun, (1, 1))  # the base run's results are the newest
-    assert gpu_check._run_figures(tmp_path)["results"]["which"] == "base"
-    assert gpu_check._run_figures(tmp_path, "method.render_rule=visible")["results"]["which"] == "rerun"
-    assert "results" not in gpu_check._run_figures(tmp_path, "method.render_rule=other")
+    assert steps._run_figures(tmp_path)["results"]["which"] == "base"
+    assert steps._run_figures(tmp_path, "method.render_rule=visible")["results"]["which"] == "rerun"
+    assert "results" not in steps._run_figures(tmp_path, "method.render_rule=other")
     assert p_base.is_file()
 
 
 def test_the_check_loads_its_modules_from_beside_it(capsys):
-    """scripts/gpu_check.py runs from anywhere: its steps and workers are found beside it."""
+    """scripts/steps.py runs from anywhere: its steps and workers are found beside it."""
     check = _load("gpu_check")
     assert check.profile.__module__ == "gpu_check_workers" and check.Check.__module__ == "gpu_check_steps"
     with pytest.raises(SystemExit) as done:
