@@ -68,10 +68,7 @@ def epsilon_labels(single_linkage_tree, labels: np.ndarray, min_cluster_size: in
     labels = np.asarray(labels)
     if epsilon <= 0 or labels.max(initial=-1) < 0:
         return labels
-    from sklearn.cluster._hdbscan._tree import (  # private: the merge only
-        _condense_tree,
-        _do_labelling,
-    )
+    from sklearn.cluster._hdbscan._tree import _condense_tree, _do_labelling  # private: the merge only
 
     condensed = _condense_tree(single_linkage_tree, int(min_cluster_size))
     parent_of, birth = _cluster_tree(condensed)

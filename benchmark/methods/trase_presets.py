@@ -15,15 +15,7 @@ from __future__ import annotations
 import dataclasses
 
 from benchmark.methods import MethodError
-from lazyspecs.presets import (
-    MONOCULAR,
-    MULTIVIEW,
-    OWN_CAPTURE,
-    Context,
-    PresetTable,
-    dataset,
-    images_below,
-)
+from lazyspecs.presets import MONOCULAR, MULTIVIEW, OWN_CAPTURE, Context, PresetTable, dataset, images_below
 from trase.feature_config import CPU_MAX_PIXELS, FEATURE_PRESETS, FeatureConfig
 from trase.prompts import FRONT_SHARE
 from trase.reconstruction_presets import CPU_MAX_GAUSSIANS

@@ -7,13 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from benchmark.scheduler import (
-    SchedulerJob,
-    expand_tasks,
-    parse_gres_gpus,
-    parse_sacct,
-    parse_scontrol,
-)
+from benchmark.scheduler import SchedulerJob, expand_tasks, parse_gres_gpus, parse_sacct, parse_scontrol
 from benchmark.sweep import SweepJob, SweepTarget, read_state, write_state
 
 SCONTROL = """\

@@ -5,15 +5,7 @@ import dataclasses
 
 import pytest
 
-from lazyspecs.presets import (
-    MONOCULAR,
-    Context,
-    Derived,
-    PresetError,
-    PresetTable,
-    dataset,
-    images_below,
-)
+from lazyspecs.presets import MONOCULAR, Context, Derived, PresetError, PresetTable, dataset, images_below
 
 
 @dataclasses.dataclass

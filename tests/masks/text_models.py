@@ -12,13 +12,7 @@ WORDS = ("the", "cup", "ball", "ring", "blob", "red")
 def tiny_owlv2(folder: Path) -> Path:
     """An OWLv2 detector folder (64 px input, a word-level CLIP tokenizer of WORDS)."""
     import torch
-    from transformers import (
-        CLIPTokenizer,
-        Owlv2Config,
-        Owlv2ForObjectDetection,
-        Owlv2ImageProcessor,
-        Owlv2Processor,
-    )
+    from transformers import CLIPTokenizer, Owlv2Config, Owlv2ForObjectDetection, Owlv2ImageProcessor, Owlv2Processor
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)

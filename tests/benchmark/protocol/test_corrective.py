@@ -4,13 +4,7 @@ how many clicks a curve needs."""
 import numpy as np
 import pytest
 
-from benchmark.protocol.corrective import (
-    check_frames,
-    clicks_to_reach,
-    corrective_clicks,
-    iou,
-    next_click,
-)
+from benchmark.protocol.corrective import check_frames, clicks_to_reach, corrective_clicks, iou, next_click
 from trase.prompts import Click
 
 H, W = 20, 30

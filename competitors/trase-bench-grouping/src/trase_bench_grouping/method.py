@@ -21,13 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmark.methods import FittedModel, Method, MethodError, click_view, combine_clicks
-from trase_bench_grouping.settings import (
-    CLICK_VOTES,
-    GG_PRESETS,
-    HULLS,
-    SA4D_PRESETS,
-    GroupingSettings,
-)
+from trase_bench_grouping.settings import CLICK_VOTES, GG_PRESETS, HULLS, SA4D_PRESETS, GroupingSettings
 
 NO_TRACK = 0  # the tracked ids' class of pixels no track holds: a click on it selects nothing
 
