@@ -45,6 +45,8 @@ SUITES.add("skip", "benchmark.perf.skip:run",
 SUITES.add("frames", "benchmark.perf.frames:run",
            "How much new content each frame of a monocular sequence carries (built-in formats, D-NeRF --scene): "
            "the share of frames far below the median novelty.")
+SUITES.add("network", "benchmark.perf.network:run",
+           "The deformation network's training step: ms and GFLOP/s against one of its matrix products alone.")
 SUITES.add("pareto", "benchmark.perf.pareto:run",
            "mIoU vs features+fit+evaluate time over a settings grid for one scene; PNG with the Pareto front.")
 

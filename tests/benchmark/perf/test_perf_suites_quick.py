@@ -80,6 +80,9 @@ def test_all_suites_quick(tmp_path, monkeypatch, capsys):
 
     assert tables(told) in text  # the runs file gives back the table the suite printed
 
+    (net,) = s["network"]["cases"]  # the deformation network's step against one of its products
+    assert net["step_gflops_per_s"] > 0 and 0 < net["share_of_product_rate"]
+
     pa = s["pareto"]
     assert not pa["failed"] and len(pa["runs"]) == 2 and pa["pareto_front"]
     assert (tmp_path / "pareto.png").stat().st_size > 1000  # next to the --json file
