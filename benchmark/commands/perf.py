@@ -30,6 +30,9 @@ from benchmark.perf import SUITES, get_suite, machine_info
                    "for the suites that measure images (dnerf).")
 @click.option("--method", "methods", multiple=True,
               help="Methods for suites that compare them (methods; default: every registered method).")
+@click.option("--variant", "variant_names", multiple=True, metavar="NAME",
+              help="Only these variants, for suites that measure several (skip: full, static, converged, "
+                   "resolution, resolution+primitives; keep full for the ratios to it; repeatable).")
 @click.option("--threads", type=click.IntRange(min=1), default=None,
               help="Threads for torch and numba (default: theirs, all cores). On a shared, loaded "
                    "machine --threads 1 gives the steadiest side-by-side ratios.")
@@ -40,7 +43,8 @@ from benchmark.perf import SUITES, get_suite, machine_info
               help="With --write-page: run nothing, write the page from the --json file as it is.")
 def perf(suites: tuple[str, ...], quick: bool, json_out: str | None, out_dir: str | None,
          dataset: str | None, scenes: tuple[str, ...], overrides: tuple[str, ...], lpips_weights: str | None,
-         methods: tuple[str, ...], threads: int | None, page: str | None, from_json: bool) -> None:
+         methods: tuple[str, ...], variant_names: tuple[str, ...], threads: int | None, page: str | None,
+         from_json: bool) -> None:
     """Run performance SUITES (default: all that this machine can run) and print their figures."""
     if page and not json_out:
         raise click.UsageError("--write-page renders a --json file: give --json FILE")
@@ -49,7 +53,8 @@ def perf(suites: tuple[str, ...], quick: bool, json_out: str | None, out_dir: st
             raise click.UsageError("--from-json writes a page from --json: give --write-page PAGE")
         _write_page(page, json_out)
         return
-    _run_suites(suites, quick, json_out, out_dir, dataset, scenes, overrides, lpips_weights, methods, threads)
+    _run_suites(suites, quick, json_out, out_dir, dataset, scenes, overrides, lpips_weights, methods, threads,
+                variant_names)
     if page:
         _write_page(page, json_out)
 
@@ -64,7 +69,7 @@ def _write_page(page: str, json_out: str) -> None:
 
 
 def _run_suites(suites, quick, json_out, out_dir, dataset, scenes, overrides, lpips_weights, methods,
-                threads) -> None:
+                threads, variant_names=()) -> None:
     """Each suite named (default: all this machine can run), its figures printed and, with
     ``json_out``, written."""
     names = suites or tuple(SUITES.names())
@@ -83,6 +88,8 @@ def _run_suites(suites, quick, json_out, out_dir, dataset, scenes, overrides, lp
         if not takes:
             raise click.UsageError(f"--dataset: none of {', '.join(names)} takes a dataset "
                                    "(suites that do: reconstruct, captures, methods, skip)")
+    if variant_names and not [n for n in names if "variant_names" in inspect.signature(get_suite(n)).parameters]:
+        raise click.UsageError(f"--variant: none of {', '.join(names)} measures variants (the suite that does: skip)")
     if threads:
         import numba
         import torch
@@ -114,6 +121,8 @@ def _run_suites(suites, quick, json_out, out_dir, dataset, scenes, overrides, lp
             extra["overrides"] = list(overrides)
         if methods and "methods" in inspect.signature(fn).parameters:
             extra["methods"] = list(methods)
+        if variant_names and "variant_names" in inspect.signature(fn).parameters:
+            extra["variant_names"] = list(variant_names)
         if lpips_weights and "lpips_weights" in inspect.signature(fn).parameters:
             extra["lpips_weights"] = lpips_weights
         result["suites"][name] = fn(quick=quick, echo=click.echo, **extra)

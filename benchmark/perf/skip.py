@@ -25,6 +25,7 @@ import traceback
 from collections.abc import Callable
 from pathlib import Path
 
+from benchmark.errors import UserError
 from benchmark.perf.common import load_average, table, versions
 
 DATASETS = ["nerfds", "hypernerf", "neu3d", "immersive", "technicolor"]
@@ -70,12 +71,17 @@ RESOLUTION = ["geometry.train.resolution_schedule=frequency"]
 PRIMITIVES = [*RESOLUTION, "geometry.train.primitive_schedule=resolution"]
 
 
-def variants(threshold: float, quick: bool = False) -> dict[str, list[str]]:
-    return {"full": FULL, "static": [*FULL, f"geometry.train.static_threshold={threshold}",
+def variants(threshold: float, quick: bool = False, names: list[str] | None = None) -> dict[str, list[str]]:
+    """The variants measured: every one, or those ``names`` (in the suite's order)."""
+    every = {"full": FULL, "static": [*FULL, f"geometry.train.static_threshold={threshold}",
                                      f"geometry.train.static_time_gap={STATIC_TIME_GAP}",
                                      f"geometry.train.static_hold_error={STATIC_HOLD_ERROR}"],
             "converged": converged(QUICK_STOP_INTERVAL if quick else STOP_INTERVAL),
             "resolution": [*FULL, *RESOLUTION], "resolution+primitives": [*FULL, *PRIMITIVES]}
+    unknown = [n for n in names or [] if n not in every]
+    if unknown:
+        raise UserError(f"unknown skip variant(s) {', '.join(unknown)} (the suite's: {', '.join(every)})")
+    return {k: v for k, v in every.items() if not names or k in names}
 
 
 def _stage_figures(rec: dict) -> dict:
@@ -107,15 +113,16 @@ def for_runs(overrides: list[str]) -> list[str]:
 
 def run(quick: bool = False, echo: Callable[[str], None] = print, dataset: str | None = None,
         overrides: list[str] | None = None, out_dir: Path | None = None, scenes: list | None = None,
-        datasets: list[str] | None = None) -> dict:
+        datasets: list[str] | None = None, variant_names: list[str] | None = None) -> dict:
     """``scenes``: D-NeRF scene folders measured after the built-in formats; ``datasets``: the
-    formats (default: ``dataset``, else the suite's; ``[]``: none, only the scenes)."""
+    formats (default: ``dataset``, else the suite's; ``[]``: none, only the scenes);
+    ``variant_names``: only these variants (default all)."""
     from benchmark.perf.pipeline import run_pipeline
 
     cfg = dict(QUICK if quick else DEFAULT)
     datasets = list(datasets) if datasets is not None else [dataset] if dataset else cfg["datasets"]
     extra = [*cfg["overrides"], *for_runs(overrides or [])]
-    vs = variants(STATIC_THRESHOLD, quick)
+    vs = variants(STATIC_THRESHOLD, quick, variant_names)
     described = ", ".join(f"{k} [{' '.join(v) or 'as the preset'}]" for k, v in vs.items())
     what = [f"{', '.join(datasets)} ({cfg['sequence']})"] if datasets else []
     if scenes:
