@@ -15,7 +15,7 @@ from collections.abc import Callable
 
 import torch
 
-from benchmark.perf.common import fmt, load_average, table, time_repeats, versions
+from benchmark.perf.common import fmt, load_average, stats, table, time_repeats, versions
 
 QUICK = {"cases": [("small", 2_000)], "repeats": 3}
 DEFAULT = {"cases": [("small", 5_000), ("small", 15_000), ("small", 50_000), ("paper", 15_000)], "repeats": 15}
@@ -69,8 +69,8 @@ def measure(preset: str, n: int, repeats: int) -> dict:
     forward_s, _ = time_repeats(forward, repeats, warmup=1)
     a, w = torch.randn(n, net.W, generator=gen), torch.randn(net.W, net.W, generator=gen)  # [n, W], [W, W]
     per_repeat = 20  # products per timed repeat: the rate of a steady run of them, as in the step
-    product_s, _ = time_repeats(lambda: [a @ w for _ in range(per_repeat)], repeats, warmup=1)
-    product_s = {k: (v / per_repeat if k != "all" else [x / per_repeat for x in v]) for k, v in product_s.items()}
+    batches, _ = time_repeats(lambda: [a @ w for _ in range(per_repeat)], repeats, warmup=1)
+    product_s = stats([t / per_repeat for t in batches["all"]])  # seconds per product
     flops = step_flops(net, n)
     step_rate = flops / step_s["median"] / 1e9
     product_rate = 2 * n * net.W * net.W / product_s["median"] / 1e9

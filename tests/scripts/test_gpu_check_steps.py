@@ -109,7 +109,7 @@ def test_the_figures_of_a_rerun_are_read_from_the_results_with_its_settings(tmp_
 
 
 def test_the_check_loads_its_modules_from_beside_it(capsys):
-    """scripts/steps.py runs from anywhere: its steps and workers are found beside it."""
+    """scripts/gpu_check.py runs from anywhere: its steps and workers are found beside it."""
     check = _load("gpu_check")
     assert check.profile.__module__ == "gpu_check_workers" and check.Check.__module__ == "gpu_check_steps"
     with pytest.raises(SystemExit) as done:
