@@ -45,6 +45,13 @@ CLICK_RULES = ("depth", "weight", "feature", "front")
 # the "front" rule's least share of the window's weight: the only share tried that chose no
 # occluder on the selection scenes (0.2-0.33 did; docs/notes/cpu-constants.md, "The click rule")
 FRONT_SHARE = 0.4
+# What a positive click does on a cluster that is already selected: "nothing" (the paper's one
+# click, one cluster), or "next": it adds the cluster its rule ranks next there among those
+# neither selected nor ruled out. Why "next" exists: a person clicks again where the object is
+# still missing; where the pixel's first cluster is already in the selection, the part still
+# missing belongs to another cluster under the same pixel (docs/notes/corrective-clicks.md,
+# "A click on a selected cluster").
+ON_SELECTED = ("nothing", "next")
 MASK_RULES = ("cover", "share", "iou")
 DEFAULT_MASK_RULE = "iou"  # chosen on the selection scenes (docs/notes/text-prompts.md)
 MASK_MIN_COVER = 0.7  # Gaussian Grouping's intersection-over-area threshold of its mask prompt
@@ -170,19 +177,35 @@ def click_to_cluster(gaussians, deformation, camera: Camera, click: Click, label
     return -1 if gid < 0 else int(labels[gid])
 
 
-def select_in_order(clicks: list[Click], pick, universe: set[int]) -> tuple[list[int], list[int]]:
+def positive_pick(pick, ruled_out: set[int], selected: set[int], on_selected: str = "nothing") -> int:
+    """The cluster a positive click adds (-1: none): ``pick(exclude)``, the click rule's choice
+    among the clusters not in ``exclude``, taken outside ``ruled_out``; where that one is in
+    ``selected`` already, ``on_selected`` "next" takes its choice outside both (and keeps the
+    first where there is none)."""
+    if on_selected not in ON_SELECTED:
+        raise PromptError(f"unknown on_selected {on_selected!r}; choose one of {', '.join(ON_SELECTED)}")
+    k = pick(set(ruled_out))
+    if k in selected and on_selected == "next":
+        other = pick(set(ruled_out) | set(selected))
+        return other if other >= 0 else k
+    return k
+
+
+def select_in_order(clicks: list[Click], pick, universe: set[int],
+                    on_selected: str = "nothing") -> tuple[list[int], list[int]]:
     """Clicks taken in order -> (the clusters selected, sorted; the cluster of each click, -1 for
     none). ``pick(i, exclude)``: the cluster click ``i`` reads among those of ``universe`` not in
     ``exclude`` (-1: none). A positive click adds its cluster, chosen among those no negative
-    click has ruled out. A negative click removes the selected cluster under it (its choice
-    among the selected ones; where none of them is there, its choice among all) and rules it out
-    of later clicks."""
+    click has ruled out; where that cluster is selected already, ``on_selected`` "next" adds the
+    one it reads among those neither selected nor ruled out instead ("nothing": none). A
+    negative click removes the selected cluster under it (its choice among the selected ones;
+    where none of them is there, its choice among all) and rules it out of later clicks."""
     selected: list[int] = []
     excluded: set[int] = set()
     per_click = []
     for i, click in enumerate(clicks):
         if click.positive:
-            k = pick(i, excluded)
+            k = positive_pick(functools.partial(pick, i), excluded, set(selected), on_selected)
             if k >= 0 and k not in selected:
                 selected.append(k)
         else:
@@ -196,16 +219,17 @@ def select_in_order(clicks: list[Click], pick, universe: set[int]) -> tuple[list
 
 
 def clicks_to_clusters(gaussians, deformation, cameras: list[Camera], clicks: list[Click], labels: np.ndarray,
-                       **rule) -> tuple[list[int], list[int]]:
+                       on_selected: str = "nothing", **rule) -> tuple[list[int], list[int]]:
     """A sequence of clicks, each in its view's camera (``cameras[i]`` for ``clicks[i]``) ->
     (the clusters selected, sorted; the cluster of each click in order, -1 for none), taken in
-    order by select_in_order. ``rule``: click_to_cluster's keyword arguments."""
+    order by select_in_order (``on_selected``: ON_SELECTED). ``rule``: click_to_cluster's
+    keyword arguments."""
     if len(cameras) != len(clicks):
         raise PromptError(f"{len(clicks)} clicks need as many cameras, got {len(cameras)}")
     all_ids = {int(k) for k in np.unique(np.asarray(labels, dtype=np.int64)) if k >= 0}
     picks = [functools.partial(click_to_cluster, gaussians, deformation, camera, click, labels, **rule)
              for camera, click in zip(cameras, clicks)]
-    return select_in_order(clicks, lambda i, exclude: picks[i](exclude=exclude), all_ids)
+    return select_in_order(clicks, lambda i, exclude: picks[i](exclude=exclude), all_ids, on_selected)
 
 
 @torch.no_grad()

@@ -45,12 +45,16 @@ class TraseMethod(Method):
     def check_settings(self, settings: TraseSettings) -> None:
         from benchmark.config import ConfigError
         from benchmark.methods import check_clustering
+        from trase.prompts import ON_SELECTED
 
         check_clustering(settings.clustering)
         if not float(settings.unseen_min_weight) >= 0:
             raise ConfigError(f"--set method.unseen_min_weight={settings.unseen_min_weight!r}: a weight >= 0 (0: off)")
         if isinstance(settings.unseen_neighbours, bool) or int(settings.unseen_neighbours) < 1:
             raise ConfigError(f"--set method.unseen_neighbours={settings.unseen_neighbours!r}: a whole number >= 1")
+        if settings.prompts.on_selected not in ON_SELECTED:
+            raise ConfigError(f"--set method.prompts.on_selected={settings.prompts.on_selected!r}: one of "
+                              f"{', '.join(ON_SELECTED)}")
 
     # -- fit = learn (features: the slow part) then group (clustering + filter) ----------
     FEATURE_FIELDS = ("features",)  # the settings that change the learned features
@@ -148,7 +152,7 @@ class TraseMethod(Method):
         return clicks_to_clusters(fitted.gaussians, fitted.deformation, cameras, list(prompts.clicks), fitted.labels,
                                   min_alpha=float(clicks.min_alpha), rule=str(clicks.click_rule),
                                   radius=int(clicks.click_radius), features=fitted.features,
-                                  front_share=float(clicks.front_share))
+                                  front_share=float(clicks.front_share), on_selected=str(clicks.on_selected))
 
     def click_clusters(self, fitted: FittedModel, scene, prompts) -> list[int]:
         """The cluster each prompt click chose, in click order (-1: a click on no surface)."""

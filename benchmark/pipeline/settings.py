@@ -110,6 +110,7 @@ AS_BEFORE = {
     "correction_min_gain": (0.0, ("correction_min_gain",)),  # any gain in the watched frames keeps a click
     # every gaussian keeps its own feature (trase.unseen): off
     "unseen_min_weight": (0.0, ("unseen_min_weight", "unseen_neighbours")),
+    "on_selected": ("nothing", ("on_selected",)),  # a click on a selected cluster adds nothing (trase.prompts)
 }
 
 

@@ -34,6 +34,7 @@ class SceneFolder:
     selected: list[int]  # clusters the run's prompts chose (runs), else []
     dataset: str  # the benchmark's key, or "capture"
     click_rule: str = "depth"  # the method's click rule for this model (trase.prompts)
+    on_selected: str = "nothing"  # what a click on a selected cluster adds (trase.prompts.ON_SELECTED)
 
     def camera(self, name: str):
         names = [n for n, _ in self.views]
@@ -111,13 +112,20 @@ def _open_run(run: Path, cache: Path | None) -> SceneFolder:
     scene = load_scene(rec["dataset"], scene_dir).with_near(recorded_render_near(rec.get("config", {})))
     model = EditableModel(_with_features(gaussians, fitted.features), deformation, fitted.labels, fitted.keep)
     return SceneFolder("run", run, model, [(v.name, v.camera) for v in scene.test],
-                       [int(k) for k in rec.get("selected_clusters", [])], rec["dataset"], _click_rule(rec))
+                       [int(k) for k in rec.get("selected_clusters", [])], rec["dataset"], _click_rule(rec),
+                       _on_selected(rec))
 
 
 def _click_rule(record: dict) -> str:
     """The method's click rule as the record states it (a run's or fit's config, an edit's own)."""
     return str(record.get("click_rule")
                or record.get("config", {}).get("method", {}).get("prompts", {}).get("click_rule", "depth"))
+
+
+def _on_selected(record: dict) -> str:
+    """What a click on a selected cluster does, as the record states it (as ``_click_rule``)."""
+    return str(record.get("on_selected")
+               or record.get("config", {}).get("method", {}).get("prompts", {}).get("on_selected", "nothing"))
 
 
 def _open_fit(path: Path) -> SceneFolder:
@@ -128,7 +136,7 @@ def _open_fit(path: Path) -> SceneFolder:
     model = EditableModel(_with_features(fitted.gaussians, fitted.features), fitted.deformation, fitted.labels,
                           fitted.keep)
     return SceneFolder("fit", path, model, [(v.name, v.camera) for v in scene.test], [], "capture",
-                       _click_rule(record))
+                       _click_rule(record), _on_selected(record))
 
 
 def _open_edit(path: Path) -> SceneFolder:
@@ -141,7 +149,8 @@ def _open_edit(path: Path) -> SceneFolder:
     views = [(v["name"], Camera.from_dict(v["camera"])) for split in ("train", "test") for v in doc.get(split, [])]
     if not views:
         raise UserError(f"{path / VIEWS_FILE}: no views")
-    return SceneFolder("edit", path, model, views, [], str(record.get("dataset", "capture")), _click_rule(record))
+    return SceneFolder("edit", path, model, views, [], str(record.get("dataset", "capture")), _click_rule(record),
+                       _on_selected(record))
 
 
 def parse_clusters(text: str | None) -> list[int]:
@@ -165,7 +174,7 @@ def resolve_selection(folder: SceneFolder, clusters: str | None = None, clicks: 
     its phrases' TextChoice go to ``found`` where given)."""
     from benchmark.captures.select import mask_prompt, parse_click
     from trase.edit import by_click, by_clusters, by_mask
-    from trase.prompts import no_cluster_reason
+    from trase.prompts import no_cluster_reason, positive_pick
 
     ks = set(parse_clusters(clusters))
     n = folder.model.n_clusters
@@ -181,7 +190,10 @@ def resolve_selection(folder: SceneFolder, clusters: str | None = None, clicks: 
         cam = folder.camera(view)
         if not (0 <= x < cam.width and 0 <= y < cam.height):
             raise UserError(f"--click {click_text!r}: pixel outside the {cam.width}x{cam.height} view")
-        k, _ = by_click(folder.model, cam, x + 0.5, y + 0.5, rule=folder.click_rule)
+        def pick(exclude, cam=cam, u=x + 0.5, v=y + 0.5) -> int:
+            return by_click(folder.model, cam, u, v, rule=folder.click_rule, exclude=exclude)[0]
+
+        k = positive_pick(pick, set(), ks, folder.on_selected)
         if k < 0:
             raise UserError(f"--click {click_text!r}: the click hits no surface (rendered alpha below 0.5 there)")
         ks.add(k)

@@ -253,6 +253,7 @@ class SceneViewer:
         """Add the cluster under the click (the method's click rule), or remove it and keep it out
         (mode "remove": a negative click)."""
         from trase.edit import by_click
+        from trase.prompts import positive_pick
 
         mode = self.gui_click.value
         if mode == "off":
@@ -263,11 +264,14 @@ class SceneViewer:
             u, v = event.screen_pos[0] * cam.width, event.screen_pos[1] * cam.height
             # a negative click removes a selected cluster where one is under it (as
             # trase.prompts.clicks_to_clusters); a positive one never picks a ruled-out cluster
-            others = set(range(self.model.n_clusters)) - self.clusters
-            exclude = others if mode != "add" and self.clusters else self.ruled_out
-            k, _ = by_click(self.model, cam, u, v, rule=self.folder.click_rule, exclude=exclude)
-            if k < 0 and mode != "add" and self.clusters:  # none selected there: the rule's choice among the rest
-                k, _ = by_click(self.model, cam, u, v, rule=self.folder.click_rule, exclude=self.ruled_out)
+            def pick(exclude) -> int:
+                return by_click(self.model, cam, u, v, rule=self.folder.click_rule, exclude=exclude)[0]
+
+            if mode == "add":  # on a selected cluster: trase.prompts.ON_SELECTED
+                k = positive_pick(pick, self.ruled_out, self.clusters, self.folder.on_selected)
+            else:
+                k = pick(set(range(self.model.n_clusters)) - self.clusters) if self.clusters else -1
+                k = k if k >= 0 else pick(self.ruled_out)  # none selected there: the rule's choice among the rest
         self.clicks.append((mode, k))
         if k < 0:
             self._status("the click hit no surface" + (" outside the clusters ruled out" if self.ruled_out else ""))

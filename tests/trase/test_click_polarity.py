@@ -7,7 +7,7 @@ import pytest
 
 from benchmark.protocol.prompts import interior_points
 from tests.trase.helpers import exact_masks, tiny_scene
-from trase.prompts import CLICK_RULES, Click, PromptError, click_to_cluster, clicks_to_clusters
+from trase.prompts import CLICK_RULES, Click, PromptError, click_to_cluster, clicks_to_clusters, select_in_order
 
 
 def _split_object(ids: np.ndarray) -> np.ndarray:
@@ -62,3 +62,33 @@ def test_clicks_need_a_camera_each():
     with pytest.raises(PromptError, match="2 clicks need as many cameras, got 1"):
         clicks_to_clusters(gm, deform, [cam], [click, click], labels)
 
+
+
+@pytest.mark.parametrize("rule", ["depth", "weight", "feature"])
+def test_a_second_click_on_a_selected_cluster_adds_the_next_one_under_it_only_where_asked(rule):
+    gm, deform, cam, click, labels, features = _setup()
+    kw = {"rule": rule, "features": features}
+    first = click_to_cluster(gm, deform, cam, click, labels, **kw)
+    # the paper's: one click, one cluster; the same click again changes nothing
+    assert clicks_to_clusters(gm, deform, [cam] * 2, [click, click], labels, **kw) == ([first], [first, first])
+    # "next": the object's other cluster under the same pixel
+    selected, per_click = clicks_to_clusters(gm, deform, [cam] * 2, [click, click], labels, on_selected="next", **kw)
+    assert per_click == [first, 2 - first] and selected == [0, 2]
+
+
+def test_next_keeps_out_what_a_negative_click_ruled_out_and_adds_nothing_where_nothing_is_left():
+    gm, deform, cam, click, labels, _ = _setup()
+    negative = Click(click.u, click.v, positive=False)
+    clicks = [click, negative, click, click]  # select, remove and rule out, select the other, again
+    first = click_to_cluster(gm, deform, cam, click, labels, rule="weight")
+    # the last click: no third cluster is drawn under the pixel, so nothing is added
+    assert clicks_to_clusters(gm, deform, [cam] * 4, clicks, labels, rule="weight", on_selected="next") == (
+        [2 - first], [first, first, 2 - first, 2 - first])
+
+
+def test_select_in_order_on_selected_by_name():
+    with pytest.raises(PromptError, match="unknown on_selected 'more'"):
+        select_in_order([Click(0, 0)], lambda i, exclude: 0, {0}, on_selected="more")
+    # a pick that finds nothing else keeps the click's cluster on record
+    assert select_in_order([Click(0, 0)] * 2, lambda i, exclude: 0 if 0 not in exclude else -1, {0},
+                           on_selected="next") == ([0], [0, 0])

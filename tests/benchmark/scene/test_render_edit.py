@@ -153,3 +153,27 @@ def test_folders_render_with_the_near_plane_their_geometry_trained_with(run_dir,
     assert {c.near for c in orbit_cameras(cams[0], look_centre(cams), 3)} == {0.2}
     assert camera_from_view(np.eye(3), np.zeros(3), 1.0, 4 / 3, 120, 0.5, far.near).near == 0.2
     assert camera_from_view(np.eye(3), np.zeros(3), 1.0, 4 / 3, 120, 0.5).near == 0.01
+
+
+def test_a_click_on_a_selected_cluster_follows_the_runs_on_selected(run_dir):
+    """--click on a cluster already chosen by --clusters: nothing more under "nothing", the
+    cluster ranked next under the pixel under "next" (trase.prompts.ON_SELECTED)."""
+    from benchmark.scene.folders import resolve_selection
+    from trase.edit import by_click
+
+    folder = open_scene_folder(run_dir)
+    name, cam = folder.views[0]
+    for y in range(cam.height):  # the first pixel where a second cluster is drawn under the first
+        for x in range(cam.width):
+            k, _ = by_click(folder.model, cam, x + 0.5, y + 0.5, rule=folder.click_rule)
+            other = by_click(folder.model, cam, x + 0.5, y + 0.5, rule=folder.click_rule, exclude={k})[0] if k >= 0 else -1
+            if other >= 0:
+                break
+        if other >= 0:
+            break
+    assert other >= 0, "no pixel with two clusters under it"
+    click = (f"{name}:{x},{y}",)
+    folder.on_selected = "nothing"
+    assert resolve_selection(folder, clusters=str(k), clicks=click)[0] == [k]
+    folder.on_selected = "next"
+    assert resolve_selection(folder, clusters=str(k), clicks=click)[0] == sorted({k, other})
