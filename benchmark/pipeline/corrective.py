@@ -96,7 +96,8 @@ def correct(predictor: Predictor, first: list, gts: list[np.ndarray], protocol) 
         return dict(zip(frames, predictor.masks(clicks, frames)[0]))
 
     robot = corrective_clicks(list(first), predict, {i: gts[i] for i in frames}, budget,
-                              float(protocol.correction_target), negatives, float(protocol.correction_min_gain))
+                              float(protocol.correction_target), negatives, float(protocol.correction_min_gain),
+                              float(protocol.correction_undone_radius))
     return Corrected(robot.clicks, robot.spent, len(first), budget, negatives, checks)
 
 

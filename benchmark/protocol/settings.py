@@ -28,6 +28,10 @@ class PromptProtocol:
     # test frames spread over the sequence that the robot watches besides its click frames: a click
     # is judged by the mean IoU over both (0: the click frames alone)
     correction_check_frames: int = 2
+    # after an undone click: 0 leaves its whole error region alone (protocol version 3); R > 0
+    # leaves alone only the region's pixels within R px of it, so the robot can click the rest of
+    # the region (benchmark.protocol.corrective.next_click)
+    correction_undone_radius: float = 0.0
     # "clicks", or "text": each sequence's phrases (prompts_text.json) found in its test views by
     # a text-to-mask model, each mask lifted to the method's clusters (benchmark.protocol.text)
     source: str = "clicks"
@@ -62,6 +66,9 @@ class PromptProtocol:
                               "number >= 0 (0: the click frames alone)")
         if not 0.0 <= float(self.correction_min_gain) < 1.0:
             raise ConfigError(f"--set prompts.correction_min_gain={self.correction_min_gain!r}: an IoU gain in [0, 1)")
+        if not float(self.correction_undone_radius) >= 0.0:
+            raise ConfigError(f"--set prompts.correction_undone_radius={self.correction_undone_radius!r}: pixels >= 0 "
+                              "(0: an undone click's whole error region is left alone)")
         if not 0.0 < float(self.correction_target) <= 1.0:
             raise ConfigError(f"--set prompts.correction_target={self.correction_target!r}: an IoU in (0, 1]")
 

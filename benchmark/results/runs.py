@@ -163,7 +163,9 @@ def corrective_protocol(cfg: dict, corrective: dict | None) -> str:
     polarity = ", positive only" if corrective is not None and not corrective.get("negatives") else ""
     checks = prompts.get("correction_check_frames", 0)  # absent: records of protocol 2, click frames alone
     watched = f" watching {checks} check frames" if checks else ""
-    return f", corrective {per_object}/object to IoU {prompts.get('correction_target', '?')}{watched}{polarity}"
+    radius = prompts.get("correction_undone_radius", 0)  # absent: an undone click's region left alone
+    retry = f" retrying {radius:g} px from undone clicks" if radius else ""
+    return f", corrective {per_object}/object to IoU {prompts.get('correction_target', '?')}{watched}{retry}{polarity}"
 
 
 def numerics_protocol(cfg: dict) -> str:

@@ -103,6 +103,8 @@ def test_the_protocols_settings_are_checked():
         PromptProtocol(correction_target=1.5)
     with pytest.raises(ConfigError, match="correction_check_frames=-2"):
         PromptProtocol(correction_check_frames=-2)
+    with pytest.raises(ConfigError, match="correction_undone_radius=-1"):
+        PromptProtocol(correction_undone_radius=-1)
 
 
 def test_masks_of_another_count_or_size_are_named_errors():

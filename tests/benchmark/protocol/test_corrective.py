@@ -133,3 +133,17 @@ def test_a_click_that_helps_its_frame_and_costs_a_check_frame_more_is_undone():
     watched = corrective_clicks(first, predict, gt, budget=1, target=1.0)
     assert [k for _, k in watched.spent] == [False] and watched.clicks == first
     assert watched.curve[1] == watched.curve[0] < 1.0  # the undone click leaves the mean IoU of both frames
+
+
+def test_after_an_undone_click_its_region_is_clicked_again_away_from_it_only_with_a_radius():
+    gt = _box(2, 6, 2, 26)  # a 4 x 24 px bar, missed; its first interior pixel (row 3, column 3)
+    none = np.zeros((H, W), bool)
+    preds, gts = {0: none, 3: none}, {0: gt, 3: none}
+    first = next_click(preds, gts, FRAMES)
+    assert (first.u, first.v) == (3.5, 3.5)
+    assert next_click(preds, gts, FRAMES, undone=[first]) is None  # the whole region left alone
+    again = next_click(preds, gts, FRAMES, undone=[first], undone_radius=2.0)
+    assert again.positive and gt[int(again.v), int(again.u)]
+    assert (again.u - first.u) ** 2 + (again.v - first.v) ** 2 > 2.0**2  # outside the radius
+    # a negative click undone does not keep a positive one out
+    assert next_click(preds, gts, FRAMES, undone=[Click(3.5, 3.5, "v0", 0.0, 0, False)]) == first
