@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmark.errors import UserError
-from benchmark.scene.folders import EDIT_FILE, VIEWS_FILE, SceneFolder, views_doc
+from benchmark.scene.folders import CLICK_SETTINGS, EDIT_FILE, VIEWS_FILE, SceneFolder, views_doc
 
 
 def write_edit(source: SceneFolder, edited, out: Path, operation: str, params: dict) -> Path:
@@ -39,7 +39,7 @@ def write_edit(source: SceneFolder, edited, out: Path, operation: str, params: d
     record = {
         "kind": "edit", "operation": operation, "params": params,
         "source": str(source.path.resolve()), "source_kind": source.kind, "dataset": source.dataset,
-        "click_rule": source.click_rule, "on_selected": source.on_selected,
+        **{name: getattr(source, name) for name in CLICK_SETTINGS},  # the source's click settings
         "n_gaussians": {"before": source.model.num_gaussians, "after": edited.num_gaussians},
         "n_clusters": edited.n_clusters, "preview": "preview.png", "preview_view": name,
         "motion": "network" if (out / "model/deform/iteration_1/deform.pth").is_file() else

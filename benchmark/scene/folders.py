@@ -112,20 +112,18 @@ def _open_run(run: Path, cache: Path | None) -> SceneFolder:
     scene = load_scene(rec["dataset"], scene_dir).with_near(recorded_render_near(rec.get("config", {})))
     model = EditableModel(_with_features(gaussians, fitted.features), deformation, fitted.labels, fitted.keep)
     return SceneFolder("run", run, model, [(v.name, v.camera) for v in scene.test],
-                       [int(k) for k in rec.get("selected_clusters", [])], rec["dataset"], _click_rule(rec),
-                       _on_selected(rec))
+                       [int(k) for k in rec.get("selected_clusters", [])], rec["dataset"], **_click_settings(rec))
 
 
-def _click_rule(record: dict) -> str:
-    """The method's click rule as the record states it (a run's or fit's config, an edit's own)."""
-    return str(record.get("click_rule")
-               or record.get("config", {}).get("method", {}).get("prompts", {}).get("click_rule", "depth"))
+# how a click chooses clusters in the model, with the value a record from before the setting means
+CLICK_SETTINGS = {"click_rule": "depth", "on_selected": "nothing"}
 
 
-def _on_selected(record: dict) -> str:
-    """What a click on a selected cluster does, as the record states it (as ``_click_rule``)."""
-    return str(record.get("on_selected")
-               or record.get("config", {}).get("method", {}).get("prompts", {}).get("on_selected", "nothing"))
+def _click_settings(record: dict) -> dict:
+    """The method's click settings (CLICK_SETTINGS) as the record states them: an edit's own
+    fields, else a run's or fit's config."""
+    prompts = record.get("config", {}).get("method", {}).get("prompts", {})
+    return {name: str(record.get(name) or prompts.get(name, default)) for name, default in CLICK_SETTINGS.items()}
 
 
 def _open_fit(path: Path) -> SceneFolder:
@@ -136,7 +134,7 @@ def _open_fit(path: Path) -> SceneFolder:
     model = EditableModel(_with_features(fitted.gaussians, fitted.features), fitted.deformation, fitted.labels,
                           fitted.keep)
     return SceneFolder("fit", path, model, [(v.name, v.camera) for v in scene.test], [], "capture",
-                       _click_rule(record), _on_selected(record))
+                       **_click_settings(record))
 
 
 def _open_edit(path: Path) -> SceneFolder:
@@ -149,8 +147,8 @@ def _open_edit(path: Path) -> SceneFolder:
     views = [(v["name"], Camera.from_dict(v["camera"])) for split in ("train", "test") for v in doc.get(split, [])]
     if not views:
         raise UserError(f"{path / VIEWS_FILE}: no views")
-    return SceneFolder("edit", path, model, views, [], str(record.get("dataset", "capture")), _click_rule(record),
-                       _on_selected(record))
+    return SceneFolder("edit", path, model, views, [], str(record.get("dataset", "capture")),
+                       **_click_settings(record))
 
 
 def parse_clusters(text: str | None) -> list[int]:

@@ -163,15 +163,15 @@ def test_a_click_on_a_selected_cluster_follows_the_runs_on_selected(run_dir):
 
     folder = open_scene_folder(run_dir)
     name, cam = folder.views[0]
-    for y in range(cam.height):  # the first pixel where a second cluster is drawn under the first
-        for x in range(cam.width):
-            k, _ = by_click(folder.model, cam, x + 0.5, y + 0.5, rule=folder.click_rule)
-            other = by_click(folder.model, cam, x + 0.5, y + 0.5, rule=folder.click_rule, exclude={k})[0] if k >= 0 else -1
-            if other >= 0:
-                break
-        if other >= 0:
-            break
-    assert other >= 0, "no pixel with two clusters under it"
+
+    def cluster_under(x, y, exclude=()) -> int:
+        return by_click(folder.model, cam, x + 0.5, y + 0.5, rule=folder.click_rule, exclude=exclude)[0]
+
+    pixels = ((x, y, k) for y in range(cam.height) for x in range(cam.width) if (k := cluster_under(x, y)) >= 0)
+    # the first pixel where a second cluster is drawn under the first
+    found = next(((x, y, k, o) for x, y, k in pixels if (o := cluster_under(x, y, {k})) >= 0), None)
+    assert found is not None, "no pixel with two clusters under it"
+    x, y, k, other = found
     click = (f"{name}:{x},{y}",)
     folder.on_selected = "nothing"
     assert resolve_selection(folder, clusters=str(k), clicks=click)[0] == [k]
