@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import itertools
 import json
 from pathlib import Path
 
@@ -15,14 +14,10 @@ import cv2
 import numpy as np
 import pytest
 
-from benchmark.datasets import DatasetError, load_scene
+from benchmark.datasets import load_scene
 from benchmark.datasets.synthetic import (
     DATASET_KEYS,
-    GENERATOR_VERSION,
-    SyntheticError,
     build_world,
-    ensure_synthetic,
-    find_or_generate,
     generate,
     render,
 )
@@ -351,75 +346,6 @@ def test_seed_changes_scene(scenes, tmp_path):
     assert a["rgb/2x/000000.png"] != b["rgb/2x/000000.png"]
 
 
-def test_generate_refuses_non_empty_dir_and_bad_args(tmp_path):
-    (tmp_path / "x").mkdir()
-    (tmp_path / "x" / "file").write_text("")
-    with pytest.raises(SyntheticError, match="not empty"):
-        generate("hypernerf", tmp_path / "x", size=SIZE)
-    with pytest.raises(SyntheticError, match="unknown dataset"):
-        generate("kitti", tmp_path / "y", size=SIZE)
-    with pytest.raises(SyntheticError, match="unknown size"):
-        generate("hypernerf", tmp_path / "y", size="huge")
-
-
-def test_ensure_synthetic_caches_atomically(tmp_path, capsys):
-    p = ensure_synthetic("hypernerf", size=SIZE, cache_dir=tmp_path)
-    assert p == tmp_path / "hypernerf" / f"v{GENERATOR_VERSION}" / SEQ
-    assert "generating" in capsys.readouterr().err
-    assert ensure_synthetic("hypernerf", size=SIZE, cache_dir=tmp_path) == p
-    assert capsys.readouterr().err == ""  # second call: cached, no notice
-    assert sorted(x.name for x in p.parent.iterdir()) == [SEQ]  # no temp dirs left behind
-
-
-def test_ensure_synthetic_refuses_other_generator_version(tmp_path):
-    stale = tmp_path / "hypernerf" / f"v{GENERATOR_VERSION}" / SEQ / "synthetic"
-    stale.mkdir(parents=True)
-    (stale / "manifest.json").write_text(json.dumps({"generator_version": "0"}))
-    with pytest.raises(SyntheticError, match=r"manifest.json: scene from generator version 0.*delete"):
-        ensure_synthetic("hypernerf", size=SIZE, cache_dir=tmp_path)
-
-
-def test_ensure_synthetic_uses_trase_cache(tmp_path, monkeypatch):
-    monkeypatch.setenv("TRASE_BENCH_CACHE", str(tmp_path))
-    p = ensure_synthetic("hypernerf", size=SIZE)
-    assert p == tmp_path / "synthetic" / "hypernerf" / f"v{GENERATOR_VERSION}" / SEQ
-
-
-def test_find_or_generate(tmp_path, monkeypatch):
-    monkeypatch.setenv("TRASE_BENCH_CACHE", str(tmp_path / "cache"))
-    monkeypatch.delenv("TRASE_DATA", raising=False)
-    # a data root named but missing: an error, not the synthetic scene in its place
-    with pytest.raises(DatasetError, match=r"data: no such directory \(the data root given by --data-root\)"):
-        find_or_generate("hypernerf", "synthetic-tiny", tmp_path / "data")
-    monkeypatch.setenv("TRASE_DATA", str(tmp_path / "elsewhere"))
-    with pytest.raises(DatasetError, match=r"elsewhere: no such directory \(the data root given by \$TRASE_DATA\)"):
-        find_or_generate("hypernerf", "synthetic-tiny", None)
-    monkeypatch.delenv("TRASE_DATA")
-    # no real data: the synthetic default
-    (tmp_path / "data").mkdir()
-    d, variant = find_or_generate("hypernerf", "synthetic-tiny", tmp_path / "data")
-    assert variant == "synthetic" and d == tmp_path / "cache" / "synthetic" / "hypernerf" / f"v{GENERATOR_VERSION}" / SEQ
-    # a named real sequence that is missing: error naming where it looked
-    with pytest.raises(SyntheticError, match=r"americano.*data/hypernerf/americano"):
-        find_or_generate("hypernerf", "americano", tmp_path / "data")
-    # real data wins
-    real = tmp_path / "data" / "hypernerf" / "americano"
-    real.mkdir(parents=True)
-    assert find_or_generate("hypernerf", "americano", tmp_path / "data") == (real, "real")
-    monkeypatch.setenv("TRASE_DATA", str(tmp_path / "data"))
-    assert find_or_generate("hypernerf", "americano", None) == (real, "real")
-
-
-def test_cli_synth(tmp_path):
-    from benchmark.cli import main
-
-    out = tmp_path / "scene"
-    assert main(["synth", "--dataset", "hypernerf", "--out", str(out), "--size", "tiny", "--seed", "3"]) == 0
-    man = json.loads((out / "synthetic" / "manifest.json").read_text())
-    assert man["seed"] == 3 and man["size"] == "tiny"
-    assert main(["synth", "--dataset", "hypernerf", "--out", str(out), "--size", "tiny"]) == 1
-
-
 @pytest.mark.parametrize("dataset", ["hypernerf", "technicolor"])
 def test_initial_points_lie_on_surfaces(scenes, world, dataset):
     """points.npy (nerfies) / the prepared cloud (multi-view) are surface samples, in the
@@ -438,81 +364,3 @@ def test_initial_points_lie_on_surfaces(scenes, world, dataset):
     # (float32 storage can push a point just off a surface that a ray only grazes)
     assert np.mean(hit <= dist + 1e-4) > 0.98
     assert np.mean(np.abs(hit - dist) < 1e-3) > 0.4  # a good share is directly visible
-
-
-def test_failed_generation_leaves_nothing(tmp_path, monkeypatch):
-    import importlib
-
-    gen = importlib.import_module("benchmark.datasets.synthetic.generate")  # the module, not the function
-
-    def broken(*a, **k):
-        raise RuntimeError("loader exploded")
-
-    monkeypatch.setattr(gen, "_load", broken)
-    with pytest.raises(RuntimeError, match="exploded"):
-        generate("hypernerf", tmp_path / "new" / SEQ, size=SIZE)
-    assert not (tmp_path / "new" / SEQ).exists()
-    (tmp_path / "empty").mkdir()
-    with pytest.raises(RuntimeError):
-        generate("hypernerf", tmp_path / "empty", size=SIZE)
-    assert (tmp_path / "empty").is_dir() and not any((tmp_path / "empty").iterdir())
-
-
-# -- difficulty ---------------------------------------------------------------------------
-def test_hard_scenes_are_the_earlier_scenes_and_standard_ones_follow_the_benchmarks():
-    from benchmark.datasets.synthetic.rigs import (
-        MAX_MOTION_PER_FRAME,
-        STANDARD_TIME,
-        rig_size,
-        standard_span,
-    )
-
-    # the hard variant keeps the sizes of generator version 2 (regression values)
-    assert [rig_size(d, "small", "hard").frames for d in DATASET_KEYS] == [24, 60, 12, 12, 10]
-    assert all(rig_size(d, "small", "hard").span == 1.0 for d in DATASET_KEYS)
-    for d in DATASET_KEYS:
-        std = rig_size(d, "small")
-        assert std.frames == STANDARD_TIME[d].frames and STANDARD_TIME[d].source
-        assert (std.width, std.height, std.cameras) == (rig_size(d, "small", "hard").width,
-                                                         rig_size(d, "small", "hard").height,
-                                                         rig_size(d, "small", "hard").cameras)
-        # the fastest object (the cube) moves at most MAX_MOTION_PER_FRAME per frame
-        world = build_world(0, std.span)
-        path = [world.centre("cube", i / std.frames) for i in range(std.frames)]
-        step = max(np.linalg.norm(b - a) for a, b in itertools.pairwise(path))
-        assert step <= MAX_MOTION_PER_FRAME * 1.6, (d, step)  # the cube's height also bobs
-    assert rig_size("immersive", "small").frames == 50 and standard_span(50) < 0.3
-    assert standard_span(10**6) == 1.0
-
-
-def test_span_slows_the_motion_down_without_changing_the_layout():
-    full, slow = build_world(3), build_world(3, 0.25)
-    for name in ("ball", "ring", "blob", "pillar", "cube", "crate"):
-        for t in (0.0, 0.4, 1.0):
-            R1, c1, S1 = full.by_name(name).pose(0.25 * t)
-            R2, c2, S2 = slow.by_name(name).pose(t)
-            np.testing.assert_allclose(R1, R2) and np.testing.assert_allclose(c1, c2)
-            np.testing.assert_allclose(S1, S2)
-    with pytest.raises(ValueError, match="span"):
-        build_world(0, 0.0)
-
-
-def test_sequence_names_carry_size_and_difficulty():
-    from benchmark.datasets.synthetic import parse_sequence_name, sequence_name
-
-    assert sequence_name("small") == "synthetic" and sequence_name("medium", "hard") == "synthetic-medium-hard"
-    assert parse_sequence_name("synthetic-hard") == ("small", "hard")
-    assert parse_sequence_name("synthetic-tiny") == ("tiny", "standard")
-    assert parse_sequence_name("americano") is None
-    with pytest.raises(SyntheticError, match="unknown difficulty"):
-        generate("hypernerf", Path("/nonexistent-never-written"), size=SIZE, difficulty="easy")
-
-
-def test_find_or_generate_the_hard_variant(tmp_path, monkeypatch):
-    monkeypatch.setenv("TRASE_BENCH_CACHE", str(tmp_path / "cache"))
-    monkeypatch.delenv("TRASE_DATA", raising=False)
-    d, variant = find_or_generate("hypernerf", "synthetic-tiny-hard", None)
-    assert variant == "synthetic" and d.name == "synthetic-tiny-hard"
-    man = json.loads((d / "synthetic" / "manifest.json").read_text())
-    assert man["difficulty"] == "hard" and man["motion_span"] == 1.0 and man["time_statistics"] is None
-    assert load_scene("hypernerf", d).sequence == "synthetic-tiny-hard"

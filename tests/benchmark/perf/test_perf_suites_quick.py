@@ -26,7 +26,14 @@ def test_all_suites_quick(tmp_path, monkeypatch, capsys):
     if not torch.cuda.is_available():
         assert s["gpu"] == {"skipped": "torch sees no CUDA GPU here"}
     assert s["dnerf"]["skipped"].startswith("no D-NeRF scenes: pass --scene DIR")
+    _check_kernel_suites(s)
+    _check_run_suites(s, text)
+    _check_skip_suite(s["skip"], text, tmp_path)
+    _check_pareto_and_determinism(s, text, tmp_path)
 
+
+def _check_kernel_suites(s: dict) -> None:
+    """knn, cluster, features: each fast path agrees with its reference."""
     knn = s["knn"]["sizes"][0]["methods"]
     for m in knn.values():
         assert m["seconds"]["median"] > 0 and m["equal_up_to_ties"] == 1.0
@@ -48,6 +55,10 @@ def test_all_suites_quick(tmp_path, monkeypatch, capsys):
     assert step["max_abs_rendered_diff"] < 1e-4 and step["loss_abs_diff"] < 1e-4
     assert step["fastpath_render_s"]["median"] > 0 and step["rasterizer_render_s"]["median"] > 0
 
+
+
+def _check_run_suites(s: dict, text: str) -> None:
+    """pipeline, methods: whole runs and per-method processes."""
     pl = s["pipeline"]
     assert not pl["failed"], pl["runs"]
     stages = pl["runs"][0]["stages"]
@@ -60,7 +71,10 @@ def test_all_suites_quick(tmp_path, monkeypatch, capsys):
     assert r["preset_steps"] > 100 and r["stage_seconds_at_preset_steps"] > 100 * r["per_step_seconds"]
     assert "ms/step" in text
 
-    sk = s["skip"]  # static gaussians on and off, stages that stop when converged
+
+
+def _check_skip_suite(sk: dict, text: str, tmp_path) -> None:
+    """static gaussians on and off, stages that stop when converged, the schedules."""
     assert not sk["failed"] and [r["variant"] for r in sk["runs"]] == ["full", "static", "converged", "resolution", "resolution+primitives"]
     full, static, converged, resolution, primitives = sk["runs"]
     assert full["stopping"] == {}  # full: no stopping
@@ -80,6 +94,8 @@ def test_all_suites_quick(tmp_path, monkeypatch, capsys):
 
     assert tables(told) in text  # the runs file gives back the table the suite printed
 
+
+def _check_pareto_and_determinism(s: dict, text: str, tmp_path) -> None:
     (net,) = s["network"]["cases"]  # the deformation network's step against one of its products
     assert net["step_gflops_per_s"] > 0 and 0 < net["share_of_product_rate"]
 
