@@ -97,7 +97,7 @@ def correct(predictor: Predictor, first: list, gts: list[np.ndarray], protocol) 
 
     robot = corrective_clicks(list(first), predict, {i: gts[i] for i in frames}, budget,
                               float(protocol.correction_target), negatives, float(protocol.correction_min_gain),
-                              float(protocol.correction_undone_radius))
+                              float(protocol.correction_undone_radius), int(protocol.correction_region_tries))
     return Corrected(robot.clicks, robot.spent, len(first), budget, negatives, checks)
 
 

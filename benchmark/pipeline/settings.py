@@ -108,7 +108,8 @@ AS_BEFORE = {
     "source": ("clicks", ("source", "text_detector", "text_segmenter", "text_rule", "text_min_cover", "text_min_share", "text_min_score",
                            "text_file")),
     "correction_min_gain": (0.0, ("correction_min_gain",)),  # any gain in the watched frames keeps a click
-    "correction_undone_radius": (0.0, ("correction_undone_radius",)),  # an undone click's region left alone
+    "correction_undone_radius": (0.0, ("correction_undone_radius", "correction_region_tries")),  # an undone click's region left alone
+    "correction_region_tries": (0, ("correction_region_tries",)),  # no limit on the clicks undone in a region
     # every gaussian keeps its own feature (trase.unseen): off
     "unseen_min_weight": (0.0, ("unseen_min_weight", "unseen_neighbours")),
     "on_selected": ("nothing", ("on_selected",)),  # a click on a selected cluster adds nothing (trase.prompts)

@@ -5,8 +5,9 @@ negative where something else was selected. A person who clicks in one view also
 selection play through the sequence; the robot does so in a few check frames (test frames spread
 evenly over the sequence): a click that makes the click and check frames worse, or changes
 nothing in them, is undone, as a person would undo it: it is spent, and its region is left alone
-after (or, with an ``undone_radius``, the region's pixels near it). It stops when every click
-frame reaches the target IoU, the budget of extra clicks is spent, or no error is left to click.
+after (or, with an ``undone_radius``, the region's pixels near it, until ``region_tries`` clicks
+in it were undone). It stops when every click frame reaches the target IoU, the budget of extra
+clicks is spent, or no error is left to click.
 Only the click and check frames' ground truth is read, as a person looks at the views they click
 in and watch.
 
@@ -56,21 +57,38 @@ def _away_from(error: np.ndarray, tried: list[Click], frame: int, positive: bool
     return out
 
 
+def _tried_out(error: np.ndarray, tried: list[Click], frame: int, positive: bool, tries: int) -> np.ndarray:
+    """``error`` [H, W] bool without its connected regions that hold ``tries`` or more clicks of
+    this polarity tried and undone in this frame: a person who failed that often there moves on."""
+    near = [c for c in tried if c.view_index == frame and c.positive == positive]
+    if len(near) < tries:
+        return error
+    out = error.copy()
+    for _, _, _, region in mask_regions(error, min_area=1):
+        if sum(bool(region[int(c.v), int(c.u)]) for c in near) >= tries:
+            out &= ~region
+    return out
+
+
 def next_click(preds: dict[int, np.ndarray], gts: dict[int, np.ndarray], frames: dict[int, tuple[str, float]],
-               negatives: bool = True, undone: Sequence[Click] = (), undone_radius: float = 0.0) -> Click | None:
+               negatives: bool = True, undone: Sequence[Click] = (), undone_radius: float = 0.0,
+               region_tries: int = 0) -> Click | None:
     """The click at the most interior pixel of the largest error region over the click frames
     (``frames``: view index -> (view name, time)); positive in a missed region (ground truth
     not predicted), negative in a wrongly predicted one (missed regions only where
     ``negatives`` is False: a method without negative clicks). A region where a click of its
     polarity was ``undone`` is left alone; with ``undone_radius`` > 0 only its pixels within that
-    many px of the undone click are, and the rest of it can be clicked. Ties: missed before
-    wrong, then the frames in order. None where no such error is left."""
+    many px of the undone click are, and the rest of it can be clicked until ``region_tries``
+    clicks in it were undone (0: no limit). Ties: missed before wrong, then the frames in order.
+    None where no such error is left."""
     best = None  # (area, order, click)
     for order, i in enumerate(sorted(frames)):
         pred, gt = np.asarray(preds[i], dtype=bool), np.asarray(gts[i], dtype=bool)
         errors = ((True, gt & ~pred), (False, pred & ~gt)) if negatives else ((True, gt & ~pred),)
         for positive, error in errors:
             if undone_radius > 0:
+                if region_tries > 0:
+                    error = _tried_out(error, list(undone), i, positive, region_tries)
                 error = _away_from(error, list(undone), i, positive, undone_radius)
                 regions = mask_regions(error, min_area=1) if error.any() else []
             else:
@@ -107,7 +125,7 @@ class RobotRun:
 
 def corrective_clicks(first: list[Click], predict: Callable[[list[Click]], dict[int, np.ndarray]],
                       gts: dict[int, np.ndarray], budget: int, target: float, negatives: bool = True,
-                      min_gain: float = 0.0, undone_radius: float = 0.0) -> RobotRun:
+                      min_gain: float = 0.0, undone_radius: float = 0.0, region_tries: int = 0) -> RobotRun:
     """The first clicks, then corrective ones. ``predict``: clicks -> the predicted masks of the
     frames of ``gts`` (view index -> bool [H, W]); ``gts``: the ground truth of the click frames
     (those of ``first``) and of any check frames; ``budget``: the most corrective clicks;
@@ -115,8 +133,9 @@ def corrective_clicks(first: list[Click], predict: Callable[[list[Click]], dict[
     clicks). Clicks go to the click frames only. A click that does not raise the mean IoU over
     all of ``gts``' frames by more than ``min_gain``, or changes nothing in them, is undone, as a
     person undoes it, and spent: the score stays and its region is left alone (with
-    ``undone_radius`` > 0: the region's pixels within that many px of it). Stops once every
-    click frame reaches ``target``, the budget is spent or no error is left to click."""
+    ``undone_radius`` > 0: the region's pixels within that many px of it, until ``region_tries``
+    clicks in the region were undone). Stops once every click frame reaches ``target``, the
+    budget is spent or no error is left to click."""
     if not first:
         raise ValueError("the robot user starts from at least one click")
     frames = {c.view_index: (c.view, c.time) for c in first}
@@ -133,7 +152,8 @@ def corrective_clicks(first: list[Click], predict: Callable[[list[Click]], dict[
     ious = score(preds)
     run.curve.append(float(np.mean(list(ious.values()))))
     while min(ious[i] for i in frames) < target and len(run.spent) < budget:
-        click = next_click(preds, gts, frames, negatives, [c for c, kept in run.spent if not kept], undone_radius)
+        click = next_click(preds, gts, frames, negatives, [c for c, kept in run.spent if not kept], undone_radius,
+                           region_tries)
         if click is None:
             break
         trial = predict([*run.clicks, click])

@@ -32,6 +32,9 @@ class PromptProtocol:
     # leaves alone only the region's pixels within R px of it, so the robot can click the rest of
     # the region (benchmark.protocol.corrective.next_click)
     correction_undone_radius: float = 0.0
+    # with R > 0: a region where this many clicks of one polarity were undone is left alone whole,
+    # as a person who failed there that often moves on (0: no limit)
+    correction_region_tries: int = 0
     # "clicks", or "text": each sequence's phrases (prompts_text.json) found in its test views by
     # a text-to-mask model, each mask lifted to the method's clusters (benchmark.protocol.text)
     source: str = "clicks"
@@ -69,6 +72,10 @@ class PromptProtocol:
         if not float(self.correction_undone_radius) >= 0.0:
             raise ConfigError(f"--set prompts.correction_undone_radius={self.correction_undone_radius!r}: pixels >= 0 "
                               "(0: an undone click's whole error region is left alone)")
+        if (not isinstance(self.correction_region_tries, int) or isinstance(self.correction_region_tries, bool)
+                or self.correction_region_tries < 0):
+            raise ConfigError(f"--set prompts.correction_region_tries={self.correction_region_tries!r}: a whole "
+                              "number >= 0 (0: no limit)")
         if not 0.0 < float(self.correction_target) <= 1.0:
             raise ConfigError(f"--set prompts.correction_target={self.correction_target!r}: an IoU in (0, 1]")
 

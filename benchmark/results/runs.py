@@ -164,7 +164,8 @@ def corrective_protocol(cfg: dict, corrective: dict | None) -> str:
     checks = prompts.get("correction_check_frames", 0)  # absent: records of protocol 2, click frames alone
     watched = f" watching {checks} check frames" if checks else ""
     radius = prompts.get("correction_undone_radius", 0)  # absent: an undone click's region left alone
-    retry = f" retrying {radius:g} px from undone clicks" if radius else ""
+    tries = prompts.get("correction_region_tries", 0)  # absent: no limit
+    retry = (f" retrying {radius:g} px from undone clicks" + (f", {tries} tries per region" if tries else "")) if radius else ""
     return f", corrective {per_object}/object to IoU {prompts.get('correction_target', '?')}{watched}{retry}{polarity}"
 
 

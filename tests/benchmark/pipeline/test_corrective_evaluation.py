@@ -105,6 +105,8 @@ def test_the_protocols_settings_are_checked():
         PromptProtocol(correction_check_frames=-2)
     with pytest.raises(ConfigError, match="correction_undone_radius=-1"):
         PromptProtocol(correction_undone_radius=-1)
+    with pytest.raises(ConfigError, match="correction_region_tries=1.5"):
+        PromptProtocol(correction_region_tries=1.5)
 
 
 def test_masks_of_another_count_or_size_are_named_errors():

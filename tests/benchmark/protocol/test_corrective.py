@@ -147,3 +147,20 @@ def test_after_an_undone_click_its_region_is_clicked_again_away_from_it_only_wit
     assert (again.u - first.u) ** 2 + (again.v - first.v) ** 2 > 2.0**2  # outside the radius
     # a negative click undone does not keep a positive one out
     assert next_click(preds, gts, FRAMES, undone=[Click(3.5, 3.5, "v0", 0.0, 0, False)]) == first
+
+
+def test_with_a_radius_a_region_is_left_alone_once_its_tries_were_undone():
+    gt = _box(2, 6, 2, 26) | _box(10, 13, 2, 8)  # a 4 x 24 px bar and a 3 x 6 px box, both missed
+    none = np.zeros((H, W), bool)
+    preds, gts = {0: none, 3: none}, {0: gt, 3: none}
+    first = next_click(preds, gts, FRAMES)
+    assert gt[:6][int(first.v), int(first.u)]  # the bar, the larger region
+    second = next_click(preds, gts, FRAMES, undone=[first], undone_radius=2.0, region_tries=2)
+    assert gt[:6][int(second.v), int(second.u)]  # one try undone of two: the bar again, away from it
+    undone = [first, second]
+    for tries, in_bar in ((0, True), (3, True), (2, False)):  # 0: no limit
+        c = next_click(preds, gts, FRAMES, undone=undone, undone_radius=2.0, region_tries=tries)
+        assert (int(c.v) < 6) == in_bar, tries
+    # without a radius the first undone click already leaves the bar alone, whatever the tries
+    c = next_click(preds, gts, FRAMES, undone=[first], region_tries=2)
+    assert int(c.v) >= 10

@@ -279,6 +279,9 @@ def test_the_protocol_label_names_the_robot_users_budget_target_and_check_frames
     cfg["prompts"]["correction_undone_radius"] = 2.0
     assert corrective_protocol(cfg, {"negatives": True}) == (
         ", corrective 3/object to IoU 0.9 watching 2 check frames retrying 2 px from undone clicks")
+    cfg["prompts"]["correction_region_tries"] = 2
+    assert corrective_protocol(cfg, {"negatives": True}).endswith("retrying 2 px from undone clicks, 2 tries per region")
+    del cfg["prompts"]["correction_region_tries"]
     del cfg["prompts"]["correction_undone_radius"]
     cfg["prompts"]["correction_check_frames"] = 0  # the click frames alone
     assert corrective_protocol(cfg, {"negatives": False}) == ", corrective 3/object to IoU 0.9, positive only"
