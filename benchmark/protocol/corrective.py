@@ -7,9 +7,8 @@ evenly over the sequence): a click that makes the click and check frames worse, 
 nothing in them, is undone, as a person would undo it: it is spent, and its region is left alone
 after (or, with an ``undone_radius``, the region's pixels near it, until ``region_tries`` clicks
 in it were undone). It stops when every click frame reaches the target IoU, the budget of extra
-clicks is spent, or no error is left to click.
-Only the click and check frames' ground truth is read, as a person looks at the views they click
-in and watch.
+clicks is spent, or no error is left to click. Only the click and check frames' ground truth is
+read, as a person looks at the views they click in and watch.
 
 The score after k clicks gives the curve; the number of clicks a sequence needs to reach an IoU
 (NoC@85, NoC@90) counts the budget's clicks + 1 where it never does, as the standard does.
@@ -39,33 +38,31 @@ def iou(pred: np.ndarray, gt: np.ndarray) -> float:
     return 1.0 if union == 0 else float(np.logical_and(pred, gt).sum() / union)
 
 
-def _tried_in(region: np.ndarray, tried: list[Click], frame: int, positive: bool) -> bool:
-    """Whether a click of this polarity in this frame was tried and undone inside ``region``."""
-    return any(c.view_index == frame and c.positive == positive and region[int(c.v), int(c.u)] for c in tried)
+def _tries_in(region: np.ndarray, tried: list[Click]) -> int:
+    """How many of the ``tried`` clicks (undone, of the region's frame and polarity) lie in ``region``."""
+    return sum(bool(region[int(c.v), int(c.u)]) for c in tried)
 
 
-def _away_from(error: np.ndarray, tried: list[Click], frame: int, positive: bool, radius: float) -> np.ndarray:
-    """``error`` [H, W] bool without its pixels (centres) within ``radius`` px of a click of this
-    polarity tried and undone in this frame."""
-    near = [c for c in tried if c.view_index == frame and c.positive == positive]
-    if not near:
+def _away_from(error: np.ndarray, tried: list[Click], radius: float) -> np.ndarray:
+    """``error`` [H, W] bool without its pixels (centres) within ``radius`` px of a ``tried`` click
+    (undone, of this frame and polarity)."""
+    if not tried:
         return error
     rows, cols = np.mgrid[: error.shape[0], : error.shape[1]] + 0.5  # [2, H, W] pixel centres
     out = error.copy()
-    for c in near:
+    for c in tried:
         out &= (rows - c.v) ** 2 + (cols - c.u) ** 2 > radius**2
     return out
 
 
-def _tried_out(error: np.ndarray, tried: list[Click], frame: int, positive: bool, tries: int) -> np.ndarray:
-    """``error`` [H, W] bool without its connected regions that hold ``tries`` or more clicks of
-    this polarity tried and undone in this frame: a person who failed that often there moves on."""
-    near = [c for c in tried if c.view_index == frame and c.positive == positive]
-    if len(near) < tries:
+def _tried_out(error: np.ndarray, tried: list[Click], tries: int) -> np.ndarray:
+    """``error`` [H, W] bool without its connected regions that hold ``tries`` or more of the
+    ``tried`` clicks: a person who failed that often there moves on."""
+    if len(tried) < tries:
         return error
     out = error.copy()
     for _, _, _, region in mask_regions(error, min_area=1):
-        if sum(bool(region[int(c.v), int(c.u)]) for c in near) >= tries:
+        if _tries_in(region, tried) >= tries:
             out &= ~region
     return out
 
@@ -86,13 +83,14 @@ def next_click(preds: dict[int, np.ndarray], gts: dict[int, np.ndarray], frames:
         pred, gt = np.asarray(preds[i], dtype=bool), np.asarray(gts[i], dtype=bool)
         errors = ((True, gt & ~pred), (False, pred & ~gt)) if negatives else ((True, gt & ~pred),)
         for positive, error in errors:
+            tried = [c for c in undone if c.view_index == i and c.positive == positive]
             if undone_radius > 0:
                 if region_tries > 0:
-                    error = _tried_out(error, list(undone), i, positive, region_tries)
-                error = _away_from(error, list(undone), i, positive, undone_radius)
+                    error = _tried_out(error, tried, region_tries)
+                error = _away_from(error, tried, undone_radius)
                 regions = mask_regions(error, min_area=1) if error.any() else []
             else:
-                regions = [r for r in mask_regions(error, min_area=1) if not _tried_in(r[3], list(undone), i, positive)]
+                regions = [r for r in mask_regions(error, min_area=1) if not _tries_in(r[3], tried)]
             if not regions:
                 continue
             area, u, v, _ = regions[0]

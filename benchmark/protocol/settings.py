@@ -10,6 +10,12 @@ from masks.text import DEFAULT_DETECTOR, DEFAULT_SEGMENTER, MIN_SCORE
 SOURCES = ("clicks", "text")
 
 
+def _check_count(name: str, value, zero_means: str) -> None:
+    """A setting that counts something: a whole number >= 0 (not a bool), else one line naming it."""
+    if not isinstance(value, int) or isinstance(value, bool) or value < 0:
+        raise ConfigError(f"--set prompts.{name}={value!r}: a whole number >= 0 (0: {zero_means})")
+
+
 @dataclasses.dataclass
 class PromptProtocol:
     """The benchmark's prompts: clicks (benchmark.protocol.prompts, corrected by the robot user of
@@ -60,22 +66,14 @@ class PromptProtocol:
 
         if self.text_rule not in MASK_RULES:
             raise ConfigError(f"--set prompts.text_rule={self.text_rule!r}: choose one of {', '.join(MASK_RULES)}")
-        if not isinstance(self.corrections, int) or isinstance(self.corrections, bool) or self.corrections < 0:
-            raise ConfigError(f"--set prompts.corrections={self.corrections!r}: a whole number >= 0 "
-                              "(0: the first clicks alone)")
-        if (not isinstance(self.correction_check_frames, int) or isinstance(self.correction_check_frames, bool)
-                or self.correction_check_frames < 0):
-            raise ConfigError(f"--set prompts.correction_check_frames={self.correction_check_frames!r}: a whole "
-                              "number >= 0 (0: the click frames alone)")
+        _check_count("corrections", self.corrections, "the first clicks alone")
+        _check_count("correction_check_frames", self.correction_check_frames, "the click frames alone")
+        _check_count("correction_region_tries", self.correction_region_tries, "no limit")
         if not 0.0 <= float(self.correction_min_gain) < 1.0:
             raise ConfigError(f"--set prompts.correction_min_gain={self.correction_min_gain!r}: an IoU gain in [0, 1)")
         if not float(self.correction_undone_radius) >= 0.0:
             raise ConfigError(f"--set prompts.correction_undone_radius={self.correction_undone_radius!r}: pixels >= 0 "
                               "(0: an undone click's whole error region is left alone)")
-        if (not isinstance(self.correction_region_tries, int) or isinstance(self.correction_region_tries, bool)
-                or self.correction_region_tries < 0):
-            raise ConfigError(f"--set prompts.correction_region_tries={self.correction_region_tries!r}: a whole "
-                              "number >= 0 (0: no limit)")
         if not 0.0 < float(self.correction_target) <= 1.0:
             raise ConfigError(f"--set prompts.correction_target={self.correction_target!r}: an IoU in (0, 1]")
 
