@@ -175,8 +175,9 @@ def evaluate(method, fitted, scene, prompts, directory: Path, protocol) -> dict:
 
 def prompt_key(protocol, scene=None) -> dict:
     """The prompt protocol's part of the evaluate stage's key: the text protocol's settings where
-    it reads text, else the corrective one's; none for the first clicks alone, so single-click
-    stages keep their keys."""
+    it reads text, else the corrective one's (every setting that changes the robot's clicks; the
+    retry settings only where they act, so runs without them keep their keys); none for the first
+    clicks alone, so single-click stages keep their keys."""
     from benchmark.protocol.corrective import PROTOCOL_VERSION
 
     if protocol.source == "text":
@@ -185,10 +186,13 @@ def prompt_key(protocol, scene=None) -> dict:
         return text_key(protocol, scene)
     if protocol.corrections == 0:
         return {}
+    radius, tries = float(protocol.correction_undone_radius), int(protocol.correction_region_tries)
+    retry = {"undone_radius": radius, **({"region_tries": tries} if tries else {})} if radius else {}
     return {"corrective": {"version": PROTOCOL_VERSION, "corrections": int(protocol.corrections),
                            "target": float(protocol.correction_target),
                            "check_frames": int(protocol.correction_check_frames),
-                           **({"min_gain": float(protocol.correction_min_gain)} if protocol.correction_min_gain else {})}}
+                           **({"min_gain": float(protocol.correction_min_gain)} if protocol.correction_min_gain else {}),
+                           **retry}}
 
 
 def run(ctx: SequenceRun) -> list[StageRecord]:

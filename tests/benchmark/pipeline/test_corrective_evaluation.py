@@ -119,3 +119,25 @@ def test_masks_of_another_count_or_size_are_named_errors():
     prompts = BenchmarkPrompts(0, "f0", 0.0, [Click(1.5, 3.5, "f0", 0.0, 0)], "test")
     with pytest.raises(MethodError, match=r"labels gave a \(8, 8\) mask for test view f0 \(6 x 8\)"):
         Predictor(method, types.SimpleNamespace(gaussians=object(), stats={}), scene, prompts).masks(prompts.clicks)
+
+
+@pytest.mark.parametrize("name, value", [("corrections", 5), ("correction_target", 0.85), ("correction_min_gain", 0.01),
+                                         ("correction_check_frames", 0), ("correction_undone_radius", 3.0)])
+def test_every_setting_that_changes_the_robots_clicks_changes_the_evaluate_key(name, value):
+    """A cached evaluate stage is reused only where the robot user would click the same."""
+    from benchmark.pipeline.evaluate import prompt_key
+
+    base = PromptProtocol(correction_undone_radius=2.0, correction_region_tries=2)
+    assert dataclasses.replace(base, **{name: value}) != base
+    assert prompt_key(dataclasses.replace(base, **{name: value})) != prompt_key(base)
+
+
+def test_region_tries_enter_the_key_only_where_a_radius_makes_them_act():
+    from benchmark.pipeline.evaluate import prompt_key
+
+    with_radius = PromptProtocol(correction_undone_radius=2.0)
+    assert prompt_key(dataclasses.replace(with_radius, correction_region_tries=2)) != prompt_key(with_radius)
+    without = PromptProtocol(correction_undone_radius=0.0)
+    assert prompt_key(dataclasses.replace(without, correction_region_tries=2)) == prompt_key(without)
+    assert "undone_radius" not in prompt_key(without)["corrective"]  # runs without retries keep their keys
+    assert prompt_key(PromptProtocol(corrections=0)) == {}
