@@ -34,13 +34,14 @@ class PromptProtocol:
     # test frames spread over the sequence that the robot watches besides its click frames: a click
     # is judged by the mean IoU over both (0: the click frames alone)
     correction_check_frames: int = 2
-    # after an undone click: 0 leaves its whole error region alone (protocol version 3); R > 0
-    # leaves alone only the region's pixels within R px of it, so the robot can click the rest of
-    # the region (benchmark.protocol.corrective.next_click)
-    correction_undone_radius: float = 0.0
+    # after an undone click: R > 0 leaves alone only the region's pixels within R px of it, so the
+    # robot can click the rest of the region (benchmark.protocol.corrective.next_click); 0 leaves
+    # the whole region alone, the rule before the retries. 2 px: the next click's 3 x 3 window
+    # never holds the undone click's pixel (docs/notes/corrective-clicks.md)
+    correction_undone_radius: float = 2.0
     # with R > 0: a region where this many clicks of one polarity were undone is left alone whole,
-    # as a person who failed there that often moves on (0: no limit)
-    correction_region_tries: int = 0
+    # as a person who failed there that often moves on (0: no limit); 2: one more try, then move on
+    correction_region_tries: int = 2
     # "clicks", or "text": each sequence's phrases (prompts_text.json) found in its test views by
     # a text-to-mask model, each mask lifted to the method's clusters (benchmark.protocol.text)
     source: str = "clicks"

@@ -135,9 +135,9 @@ def test_every_setting_that_changes_the_robots_clicks_changes_the_evaluate_key(n
 def test_region_tries_enter_the_key_only_where_a_radius_makes_them_act():
     from benchmark.pipeline.evaluate import prompt_key
 
-    with_radius = PromptProtocol(correction_undone_radius=2.0)
+    with_radius = PromptProtocol(correction_undone_radius=2.0, correction_region_tries=0)
     assert prompt_key(dataclasses.replace(with_radius, correction_region_tries=2)) != prompt_key(with_radius)
-    without = PromptProtocol(correction_undone_radius=0.0)
+    without = PromptProtocol(correction_undone_radius=0.0, correction_region_tries=0)
     assert prompt_key(dataclasses.replace(without, correction_region_tries=2)) == prompt_key(without)
     assert "undone_radius" not in prompt_key(without)["corrective"]  # runs without retries keep their keys
     assert prompt_key(PromptProtocol(corrections=0)) == {}
