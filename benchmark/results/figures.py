@@ -33,6 +33,7 @@ from benchmark.results.figures_format import (
     ms,
     row_isa,
 )
+from benchmark.results.figures_prompts import prompt_marks, prompt_note, row_prompts, run_prompt_settings
 from benchmark.results.record import code_commit
 
 BEGIN = "<!-- FIGURES:BEGIN (trase-bench figures --write-page; do not edit by hand) -->"
@@ -74,6 +75,7 @@ def collect(out_dir: Path, formats=FORMATS, geometries=GEOMETRIES, methods=("tra
                      "scene": sibs[0].get("synthetic_scene"), "config_group": sibs[0]["run"]["group"],
                      "preset": sibs[0]["config"]["geometry"]["preset"],
                      "instruction_sets": run_instruction_sets(sibs), "run_commits": _run_commits(sibs),
+                     "prompts": run_prompt_settings(sibs[0]),
                      "date": datetime.date.today().isoformat()})
     if not rows:
         raise UserError(f"{out_dir}: no runs of {', '.join(methods)} on the synthetic formats; "
@@ -152,7 +154,7 @@ def render_block(data: dict) -> str:
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     mine = [r for r in data["rows"] if r.get("method", "trase") == "trase"]
-    marks = isa_marks(mine, data)
+    marks, pmarks = isa_marks(mine, data), prompt_marks(mine)
     for row in mine:
         s = row["summary"]
         geo = "reconstructed" if row["geometry"] == "reconstruct" else "ground truth"
@@ -161,10 +163,11 @@ def render_block(data: dict) -> str:
         single = "°" if not s.get("noc85") else ""  # runs of the first clicks alone
         lines.append(
             f"| {names.get(row['format'], row['format'])} | {geo} | {psnr} | {ms(s['ceiling'])} | "
-            f"{ms(s['oracle'])} | **{ms(s['miou'])}**{single}{marks.get(row_isa(row, data), '')} | {ms(s.get('miou_at_1'))} | "
+            f"{ms(s['oracle'])} | **{ms(s['miou'])}**{single}{marks.get(row_isa(row, data), '')}"
+            f"{pmarks.get(row_prompts(row), '')} | {ms(s.get('miou_at_1'))} | "
             f"{ms(s.get('noc85'), 1)} / {ms(s.get('noc90'), 1)} | {ms(s['click_sets_median'])} / "
             f"{ms(s['click_sets_worst'])} | {'—' if ag is None else f'{ag:.3f}'} | {len(s['seeds'])} |")
-    note = isa_note(mine, data, marks)
+    note = isa_note(mine, data, marks) + prompt_note(mine, pmarks)
     if any(not r["summary"].get("noc85") for r in mine):
         note.append(SINGLE_CLICK_NOTE)
     return "\n".join(lines + ([""] + note if note else [])) + "\n"

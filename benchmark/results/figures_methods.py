@@ -17,6 +17,7 @@ from benchmark.results.figures_format import (
     ms,
     row_isa,
 )
+from benchmark.results.figures_prompts import prompt_marks, prompt_note, row_prompts
 
 
 def published_averages() -> dict[tuple[str, str], float]:
@@ -43,7 +44,7 @@ def render_methods_block(data: dict) -> str:
     methods = list(dict.fromkeys(r.get("method", "trase") for r in rows))
     formats = [f for f in FORMATS if any(r["format"] == f for r in rows)]
     by = {(r.get("method", "trase"), r["format"], r["geometry"]): r for r in rows}
-    marks = isa_marks(rows, data)
+    marks, pmarks = isa_marks(rows, data), prompt_marks(rows)
     lines = [(f"Summarised on {data['date']} ({machine_line(data)}; each run's code commit is in the data file), `trase-bench figures "
              "--method ...` on the built-in synthetic scenes (each method's main protocol and defaults, "
              "official metric): mIoU, mean ± standard deviation over the run seeds; (n): the number of seeds "
@@ -63,10 +64,11 @@ def render_methods_block(data: dict) -> str:
                     continue
                 s, n = r["summary"], len(r["summary"]["seeds"])
                 single = "°" if not s.get("noc85") else ""  # runs of the first clicks alone
-                cells.append(ms(s["miou"]) + single + (f" ({n})" if n < 3 else "") + marks.get(row_isa(r, data), ""))
+                cells.append(ms(s["miou"]) + single + (f" ({n})" if n < 3 else "") + marks.get(row_isa(r, data), "")
+                             + pmarks.get(row_prompts(r), ""))
             lines.append(f"| {m} | " + " | ".join(cells) + " |")
         lines.append("")
-    note = isa_note(rows, data, marks)
+    note = isa_note(rows, data, marks) + prompt_note(rows, pmarks)
     if any(not r["summary"].get("noc85") for r in rows):
         note = [*note, SINGLE_CLICK_NOTE]
     lines += note + [""] if note else []
@@ -86,7 +88,7 @@ def render_methods_block(data: dict) -> str:
             orders.append(_order(sc) if len(sc) > 1 else "—")
         pb = {m: pub[(m, f)] for m in methods if (m, f) in pub}
         lines.append(f"| {NAMES[f]} | {orders[0]} | {orders[1]} | {_order(pb) if len(pb) > 1 else '—'} |")
-    lines += _clicks_lines(by, methods, formats)
+    lines += _clicks_lines(by, methods, formats, lambda r: pmarks.get(row_prompts(r), ""))
     lines += _feature_time_lines(by, methods, lambda r: marks.get(row_isa(r, data), ""))
     return "\n".join(lines) + "\n"
 
@@ -94,9 +96,10 @@ def render_methods_block(data: dict) -> str:
 DEFAULT_FORMAT = "hypernerf"  # the default scene (`make demo`)
 
 
-def _clicks_lines(by: dict, methods: list[str], formats: list[str]) -> list[str]:
+def _clicks_lines(by: dict, methods: list[str], formats: list[str], mark=lambda row: "") -> list[str]:
     """Per geometry, each method's first clicks' mIoU (mIoU@1) and the clicks the robot user
-    needed to reach mIoU 0.85 / 0.90 (benchmark.pipeline.corrective), means over the seeds."""
+    needed to reach mIoU 0.85 / 0.90 (benchmark.pipeline.corrective), means over the seeds;
+    ``mark``: a row's mark of other prompt settings."""
     lines = []
     for geo in GEOMETRIES:
         rows = [m for m in methods if any((by.get((m, f, geo)) or {}).get("summary", {}).get("noc85") for f in formats)]
@@ -110,9 +113,10 @@ def _clicks_lines(by: dict, methods: list[str], formats: list[str]) -> list[str]
         for m in rows:
             cells = []
             for f in formats:
-                s = (by.get((m, f, geo)) or {}).get("summary") or {}
+                r = by.get((m, f, geo)) or {}
+                s = r.get("summary") or {}
                 cells.append("—" if not s.get("noc85") else
-                             f"{ms(s.get('miou_at_1'))}; {ms(s['noc85'], 1)} / {ms(s.get('noc90'), 1)}")
+                             f"{ms(s.get('miou_at_1'))}; {ms(s['noc85'], 1)} / {ms(s.get('noc90'), 1)}{mark(r)}")
             lines.append(f"| {m} | " + " | ".join(cells) + " |")
     return lines
 
