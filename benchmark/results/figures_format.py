@@ -56,22 +56,31 @@ def row_isa(row: dict, data: dict) -> tuple[str, ...]:
     return tuple(row.get("instruction_sets") or data["machine"].get("instruction_sets") or ())
 
 
-def isas_by_share(rows: list[dict], data: dict) -> list[tuple[str, ...]]:
-    """The rows' instruction sets, most cells first; on a tie the earlier measured first (rows
-    without a date are the oldest), so a re-measurement never unmarks what it is merged into."""
+def by_share(rows: list[dict], key) -> list:
+    """The rows' values of ``key(row)``, most cells first; on a tie the earlier measured first
+    (rows without a date are the oldest), so a re-measurement never unmarks what it is merged into."""
     first = {}
     for r in rows:
-        isa = row_isa(r, data)
-        first[isa] = min(first.get(isa, r.get("date") or ""), r.get("date") or "")
-    count = lambda isa: sum(row_isa(r, data) == isa for r in rows)
-    return sorted(first, key=lambda isa: (-count(isa), first[isa]))
+        k = key(r)
+        first[k] = min(first.get(k, r.get("date") or ""), r.get("date") or "")
+    count = lambda k: sum(key(r) == k for r in rows)
+    return sorted(first, key=lambda k: (-count(k), first[k]))
+
+
+def marks_for(others: list, symbols: tuple[str, ...]) -> dict:
+    """A mark per value in ``others``: the symbols in turn, doubled once they run out."""
+    return {k: symbols[i % len(symbols)] * (1 + i // len(symbols)) for i, k in enumerate(others)}
+
+
+def isas_by_share(rows: list[dict], data: dict) -> list[tuple[str, ...]]:
+    """The rows' instruction sets, most cells first (``by_share``)."""
+    return by_share(rows, lambda r: row_isa(r, data))
 
 
 def isa_marks(rows: list[dict], data: dict) -> dict[tuple[str, ...], str]:
-    """A mark per instruction set other than the main one (``_isas_by_share``): cells of merged
+    """A mark per instruction set other than the main one (``isas_by_share``): cells of merged
     re-measurements (``figures --update``) say that their runs came from another machine."""
-    others = isas_by_share(rows, data)[1:]
-    return {isa: MARKS[i % len(MARKS)] * (1 + i // len(MARKS)) for i, isa in enumerate(others)}
+    return marks_for(isas_by_share(rows, data)[1:], MARKS)
 
 
 def isa_note(rows: list[dict], data: dict, marks: dict) -> list[str]:

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import json
 
+from benchmark.results.figures_format import by_share, marks_for
+
 PROMPT_MARKS = ("ᵃ", "ᵇ", "ᶜ", "ᵈ")
 UNRECORDED = "unrecorded"  # rows summarised before rows kept their prompt settings
 
@@ -22,20 +24,9 @@ def row_prompts(row: dict) -> str:
     return json.dumps(row["prompts"], sort_keys=True) if "prompts" in row else UNRECORDED
 
 
-def _by_share(rows: list[dict]) -> list[str]:
-    """The rows' prompt settings, most cells first; on a tie the earlier measured first."""
-    first: dict[str, str] = {}
-    for r in rows:
-        key = row_prompts(r)
-        first[key] = min(first.get(key, r.get("date") or ""), r.get("date") or "")
-    count = lambda key: sum(row_prompts(r) == key for r in rows)
-    return sorted(first, key=lambda key: (-count(key), first[key]))
-
-
 def prompt_marks(rows: list[dict]) -> dict[str, str]:
     """A mark per prompt setting other than the main one (the most cells')."""
-    others = _by_share(rows)[1:]
-    return {key: PROMPT_MARKS[i % len(PROMPT_MARKS)] * (1 + i // len(PROMPT_MARKS)) for i, key in enumerate(others)}
+    return marks_for(by_share(rows, row_prompts)[1:], PROMPT_MARKS)
 
 
 def _difference(settings: dict, main: dict) -> str:
@@ -53,7 +44,7 @@ def prompt_note(rows: list[dict], marks: dict[str, str]) -> list[str]:
     """A line per mark: how the marked cells' prompt settings differ from the unmarked ones'."""
     if not marks:
         return []
-    main = _by_share(rows)[0]
+    main = by_share(rows, row_prompts)[0]
     out = []
     for key, mark in marks.items():
         dates = sorted({r["date"] for r in rows if row_prompts(r) == key and r.get("date")})
