@@ -61,6 +61,26 @@ def test_knn_consistency_is_zero_where_neighbours_agree_and_pulls_them_together(
     assert float(loss.detach()) > 0 and torch.isfinite(logits.grad).all()
 
 
+def test_knn_consistency_gradient_reproduces_its_bits_on_two_threads():
+    """Neighbours repeat across anchors, so the gradient sums into the same rows; on several
+    threads that sum must not depend on which thread adds first (advanced indexing's backward
+    does: 4 distinct gradients in 10 on two threads)."""
+    g = torch.Generator().manual_seed(0)
+    pos, logits = torch.rand(3000, 3, generator=g), torch.randn(3000, 256, generator=g)
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        grads = set()
+        for _ in range(10):
+            leaf = logits.clone().requires_grad_(True)
+            knn_consistency(pos, torch.softmax(leaf, dim=1), 5, 2.0, 200000, 1000,
+                            torch.Generator().manual_seed(1)).backward()
+            grads.add(leaf.grad.numpy().tobytes())
+    finally:
+        torch.set_num_threads(before)
+    assert len(grads) == 1
+
+
 def test_max_points_keeps_a_subset():
     pos, probs = torch.randn(50, 3), torch.softmax(torch.randn(50, 3), dim=1)
     out = knn_consistency(pos, probs, k=3, max_points=20, sample_size=100)

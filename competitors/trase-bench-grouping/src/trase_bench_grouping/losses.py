@@ -57,8 +57,11 @@ def knn_consistency(positions: torch.Tensor, probs: torch.Tensor, k: int = 5, we
     anchors = torch.randperm(n, generator=generator)[:sample_size]
     pts = positions.detach().cpu().numpy().astype(np.float64)
     nbr = torch.from_numpy(knn_indices(pts, pts[anchors.numpy()], k)).to(probs.device)  # [S, k]
-    p = probs[anchors.to(probs.device)].unsqueeze(1)  # [S, 1, C]
-    q = probs[nbr]  # [S, k, C]
+    # index_select, not probs[nbr]: the backward of advanced indexing with repeated indices adds
+    # with atomics on several CPU threads, in an order that changes from run to run; index_select's
+    # backward (index_add) adds in index order, so a run reproduces its bits
+    p = torch.index_select(probs, 0, anchors.to(probs.device)).unsqueeze(1)  # [S, 1, C]
+    q = torch.index_select(probs, 0, nbr.reshape(-1)).reshape(*nbr.shape, n_classes)  # [S, k, C]
     kl = (p * (torch.log(p + KL_EPS) - torch.log(q + KL_EPS))).sum(-1).mean()
     return weight * kl / n_classes
 
