@@ -75,8 +75,7 @@ def figures(runs_dir, seeds, formats, geometries, collect_only, from_data, data_
             raise UserError(f"--update: {data_path} does not exist (nothing to update; leave --update out)")
         data = merge(read_figures(Path(data_path)), data)
     write_json(Path(data_path), data)
-    several = len({r.get("method", "trase") for r in data["rows"]}) > 1
-    if several:
+    if {r.get("method", "trase") for r in data["rows"]} - {"trase"}:  # trase's block shows trase's rows alone
         from benchmark.results.figures_methods import render_methods_block
 
         click.echo(render_methods_block(data))

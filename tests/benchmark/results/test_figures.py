@@ -220,6 +220,19 @@ def test_figures_update_merges_into_its_data_file_and_needs_one(tmp_path, monkey
     assert len(data["rows"]) == len(old["rows"]) + 1 and "0.500 ± 0.020†" in capsys.readouterr().out
 
 
+def test_figures_of_one_other_method_print_its_rows(tmp_path, monkeypatch, capsys):
+    """`figures --method saga` alone prints saga's rows (trase's block would show none of them)."""
+    from benchmark.cli import main
+    from benchmark.results import figures
+
+    data = _methods_data()
+    data["rows"] = [r for r in data["rows"] if r["method"] == "saga"]
+    monkeypatch.setattr(figures, "collect", lambda *a, **k: data)
+    assert main(["figures", "--collect-only", "--runs", str(tmp_path), "--method", "saga",
+                 "--data", str(tmp_path / "saga.json")]) == 0
+    assert "| saga |" in capsys.readouterr().out
+
+
 def test_trases_figures_block_marks_its_cells_from_another_machine_too():
     from benchmark.results.figures import merge
 
