@@ -201,6 +201,15 @@ class Camera:
             height=round(self.height / factor),
         )
 
+    def resized(self, width: int, height: int) -> Camera:
+        """The same camera for the image resampled to ``width`` x ``height`` px: each axis's row
+        of K scaled by that axis's own ratio, so a size rounded to whole pixels still maps the
+        image's corners onto the render's (``scaled`` divides by the factor exactly)."""
+        K = self.K.copy()
+        K[0] *= width / self.width
+        K[1] *= height / self.height
+        return dataclasses.replace(self, K=K, width=int(width), height=int(height))
+
     def with_time(self, time: float) -> Camera:
         return dataclasses.replace(self, time=float(time))
 

@@ -124,7 +124,8 @@ class ScaledViews:
             return self.data.cameras[index], self.data.images[index]
         key = (index, f)
         if key not in self._cache:
-            cam = self.data.cameras[index].scaled(f)
+            full = self.data.cameras[index]
+            cam = full.resized(round(full.width / f), round(full.height / f))
             self._cache[key] = (cam, downscaled(self.data.images[index], cam.width, cam.height))
         return self._cache[key]
 

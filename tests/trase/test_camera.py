@@ -63,6 +63,16 @@ def test_unproject_inverts_project_and_scaled():
     np.testing.assert_allclose(cam.center, [1.0, -2.0, 1.0], atol=1e-12)
 
 
+def test_resized_maps_the_image_corners_onto_a_size_rounded_to_whole_pixels():
+    cam = _cam(K=intrinsics(100.0, 90.0, 41.0, 29.0, skew=2.0), w2c=look_at([1.0, -2.0, 1.0], [0, 0, 0]))
+    pts = np.array([[0.1, 0.2, 0.3], [-0.2, 0.0, 0.1]])
+    uv, _ = cam.project(pts)
+    small = cam.resized(round(80 / 2.75), round(60 / 2.75))  # 29 x 22 px: not 80 / 2.75 x 60 / 2.75
+    assert (small.width, small.height) == (29, 22)
+    np.testing.assert_allclose(small.project(pts)[0], uv * [29 / 80, 22 / 60], atol=1e-12)
+    assert not np.allclose(cam.scaled(2.75).project(pts)[0], uv * [29 / 80, 22 / 60], atol=1e-3)
+
+
 def test_look_at_up_is_screen_up():
     cam = _cam(w2c=look_at([0, -5, 0], [0, 0, 0]))
     uv_low, _ = cam.project(np.array([[0, 0, -1.0]]))

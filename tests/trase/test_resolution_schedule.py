@@ -6,6 +6,8 @@ import itertools
 import sys
 from pathlib import Path
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 import torch
@@ -13,6 +15,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).parent))
 from recon_scene import write_scene
 
+from trase.camera import Camera, intrinsics
 from trase.reconstruct import reconstruct
 from trase.reconstruction_config import ReconstructionConfig
 from trase.reconstruction_presets import reconstruction_preset
@@ -21,6 +24,7 @@ from trase.resolution_schedule import (
     band_energy,
     candidate_factors,
     downscaled,
+    ScaledViews,
     make_schedule,
 )
 
@@ -80,3 +84,15 @@ def test_a_reconstruction_under_the_schedules_trains_small_first_and_keeps_to_th
     data = ImageCache(views, 1.0, np.zeros(3, np.float32))
     schedule = make_schedule(data.images, 64, 64, cfg.resolution_max_factor, cfg.densify_until)
     assert schedule.factor_at(0) > 1.0 and schedule.factor_at(35) == 1.0
+
+
+def test_a_scaled_view_camera_fits_its_image_when_the_size_is_rounded():
+    cam = Camera(K=intrinsics(150.0, 150.0, 80.0, 60.0), w2c=np.eye(4), width=160, height=120)
+    data = SimpleNamespace(cameras=[cam], images=[torch.rand(120, 160, 3)])
+    schedule = ResolutionSchedule([1.0, 2.75], [1.0, 0.5], until=10)
+    small, image = ScaledViews(data, schedule).view(0, 0)
+    assert image.shape == (small.height, small.width, 3) == (44, 58, 3)  # 120 / 2.75 = 43.6, 160 / 2.75 = 58.2
+    corner = np.array([[160.0, 120.0]])  # the full image's bottom-right corner, in pixels
+    np.testing.assert_allclose(corner * [small.width / 160, small.height / 120],
+                               [[small.K[0, 0] * (160 - 80) / 150 + small.K[0, 2],
+                                 small.K[1, 1] * (120 - 60) / 150 + small.K[1, 2]]], atol=1e-9)
