@@ -26,6 +26,9 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
+# What the schedule's code computes for the same settings; bumped when that changes, so results
+# of older code are not reused. 2: a downscaled view's camera is scaled by its rounded size.
+SCHEDULE_VERSION = 2
 FACTOR_STEP = 0.25  # the candidate downscale factors: 1, 1.25, 1.5, ... up to the maximum
 MIN_SIDE = 16  # px: no factor renders a view smaller than this on its short side
 
@@ -140,5 +143,5 @@ def scaled_views(data, cfg, start_gaussians: int) -> ScaledViews | None:
                              cfg.resolution_until or cfg.densify_until, cfg.primitive_schedule == "resolution",
                              cfg.max_gaussians, start_gaussians)
     return ScaledViews(data, schedule)
-__all__ = ["ResolutionSchedule", "ScaledViews", "band_energy", "candidate_factors", "downscaled", "make_schedule",
+__all__ = ["SCHEDULE_VERSION", "ResolutionSchedule", "ScaledViews", "band_energy", "candidate_factors", "downscaled", "make_schedule",
            "scaled_views"]

@@ -14,10 +14,22 @@ from benchmark.pipeline.settings import key_config
 SOURCES = ("reconstruct", "ground-truth", "import")
 
 
+def geometry_key_inputs(ctx: SequenceRun) -> dict:
+    """The inputs a geometry key hashes besides its settings: the scene, and the resolution
+    schedule's code version where the schedule is on (its older results are not reused, the
+    others' keys stay as they were)."""
+    inputs = {"scene": ctx.scene_key}
+    if ctx.settings.geometry.train.resolution_schedule != "off":
+        from trase.resolution_schedule import SCHEDULE_VERSION
+
+        inputs["resolution_schedule_version"] = str(SCHEDULE_VERSION)
+    return inputs
+
+
 def run(ctx: SequenceRun) -> list[StageRecord]:
     geometry, scene = ctx.settings.geometry, ctx.scene
     keyed = key_config(geometry)
-    key = ctx.cache.key("geometry", keyed, {"scene": ctx.scene_key})
+    key = ctx.cache.key("geometry", keyed, geometry_key_inputs(ctx))
 
     def work(d: Path) -> dict:
         from trase.devices import peak_memory_mib, reset_peak_memory, resolve_device

@@ -141,3 +141,17 @@ def test_the_numeric_mode_is_recorded_and_native_runs_keep_their_names():
     assert native.group_hash != portable.group_hash
     with pytest.raises(ConfigError, match="machine.numerics=fast: choose portable or native"):
         run_settings(method, spec, "synthetic", parse_overrides(["machine.numerics=fast"]), (160, 120))
+
+
+def test_a_scheduled_geometry_key_names_the_schedules_code_version_and_the_others_stay():
+    """A change to the resolution schedule's code must not reuse its older results, and must not
+    throw away every other reconstruction's cache with them."""
+    from types import SimpleNamespace
+
+    from benchmark.pipeline.geometry import geometry_key_inputs
+    from trase.resolution_schedule import SCHEDULE_VERSION
+
+    off = SimpleNamespace(scene_key="abc", settings=_settings())
+    on = SimpleNamespace(scene_key="abc", settings=_settings("geometry.train.resolution_schedule=frequency"))
+    assert geometry_key_inputs(off) == {"scene": "abc"}  # the keys of before
+    assert geometry_key_inputs(on) == {"scene": "abc", "resolution_schedule_version": str(SCHEDULE_VERSION)}
