@@ -5,7 +5,6 @@ import dataclasses
 import itertools
 import sys
 from pathlib import Path
-
 from types import SimpleNamespace
 
 import numpy as np
@@ -21,10 +20,10 @@ from trase.reconstruction_config import ReconstructionConfig
 from trase.reconstruction_presets import reconstruction_preset
 from trase.resolution_schedule import (
     ResolutionSchedule,
+    ScaledViews,
     band_energy,
     candidate_factors,
     downscaled,
-    ScaledViews,
     make_schedule,
 )
 
