@@ -191,20 +191,14 @@ class Camera:
 
     # -- derived cameras ----------------------------------------------------------------
     def scaled(self, factor: float) -> Camera:
-        """The same camera for an image downscaled by ``factor`` (2 -> half the size)."""
-        K = self.K.copy()
-        K[:2] /= factor
-        return dataclasses.replace(
-            self,
-            K=K,
-            width=round(self.width / factor),
-            height=round(self.height / factor),
-        )
+        """The same camera for an image downscaled by ``factor`` (2 -> half the size), the size
+        rounded to whole pixels (``resized``)."""
+        return self.resized(round(self.width / factor), round(self.height / factor))
 
     def resized(self, width: int, height: int) -> Camera:
         """The same camera for the image resampled to ``width`` x ``height`` px: each axis's row
         of K scaled by that axis's own ratio, so a size rounded to whole pixels still maps the
-        image's corners onto the render's (``scaled`` divides by the factor exactly)."""
+        image's corners onto the render's."""
         K = self.K.copy()
         K[0] *= width / self.width
         K[1] *= height / self.height

@@ -127,8 +127,7 @@ class ScaledViews:
             return self.data.cameras[index], self.data.images[index]
         key = (index, f)
         if key not in self._cache:
-            full = self.data.cameras[index]
-            cam = full.resized(round(full.width / f), round(full.height / f))
+            cam = self.data.cameras[index].scaled(f)
             self._cache[key] = (cam, downscaled(self.data.images[index], cam.width, cam.height))
         return self._cache[key]
 

@@ -70,7 +70,9 @@ def test_resized_maps_the_image_corners_onto_a_size_rounded_to_whole_pixels():
     small = cam.resized(round(80 / 2.75), round(60 / 2.75))  # 29 x 22 px: not 80 / 2.75 x 60 / 2.75
     assert (small.width, small.height) == (29, 22)
     np.testing.assert_allclose(small.project(pts)[0], uv * [29 / 80, 22 / 60], atol=1e-12)
-    assert not np.allclose(cam.scaled(2.75).project(pts)[0], uv * [29 / 80, 22 / 60], atol=1e-3)
+    by_factor = cam.scaled(2.75)  # the same rounded size and the same corners
+    assert (by_factor.width, by_factor.height) == (29, 22)
+    np.testing.assert_allclose(by_factor.project(pts)[0], uv * [29 / 80, 22 / 60], atol=1e-12)
 
 
 def test_look_at_up_is_screen_up():
