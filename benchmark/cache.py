@@ -38,7 +38,7 @@ STAGE_FILE = "_stage.json"
 # to the key (caches of never-bumped stages stay valid).
 STAGE_VERSIONS: dict[str, int] = {
     "features": 2,  # 2: smoothing with K=0 normalises features (raw features before)
-    "ceiling": 6,  # 2: object alpha statistics; votes from at most 600 training views; 3: per object (objects); 4: spill; 5: spill of all objects only; 6: movers and mover_frames
+    "ceiling": 7,  # 2: object alpha statistics; votes from at most 600 training views; 3: per object (objects); 4: spill; 5: spill of all objects only; 6: movers and mover_frames; 7: training_views
     "fit": 2,  # 2: records the clustering sample's size (cluster_sample)
     "command-inputs": 2,  # 2: each click of prompts.json says whether it is positive
     "prompts": 2,  # 2: a click per object in its first frame, each naming its frame (prompts file v3)

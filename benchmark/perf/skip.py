@@ -53,8 +53,10 @@ QUICK = {"datasets": ["neu3d"], "sequence": "synthetic-tiny",  # 3 frames x 18 c
                        "geometry.train.static_interval=20", "method.features.iterations=20",
                        "geometry.train.stop_holdout_every=5", "method.features.stop_holdout_every=5"]}
 QUICK_STOP_INTERVAL = 10
-HEADER = ["format", "variant", "geometry s", "features s", "test PSNR", "static", "ceiling", "ceiling, frames with motion",
-          "ceiling, other frames", "mIoU", "stopped at", "geometry s vs full", "features s vs full"]
+HEADER = ["format", "variant", "geometry s", "features s", "test PSNR", "static", "ceiling", "ceiling, training views",
+          "ceiling, frames with motion", "ceiling, other frames", "mIoU", "stopped at", "geometry s vs full",
+          "features s vs full"]
+TRAINING_VIEWS_COLUMN = HEADER.index("ceiling, training views")  # absent from suites run before it existed
 
 
 SCENE_HEADER = ["scene", "variant", "geometry s", "features s", "test PSNR", "test SSIM", "validation PSNR", "static",
@@ -100,7 +102,8 @@ def _figures(rec: dict) -> dict:
     ceiling = rec.get("ceiling") or {}
     movers = ceiling.get("mover_frames") or {}  # the ceiling in the frames where objects move, and the others
     return {**_stage_figures(rec), "test_psnr": geo.get("test_psnr"),
-            "ceiling": ceiling.get("miou"), "ceiling_moving_frames": movers.get("miou"),
+            "ceiling": ceiling.get("miou"), "ceiling_training_views": (ceiling.get("training_views") or {}).get("miou"),
+            "ceiling_moving_frames": movers.get("miou"),
             "ceiling_other_frames": movers.get("other_miou"),
             "miou": rec["metrics"]["official"]["miou"], "metric": rec["metrics"]["official"]["metric_version"]}
 
@@ -209,7 +212,7 @@ def _format_row(e: dict, runs: list[dict]) -> list[str]:
     ds, name, s = e["dataset"], e["variant"], e["seconds"]
     return [ds, name, f"{s.get('geometry', 0):.0f}", f"{s.get('features', 0):.0f}", _num(e["test_psnr"], 2),
             f"{e['static_gaussians'] / max(e['gaussians'], 1):.0%}", _num(e["ceiling"], 4),
-            _num(e["ceiling_moving_frames"], 4), _num(e["ceiling_other_frames"], 4), f"{e['miou']:.4f}", _stopped(e),
+            _num(e.get("ceiling_training_views"), 4), _num(e["ceiling_moving_frames"], 4), _num(e["ceiling_other_frames"], 4), f"{e['miou']:.4f}", _stopped(e),
             _ratio(runs, ds, name, "geometry"), _ratio(runs, ds, name, "features")]
 
 
@@ -231,6 +234,9 @@ def table_rows(runs: list[dict]) -> list[tuple[list[str], list[list[str]]]]:
                               (SCENE_HEADER, _scene_row, lambda r: r["dataset"].startswith("dnerf/"))):
         rows = [[r["dataset"], r["variant"], "FAILED"] + [""] * (len(header) - 3) if "error" in r else row(r, runs)
                 for r in runs if mine(r)]
+        if header is HEADER and not any(r.get("ceiling_training_views") is not None for r in runs if mine(r)):
+            header = [h for i, h in enumerate(header) if i != TRAINING_VIEWS_COLUMN]
+            rows = [[c for i, c in enumerate(row) if i != TRAINING_VIEWS_COLUMN] for row in rows]
         if rows:
             out.append((header, rows))
     return out

@@ -165,3 +165,23 @@ def test_per_object_stats_of_chosen_ids_report_a_mover(tmp_path):
     assert set(out) == {"pillar"}
     assert out["pillar"]["holes"] == 1.0 and out["pillar"]["gt_pixels"] == 4 and out["pillar"]["gaussians"] == 0
     assert out["pillar"]["opacity_median"] is None
+
+
+def test_training_view_score_is_the_selection_iou_on_the_views_instance_maps():
+    from benchmark.protocol.ceiling import training_view_score
+    from trase.segment import render_alpha
+
+    gm, deform, ids, views = tiny_scene(n_per=20)
+    maps = [_instance_map(gm, deform, ids, v) for v in views[:3]]
+    cams = [v.camera for v in views[:3]]
+    sel = ids == 0  # the gaussians of object id 1
+    got = training_view_score(gm, deform, sel, cams, maps, [1], render_alpha, 0.5)
+    ious = []
+    for cam, m in zip(cams, maps):
+        pred, truth = render_alpha(gm, deform, sel, cam) >= 0.5, m == 1
+        ious.append((pred & truth).sum() / (pred | truth).sum())
+    assert got["n_views"] == 3 and got["miou"] == round(float(np.mean(ious)), 4)
+    assert got["miou"] > 0.9
+    nothing = training_view_score(gm, deform, np.zeros_like(sel), cams, maps, [1], render_alpha, 0.5)
+    assert nothing["miou"] == 0.0
+    assert training_view_score(gm, deform, sel, [], [], [1], render_alpha, 0.5) == {"miou": None, "n_views": 0}

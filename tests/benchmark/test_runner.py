@@ -71,6 +71,7 @@ def test_pipeline_end_to_end(data_root, tmp_path, capsys):
     assert r["ceiling"]["rule"] == r["config"]["method"]["render_rule"]
     assert r["ceiling"]["n_selected"] > 0 and r["ceiling"]["miou"] > 0.85
     assert 0 <= r["ceiling"]["object_alpha"]["holes"] <= 1 and r["ceiling"]["object_alpha"]["gt_pixels"] > 0
+    assert r["ceiling"]["training_views"]["n_views"] > 0 and r["ceiling"]["training_views"]["miou"] > 0.85
     # which synthetic scene (standard or hard) the figure was measured on
     assert r["synthetic_scene"]["difficulty"] in ("standard", "hard") and r["synthetic_scene"]["generator_version"]
 

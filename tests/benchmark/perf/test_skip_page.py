@@ -55,3 +55,12 @@ def test_the_perf_command_writes_the_skip_page(tmp_path):
     page.write_text(f"{SKIP_BEGIN}\n{SKIP_END}\n")
     assert main(["perf", "--json", str(data), "--from-json", "--write-page", str(page)]) == 0
     assert "| hypernerf | full | 200 | 100 |" in page.read_text()
+
+
+def test_the_training_views_ceiling_is_a_column_where_the_runs_have_it():
+    with_it = {**_run("full", 200.0, 100.0, 0.87), "ceiling_training_views": 0.9123}
+    suite = {**DATA, "suites": {"skip": {**DATA["suites"]["skip"], "runs": [with_it]}}}
+    lines = render_skip_block(suite).splitlines()
+    assert "| ceiling | ceiling, training views | ceiling, frames with motion |" in lines[4]
+    assert "| hypernerf | full | 200 | 100 | 28.50 | 0% | 0.8800 | 0.9123 | 0.8700 | 0.8900 | 0.8700 |" in "\n".join(lines)
+    assert "training views" not in render_skip_block(DATA)  # suites measured before it existed
