@@ -212,7 +212,8 @@ def _format_row(e: dict, runs: list[dict]) -> list[str]:
     ds, name, s = e["dataset"], e["variant"], e["seconds"]
     return [ds, name, f"{s.get('geometry', 0):.0f}", f"{s.get('features', 0):.0f}", _num(e["test_psnr"], 2),
             f"{e['static_gaussians'] / max(e['gaussians'], 1):.0%}", _num(e["ceiling"], 4),
-            _num(e.get("ceiling_training_views"), 4), _num(e["ceiling_moving_frames"], 4), _num(e["ceiling_other_frames"], 4), f"{e['miou']:.4f}", _stopped(e),
+            _num(e.get("ceiling_training_views"), 4), _num(e["ceiling_moving_frames"], 4),
+            _num(e["ceiling_other_frames"], 4), f"{e['miou']:.4f}", _stopped(e),
             _ratio(runs, ds, name, "geometry"), _ratio(runs, ds, name, "features")]
 
 

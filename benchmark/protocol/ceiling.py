@@ -132,9 +132,9 @@ TRAINING_VIEW_STRIDE = 5
 def training_view_score(gaussians, deformation, sel: np.ndarray, cameras: Sequence, maps: Sequence[np.ndarray],
                         ids: Sequence[int], render, threshold: float) -> dict:
     """The truth-labelled selection ``sel`` scored (v1 mIoU) on training views against their
-    instance maps (the objects of interest together). Why: a geometry that fits its training
-    views worse loses there too, while one that generalises worse to new viewpoints loses on
-    the test views only; the two read the same here and on the test views."""
+    instance maps (the objects of interest together). Why: a geometry that fits its objects
+    worse loses here as much as on the test views; one that generalises worse to new
+    viewpoints loses on the test views only."""
     from benchmark.scoring import score_masks
 
     names = [f"{i:05d}" for i in range(len(cameras))]
