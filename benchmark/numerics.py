@@ -31,6 +31,9 @@ MODES = ("portable", "native")
 DEFAULT = "portable"
 ENV_MODE = "TRASE_NUMERICS"
 BASELINE = "x86-64-v3"
+# The version of what portable mode pins: 1 asked MKL for its AVX2 branch, 2 for its COMPATIBLE one.
+# It enters the stages' cache keys and the protocol label, so the bits of two pinnings never mix.
+PINNING = 2
 
 # What x86-64-v3 requires, in LLVM's feature names (llvmlite reports the host's in them).
 BASELINE_FEATURES = ("avx", "avx2", "bmi", "bmi2", "cx16", "f16c", "fma", "lzcnt", "movbe", "popcnt", "sahf",
@@ -45,9 +48,11 @@ PORTABLE_ENV = {
     "NUMBA_DISABLE_INTEL_SVML": "1",
     # torch's ATen kernels (vectorised loops, Sleef) at AVX2 instead of AVX-512
     "ATEN_CPU_CAPABILITY": "avx2",
-    # MKL's conditional numerical reproducibility: the AVX2 code branch, strict (bits independent
-    # of the arrays' alignment)
-    "MKL_CBWR": "AVX2,STRICT",
+    # MKL's conditional numerical reproducibility: the COMPATIBLE branch (one SSE2 code path), strict
+    # (bits independent of the arrays' alignment). MKL honours its other named branches (AVX2 ...)
+    # on Intel processors only and takes its AUTO branch elsewhere: AVX2 gave AMD and Intel
+    # machines other products (pinning 1)
+    "MKL_CBWR": "COMPATIBLE,STRICT",
     # oneDNN (torch's mkldnn ops) capped at AVX2; both spellings (old and new releases)
     "ONEDNN_MAX_CPU_ISA": "AVX2",
     "DNNL_MAX_CPU_ISA": "AVX2",
@@ -219,6 +224,7 @@ def describe(mode: str) -> dict:
            "libc": "-".join(platform.libc_ver()) or "unknown"}
     if mode == "portable":
         out["env"] = dict(PORTABLE_ENV)
+        out["pinning"] = PINNING
     return out
 
 
@@ -241,6 +247,7 @@ __all__ = [
     "BASELINE",
     "DEFAULT",
     "MODES",
+    "PINNING",
     "PORTABLE_ENV",
     "NumericsError",
     "apply",

@@ -35,6 +35,7 @@ from benchmark.results.figures_format import (
 )
 from benchmark.results.figures_prompts import prompt_marks, prompt_note, row_prompts, run_prompt_settings
 from benchmark.results.record import code_commit
+from benchmark.results.runs import numerics_pinning
 
 BEGIN = "<!-- FIGURES:BEGIN (trase-bench figures --write-page; do not edit by hand) -->"
 END = "<!-- FIGURES:END -->"
@@ -124,14 +125,16 @@ def merge(old: dict, new: dict) -> dict:
 
 def run_instruction_sets(records: list[dict]) -> list[str]:
     """The distinct instruction sets the runs were computed with ("torch AVX512, numba znver5"),
-    from each results file's ``machine``: they change a reconstruction's bits, and through it
-    the figures (docs/determinism.md), so the page names them. Runs without the record count
-    as "unrecorded"."""
+    from each results file's ``machine``, with the portable pinning from the second on: they
+    change a reconstruction's bits, and through it the figures (docs/determinism.md), so the
+    page names them. Runs without the record count as "unrecorded"."""
     seen = []
     for r in records:
         m = r.get("machine") or {}
         cap, cpu = m.get("torch_cpu_capability"), m.get("numba_cpu")
+        pinning = numerics_pinning(r.get("config") or {}, m)
         name = f"torch {cap}, numba {cpu}" if cap and cpu else "unrecorded"
+        name += f", pinning {pinning}" if pinning > 1 and cap and cpu else ""
         if name not in seen:
             seen.append(name)
     return sorted(seen)

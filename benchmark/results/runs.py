@@ -27,7 +27,7 @@ import sys
 from pathlib import Path
 
 from benchmark.errors import UserError
-from benchmark.numerics import BASELINE
+from benchmark.numerics import BASELINE, PINNING
 from benchmark.results.record import (
     LEGACY_SCHEMAS,
     RUN_KINDS,
@@ -139,7 +139,7 @@ def protocol(record: dict) -> dict:
         **tracks_protocol(cfg.get("masks") or {}),
         "prompts": prompts,
         "render": mcfg.get("render_rule", "alone"),
-        "numerics": numerics_protocol(cfg),
+        "numerics": numerics_protocol(cfg, record.get("machine")),
         "metric": official.get("metric_version", "?"),
     }
     if "command" in mcfg:  # a method in its own environment (benchmark.methods.command)
@@ -169,11 +169,24 @@ def corrective_protocol(cfg: dict, corrective: dict | None) -> str:
     return f", corrective {per_object}/object to IoU {prompts.get('correction_target', '?')}{watched}{retry}{polarity}"
 
 
-def numerics_protocol(cfg: dict) -> str:
-    """The numeric mode of a run's config (benchmark.numerics): portable bits name their baseline;
-    records from before the modes computed natively."""
+def numerics_protocol(cfg: dict, machine: dict | None = None) -> str:
+    """The numeric mode of a run's config (benchmark.numerics): portable bits name their baseline
+    and, from the second on, their pinning (``machine``: the record's, whose records without one
+    are of the first; None: a record not written yet, of this process's); records from before the
+    modes computed natively."""
     mode = (cfg.get("machine") or {}).get("numerics", "native")
-    return f"portable {BASELINE}" if mode == "portable" else mode
+    if mode != "portable":
+        return mode
+    pinning = numerics_pinning(cfg, machine)
+    return f"portable {BASELINE}" + (f" pinning {pinning}" if pinning > 1 else "")
+
+
+def numerics_pinning(cfg: dict, machine: dict | None) -> int:
+    """The pinning of a portable run's bits (benchmark.numerics.PINNING; ``machine`` as in
+    ``numerics_protocol``); 1 for native runs, whose bits no pinning names."""
+    if (cfg.get("machine") or {}).get("numerics", "native") != "portable":
+        return 1
+    return PINNING if machine is None else int((machine.get("numerics") or {}).get("pinning", 1))
 
 
 def tracks_protocol(masks: dict) -> dict:
@@ -278,7 +291,10 @@ def seed(record: dict) -> int:
 
 
 def group(record: dict) -> str:
-    return record["run"]["group"]
+    """The run's config without its seed, and the pinning its portable bits came from: runs of one
+    config under two pinnings are two configs, never one mean."""
+    pinning = numerics_pinning(record.get("config") or {}, record.get("machine"))
+    return record["run"]["group"] + (f"/pinning {pinning}" if pinning > 1 else "")
 
 
 def one_config_per_row(records: list[dict]) -> list[dict]:

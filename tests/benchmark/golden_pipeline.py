@@ -39,14 +39,15 @@ CASES = {
 
 def machine() -> dict:
     """This machine as a recording lists it: its CPU and instruction sets, where the kernels of
-    its native mode would go (benchmark.numerics)."""
+    its native mode would go, and the pinning of portable mode it ran (benchmark.numerics;
+    entries without one ran the first)."""
     from llvmlite import binding
 
     from benchmark import numerics
 
     d = numerics.describe("native")
     return {"cpu_model": d["cpu_model"], "x86_levels": d["x86_levels"], "host_cpu": binding.get_host_cpu_name(),
-            "avx512": bool(d["avx512"]), "libc": d["libc"]}
+            "avx512": bool(d["avx512"]), "libc": d["libc"], "pinning": numerics.PINNING}
 
 
 def recording() -> dict:

@@ -2,7 +2,7 @@ import json
 
 import pytest
 
-from benchmark.cache import StageCache, config_hash
+from benchmark.cache import STAGE_VERSIONS, StageCache, config_hash
 from benchmark.errors import UserError
 from benchmark.io import atomic_directory, atomic_write_json, read_json
 
@@ -100,3 +100,15 @@ def test_stages_of_another_numeric_mode_have_other_keys(tmp_path):
     portable = StageCache(tmp_path, numerics="portable").key("features", cfg, inputs)
     assert native != portable
     assert StageCache(tmp_path).key("features", cfg, inputs) == portable  # the default mode
+
+
+def test_portable_stages_of_another_pinning_have_other_keys(tmp_path, monkeypatch):
+    from benchmark import numerics
+
+    cfg, inputs = {"knn": 0}, {"masks": "m"}
+    now = StageCache(tmp_path, numerics="portable").key("features", cfg, inputs)
+    monkeypatch.setattr(numerics, "PINNING", 1)
+    first = StageCache(tmp_path, numerics="portable").key("features", cfg, inputs)
+    assert first == config_hash({"stage": "features", "config": cfg, "inputs": inputs, "numerics": "portable",
+                                 "code_version": STAGE_VERSIONS["features"]})  # the keys of the first pinning
+    assert now != first

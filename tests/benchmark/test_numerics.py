@@ -82,6 +82,7 @@ def test_each_mode_loads_the_libraries_as_it_says():
 def test_a_record_says_the_mode_and_the_machine():
     d = numerics.describe("portable")
     assert d["mode"] == "portable" and d["baseline"] == "x86-64-v3" and d["env"] == numerics.PORTABLE_ENV
+    assert d["pinning"] == numerics.PINNING
     assert "x86-64-v3" in d["x86_levels"] and d["cpu_model"]
     assert numerics.describe("native")["baseline"] == "native" and "env" not in numerics.describe("native")
 

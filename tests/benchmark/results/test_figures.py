@@ -54,6 +54,11 @@ def test_block_names_the_instruction_sets_its_runs_were_computed_with():
     avx512 = {"machine": {"torch_cpu_capability": "AVX512", "numba_cpu": "znver5"}}
     avx2 = {"machine": {"torch_cpu_capability": "AVX2", "numba_cpu": "znver3"}}
     assert run_instruction_sets([avx512, avx512]) == ["torch AVX512, numba znver5"]
+    first = {"config": {"machine": {"numerics": "portable"}}, "machine": {"torch_cpu_capability": "AVX2", "numba_cpu": "x86-64-v3",
+                                                         "numerics": {"mode": "portable"}}}
+    second = {"config": first["config"], "machine": dict(first["machine"], numerics={"pinning": 2})}
+    assert run_instruction_sets([first, second]) == ["torch AVX2, numba x86-64-v3",
+                                                     "torch AVX2, numba x86-64-v3, pinning 2"]
     assert run_instruction_sets([avx512, avx2, {}]) == ["torch AVX2, numba znver3", "torch AVX512, numba znver5",
                                                          "unrecorded"]
     data = _data()

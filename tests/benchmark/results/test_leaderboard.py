@@ -216,7 +216,7 @@ def test_portable_and_native_numerics_are_labelled_and_never_share_a_row(tmp_pat
 
     portable = config() | {"machine": {"numerics": "portable"}}
     native = config()  # records without a machine section computed natively
-    assert "numerics portable x86-64-v3;" in protocol_label(protocol({"config": portable}))
+    assert "numerics portable x86-64-v3" in protocol_label(protocol({"config": portable}))
     assert "numerics native;" in protocol_label(protocol({"config": native}))
     write(tmp_path, record("trase", "hypernerf", "synthetic", 0.8, 0.9, cfg=portable))
     write(tmp_path, record("trase", "hypernerf", "synthetic", 0.7, 0.9, cfg=native, overrides=["machine.numerics=native"]))
@@ -224,6 +224,28 @@ def test_portable_and_native_numerics_are_labelled_and_never_share_a_row(tmp_pat
     assert len(groups) == 2  # two configs: two rows wherever both are shown, never one mean
     rec = json.loads(next(tmp_path.rglob("results.json")).read_text())
     assert rec["machine"]["numerics"]["mode"] in ("portable", "native") and rec["machine"]["numerics"]["cpu_model"]
+
+
+def test_portable_runs_name_their_pinning_and_two_pinnings_never_share_a_mean(tmp_path):
+    from benchmark.numerics import PINNING
+    from benchmark.results.runs import group, protocol, protocol_label
+
+    portable = config() | {"machine": {"numerics": "portable"}}
+    first = {"numerics": {"mode": "portable"}}  # a record of the first pinning: no pinning recorded
+    now = {"numerics": {"mode": "portable", "pinning": PINNING}}
+    assert PINNING > 1
+    assert "numerics portable x86-64-v3;" in protocol_label(protocol({"config": portable, "machine": first}))
+    label = f"numerics portable x86-64-v3 pinning {PINNING};"
+    assert label in protocol_label(protocol({"config": portable, "machine": now}))
+    assert label in protocol_label(protocol({"config": portable}))  # not written yet: this process's
+    old = record("trase", "hypernerf", "synthetic", 0.8, 0.9, cfg=portable, seed=0) | {"machine": first}
+    new = record("trase", "hypernerf", "synthetic", 0.7, 0.9, cfg=portable, seed=1)
+    write(tmp_path, old)
+    write(tmp_path, new)
+    runs = find_runs(tmp_path)
+    assert len({group(r) for r in runs}) == 2
+    with pytest.raises(RunError, match="different configs"):
+        one_config_per_row(runs)
 
 
 def _corrective(miou_at_1: float, noc85: int, noc90: int) -> dict:
