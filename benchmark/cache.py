@@ -89,10 +89,9 @@ class StageCache:
 
     def key(self, stage: str, config: dict, inputs: dict[str, str] | None = None) -> str:
         payload = {"stage": stage, "config": config, "inputs": inputs or {}}
-        if self.numerics == "portable" and numeric_modes.PINNING > 1:
-            payload["numerics"] = f"portable/{numeric_modes.PINNING}"  # another pinning, other bits
-        elif self.numerics != "native":
-            payload["numerics"] = self.numerics
+        if self.numerics != "native":  # portable: its pinning's bits (the first pinning's keys name none)
+            pinning = numeric_modes.PINNING
+            payload["numerics"] = self.numerics + (f"/{pinning}" if pinning > 1 else "")
         version = STAGE_VERSIONS.get(stage, 1)
         if version != 1:
             payload["code_version"] = version

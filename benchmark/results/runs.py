@@ -175,10 +175,8 @@ def numerics_protocol(cfg: dict, machine: dict | None = None) -> str:
     are of the first; None: a record not written yet, of this process's); records from before the
     modes computed natively."""
     mode = (cfg.get("machine") or {}).get("numerics", "native")
-    if mode != "portable":
-        return mode
-    pinning = numerics_pinning(cfg, machine)
-    return f"portable {BASELINE}" + (f" pinning {pinning}" if pinning > 1 else "")
+    pinning = numerics_pinning(cfg, machine)  # 1 for native runs
+    return mode if mode != "portable" else f"portable {BASELINE}" + (f" pinning {pinning}" if pinning > 1 else "")
 
 
 def numerics_pinning(cfg: dict, machine: dict | None) -> int:
