@@ -22,6 +22,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from trase import blas_linear
 from trase.reconstruction_config import deform_shape
 
 # Smallest scale handed to the rasterizer: exp(log_s) + d_scale may go negative.
@@ -177,9 +178,9 @@ class DeformMLP(nn.Module):
             # layer input is [x_emb, t_emb] (layer 0) or [x_emb, t_emb, h] (after the skip)
             w = layer.weight
             row = F.linear(t_emb, w[:, nx:nx + t_emb.shape[1]], layer.bias)  # [1, W]
-            out = F.linear(x_emb, w[:, :nx])  # [N, W]
+            out = blas_linear.linear(x_emb, w[:, :nx])  # [N, W]
             if h is not None:
-                out = out + F.linear(h, w[:, nx + t_emb.shape[1]:])
+                out = out + blas_linear.linear(h, w[:, nx + t_emb.shape[1]:])
             return out + row
 
         h = None
@@ -187,8 +188,8 @@ class DeformMLP(nn.Module):
             if i == 0 or i == self.skip + 1:
                 h = F.relu(split_linear(layer, h))
             else:
-                h = F.relu(layer(h))
-        return self.gaussian_warp(h), self.gaussian_rotation(h), self.gaussian_scaling(h)
+                h = F.relu(blas_linear.layer(layer, h))
+        return tuple(blas_linear.layer(head, h) for head in (self.gaussian_warp, self.gaussian_rotation, self.gaussian_scaling))
 
     def forward_reference(self, xyz: torch.Tensor, t: float | torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """The network as the public code writes it (concatenated inputs); any t."""

@@ -6,11 +6,14 @@ per gaussian. This suite says how close the step already runs to what the cores 
 step is the network's forward and backward as training runs it (the canonical means detached,
 gradients for every weight; ``trase.deformation.DeformMLP``), the product is ``[N, W] @ [W, W]``,
 the shape of its hidden layers, timed 20 in a row. The flops are counted from the layers' shapes
-(``step_flops``), so the ratio is the share of the product's rate the whole step reaches.
+(``step_flops``), so the ratio is the share of the product's rate the whole step reaches. Each
+case runs with both engines of the network's products (``trase.blas_linear``: torch's, and
+OpenBLAS's in row chunks, which portable numerics use), one after the other in this process.
 """
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Callable
 
 import torch
@@ -52,8 +55,19 @@ def training_step(net, xyz: torch.Tensor, grads: list[torch.Tensor]) -> Callable
     return step
 
 
-def measure(preset: str, n: int, repeats: int) -> dict:
-    """The step, the forward alone and the hidden layers' product for one network and count."""
+def measure(preset: str, n: int, repeats: int, products: str) -> dict:
+    """The step, the forward alone and the hidden layers' product for one network, count and
+    engine of the products (``trase.blas_linear.ENGINES``)."""
+    from trase import blas_linear
+
+    previous = blas_linear.set_engine(products)
+    try:
+        return {**_measure(preset, n, repeats, blas_linear.linear), "products": products}
+    finally:
+        blas_linear.set_engine(previous)
+
+
+def _measure(preset: str, n: int, repeats: int, linear: Callable) -> dict:
     from trase.deformation import DeformMLP
 
     gen = torch.Generator().manual_seed(0)
@@ -69,7 +83,8 @@ def measure(preset: str, n: int, repeats: int) -> dict:
     forward_s, _ = time_repeats(forward, repeats, warmup=1)
     a, w = torch.randn(n, net.W, generator=gen), torch.randn(net.W, net.W, generator=gen)  # [n, W], [W, W]
     per_repeat = 20  # products per timed repeat: the rate of a steady run of them, as in the step
-    batches, _ = time_repeats(lambda: [a @ w for _ in range(per_repeat)], repeats, warmup=1)
+    with torch.no_grad():
+        batches, _ = time_repeats(lambda: [linear(a, w) for _ in range(per_repeat)], repeats, warmup=1)
     product_s = stats([t / per_repeat for t in batches["all"]])  # seconds per product
     flops = step_flops(net, n)
     step_rate = flops / step_s["median"] / 1e9
@@ -86,18 +101,20 @@ def run(quick: bool = False, echo: Callable[[str], None] = print) -> dict:
          f"[N, W] @ [W, W] product alone; median of {cfg['repeats']} (spread = max - min), "
          f"{torch.get_num_threads()} torch threads")
     results, rows = [], []
-    for preset, n in cfg["cases"]:
-        r = measure(preset, n, cfg["repeats"])
+    from trase import blas_linear
+
+    for (preset, n), products in itertools.product(cfg["cases"], blas_linear.ENGINES):
+        r = measure(preset, n, cfg["repeats"], products)
         results.append(r)
-        rows.append([f"{preset} ({r['depth']}x{r['width']}), {n:,} gaussians", fmt(r["step_seconds"]),
+        rows.append([f"{preset} ({r['depth']}x{r['width']}), {n:,} gaussians", products, fmt(r["step_seconds"]),
                      fmt(r["forward_seconds"]), f"{r['step_gflop']:.3f}", f"{r['step_gflops_per_s']:.0f}",
                      f"{r['product_gflops_per_s']:.0f}", f"{r['share_of_product_rate']:.2f}"])
-    echo(table(rows, ["network, gaussians", "step", "forward", "GFLOP", "GFLOP/s", "product GFLOP/s",
+    echo(table(rows, ["network, gaussians", "products", "step", "forward", "GFLOP", "GFLOP/s", "product GFLOP/s",
                       "share"]))
     return {
         "description": __doc__.strip().splitlines()[0],
         "quick": quick,
-        "settings": {**cfg, "torch_threads": torch.get_num_threads()},
+        "settings": {**cfg, "torch_threads": torch.get_num_threads(), "engine_of_this_process": blas_linear.engine()},
         "versions": versions("torch"),
         "cases": results,
         "load_average_end": load_average(),

@@ -5,15 +5,21 @@ import torch
 from torch.utils.flop_counter import FlopCounterMode
 
 from benchmark.perf.network import step_flops, training_step
+from trase import blas_linear
 from trase.deformation import DeformMLP
 
 
 def counted_flops(net, n: int) -> int:
+    """torch's count of the step's products (torch's engine: it does not see OpenBLAS's)."""
     gen = torch.Generator().manual_seed(0)
     xyz = torch.rand(n, 3, generator=gen)
     grads = [torch.randn(n, k, generator=gen) for k in (3, 4, 3)]
-    with FlopCounterMode(display=False) as counter:
-        training_step(net, xyz, grads)()
+    previous = blas_linear.set_engine("torch")
+    try:
+        with FlopCounterMode(display=False) as counter:
+            training_step(net, xyz, grads)()
+    finally:
+        blas_linear.set_engine(previous)
     return counter.get_total_flops()
 
 
@@ -29,7 +35,8 @@ def test_quick_run_reports_rates():
     from benchmark.perf import network
 
     out = network.run(quick=True, echo=lambda s: None)
-    (case,) = out["cases"]
+    assert [c["products"] for c in out["cases"]] == ["torch", "openblas"]  # both engines, side by side
+    case = out["cases"][1]
     assert case["gaussians"] == 2_000 and case["step_seconds"]["median"] > 0
     assert case["step_gflop"] == pytest.approx(step_flops(DeformMLP.preset("small"), 2_000) / 1e9)
     assert case["share_of_product_rate"] == pytest.approx(case["step_gflops_per_s"] / case["product_gflops_per_s"])

@@ -1,0 +1,108 @@
+"""The deformation network's products through OpenBLAS: the same products as torch's up to
+rounding, gradients included, and the same bits on any thread count."""
+
+import numba
+import numpy as np
+import pytest
+import torch
+import torch.nn.functional as F
+
+from trase import blas_kernels, blas_linear
+from trase.deformation import DeformMLP
+from trase.threads import torch_threads
+
+
+@pytest.fixture
+def openblas():
+    previous = blas_linear.set_engine("openblas")
+    yield
+    blas_linear.set_engine(previous)
+
+
+def _inputs(n, i, o, dtype=torch.float32, seed=0):
+    gen = torch.Generator().manual_seed(seed)
+    return (torch.randn(n, i, generator=gen, dtype=dtype), torch.randn(o, i, generator=gen, dtype=dtype),
+            torch.randn(o, generator=gen, dtype=dtype))
+
+
+@pytest.mark.parametrize("n", [0, 1, 1023, 1024, 2500])
+def test_kernels_match_the_plain_products(n):
+    rng = np.random.default_rng(n)
+    a, b = rng.standard_normal((n, 39)).astype(np.float32), rng.standard_normal((39, 64)).astype(np.float32)
+    out = np.empty((n, 64), np.float32)
+    blas_kernels.rows_times(a, b, out)
+    np.testing.assert_allclose(out, blas_kernels.reference_rows_times(a, b), rtol=1e-5, atol=1e-4)
+    g = rng.standard_normal((n, 64)).astype(np.float32)
+    partial = np.empty((blas_kernels.n_chunks(n), 64, 39), np.float32)
+    blas_kernels.transposed_times(g, a, partial)
+    np.testing.assert_allclose(blas_kernels.sum_in_order(partial), blas_kernels.reference_transposed_times(g, a),
+                               rtol=1e-5, atol=1e-3)
+
+
+def test_linear_equals_torch_forward_and_backward(openblas):
+    x, w, b = _inputs(3000, 39, 64)
+    grads = []
+    for use in ("openblas", "torch"):
+        blas_linear.set_engine(use)
+        xs, ws, bs = (t.clone().requires_grad_(True) for t in (x, w, b))
+        y = blas_linear.linear(xs, ws, bs)
+        (y * torch.linspace(-1, 1, 64)).sum().backward()
+        grads.append((y.detach(), xs.grad, ws.grad, bs.grad))
+    for ours, theirs in zip(*grads):
+        torch.testing.assert_close(ours, theirs, rtol=1e-5, atol=2e-4)
+
+
+def test_gradients_pass_gradcheck_in_float64(openblas):
+    x, w, b = (t.requires_grad_(True) for t in _inputs(7, 5, 3, dtype=torch.float64))
+    assert torch.autograd.gradcheck(blas_linear.linear, (x, w, b))
+    assert torch.autograd.gradcheck(lambda x, w: blas_linear.linear(x, w), (x, w))
+
+
+def test_non_contiguous_inputs_and_weight_slices(openblas):
+    x, w, b = _inputs(1500, 84, 64)
+    xs, ws = x[:, ::2], w[:, 10:52]  # column slices, as the network's split first layer reads them
+    torch.testing.assert_close(blas_linear.linear(xs, ws, b), F.linear(xs, ws, b), rtol=1e-5, atol=2e-4)
+
+
+def test_bits_do_not_depend_on_the_thread_count(openblas):
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("needs 2 numba threads")
+    x, w, b = _inputs(5000, 64, 64)
+    out = {}
+    for n in (1, 2):
+        with torch_threads(n):
+            xs, ws = x.clone().requires_grad_(True), w.clone().requires_grad_(True)
+            y = blas_linear.linear(xs, ws, b)
+            y.square().sum().backward()
+            out[n] = (y.detach(), xs.grad, ws.grad)
+    for one, two in zip(out[1], out[2]):
+        assert torch.equal(one, two)
+
+
+def test_other_tensors_go_to_torch(openblas):
+    x, w, b = _inputs(10, 4, 3)
+    assert blas_linear.linear(x.half(), w.half(), b.half()).dtype == torch.float16
+    y = blas_linear.linear(x[None], w, b)  # [1, N, I]: not a 2-D product
+    torch.testing.assert_close(y, F.linear(x[None], w, b))
+
+
+def test_the_network_gives_torch_s_offsets_with_either_engine(openblas):
+    net = DeformMLP.preset("small")
+    for p in net.parameters():
+        torch.nn.init.normal_(p, std=0.2)
+    xyz = torch.rand(2048, 3) * 2 - 1
+    ours = net(xyz, 0.3)
+    blas_linear.set_engine("torch")
+    theirs = net(xyz, 0.3)
+    for a, b in zip(ours, theirs):
+        torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-5)
+
+
+def test_engine_from_env_names_a_wrong_value(monkeypatch):
+    monkeypatch.setenv(blas_linear.ENV, "mkl")
+    with pytest.raises(ValueError, match="TRASE_PRODUCTS='mkl'"):
+        blas_linear.engine_from_env()
+    monkeypatch.delenv(blas_linear.ENV)
+    assert blas_linear.engine_from_env() == "torch"
+    with pytest.raises(ValueError, match="one of torch, openblas"):
+        blas_linear.set_engine("cublas")

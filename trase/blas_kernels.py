@@ -1,0 +1,103 @@
+"""Numba loops that cut a matrix product into fixed row chunks, one OpenBLAS call each
+(``trase.blas_linear``'s ``openblas`` engine); ``reference_*`` are the plain products they are
+tested against.
+
+A chunk's product is one single-threaded ``sgemm``/``dgemm`` (numba's ``np.dot`` calls the
+OpenBLAS scipy ships). Its rounding depends on the chunk's rows alone, never on which thread
+runs it, so the bits are the same on any thread count; a sum over rows (a weight's gradient)
+adds the chunks' partial products one after another in chunk order.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+from numba import njit, prange
+
+CHUNK = 1024  # rows per OpenBLAS call: part of the bits (a product's rounding follows its tiling)
+
+
+def n_chunks(rows: int) -> int:
+    return (rows + CHUNK - 1) // CHUNK
+
+
+@functools.cache
+def _openblas_libraries() -> tuple:
+    """threadpoolctl's controllers of the OpenBLAS libraries loaded (numpy's and scipy's)."""
+    import scipy.linalg.cython_blas  # noqa: F401  (numba's np.dot calls the OpenBLAS it loads)
+    from threadpoolctl import ThreadpoolController
+
+    return tuple(ThreadpoolController().select(internal_api="openblas").lib_controllers)
+
+
+def single_threaded_blas() -> None:
+    """OpenBLAS's own threads off (a microsecond when they already are): its calls come from
+    numba's threads, and OpenBLAS's threaded build must not be entered from inside an OpenMP
+    loop (it warns that it may hang). Checked on every product, since a ``threadpool_limits``
+    block elsewhere restores the count it found when it ends."""
+    for library in _openblas_libraries():
+        if library.get_num_threads() != 1:
+            library.set_num_threads(1)
+
+
+@njit(cache=True, nogil=True)
+def _rows_chunk(a, b, out, c):
+    i0 = c * CHUNK
+    i1 = min(a.shape[0], i0 + CHUNK)
+    np.dot(a[i0:i1], b, out[i0:i1])
+
+
+@njit(parallel=True, cache=True, nogil=True)
+def rows_times(a, b, out):
+    """out [N, M] = a [N, K] @ b [K, M], all C-contiguous, chunk by chunk over numba's threads."""
+    for c in prange((a.shape[0] + CHUNK - 1) // CHUNK):
+        _rows_chunk(a, b, out, c)
+
+
+@njit(cache=True, nogil=True)
+def rows_times_serial(a, b, out):
+    """``rows_times`` on the calling thread (one thread does not wake numba's pool)."""
+    for c in range((a.shape[0] + CHUNK - 1) // CHUNK):
+        _rows_chunk(a, b, out, c)
+
+
+@njit(cache=True, nogil=True)
+def _transposed_chunk(g, x, partial, c):
+    i0 = c * CHUNK
+    i1 = min(g.shape[0], i0 + CHUNK)
+    np.dot(np.ascontiguousarray(g[i0:i1].T), x[i0:i1], partial[c])
+
+
+@njit(parallel=True, cache=True, nogil=True)
+def transposed_times(g, x, partial):
+    """partial[c] [O, I] = g[chunk c].T @ x[chunk c] for g [N, O], x [N, I] (C-contiguous)."""
+    for c in prange((g.shape[0] + CHUNK - 1) // CHUNK):
+        _transposed_chunk(g, x, partial, c)
+
+
+@njit(cache=True, nogil=True)
+def transposed_times_serial(g, x, partial):
+    """``transposed_times`` on the calling thread."""
+    for c in range((g.shape[0] + CHUNK - 1) // CHUNK):
+        _transposed_chunk(g, x, partial, c)
+
+
+def sum_in_order(partial: np.ndarray) -> np.ndarray:
+    """[C, O, I] -> [O, I]: the chunks' partial products added in chunk order (zeros if none)."""
+    if partial.shape[0] == 0:
+        return np.zeros(partial.shape[1:], dtype=partial.dtype)
+    total = partial[0].copy()
+    for p in partial[1:]:
+        total += p
+    return total
+
+
+def reference_rows_times(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The plain product in float64: what ``rows_times`` computes up to float32 rounding."""
+    return a.astype(np.float64) @ b.astype(np.float64)
+
+
+def reference_transposed_times(g: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """The plain g^T x in float64."""
+    return g.astype(np.float64).T @ x.astype(np.float64)
