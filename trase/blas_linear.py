@@ -14,7 +14,7 @@ engine in ``$TRASE_PRODUCTS`` (read once, at import):
   OpenMP pool torch shares, so nothing spins against it); a weight's gradient sums the chunks'
   in chunk order. The bits therefore do not depend on the thread count (MKL's do).
 
-``blas_kernels`` holds the numba loops; ``reference`` the plain products they are tested against.
+``trase.blas_kernels`` holds the numba loops and the plain products they are tested against.
 """
 
 from __future__ import annotations
@@ -24,8 +24,6 @@ import os
 import numpy as np
 import torch
 import torch.nn.functional as F
-
-from trase.threads import numba_threads
 
 ENV = "TRASE_PRODUCTS"
 ENGINES = ("torch", "openblas")
@@ -61,7 +59,8 @@ def _array(t: torch.Tensor) -> np.ndarray:
 
 
 def _products():
-    """The numba kernels, imported (and OpenBLAS set to one thread a call) on first use."""
+    """The numba kernels, imported (and OpenBLAS set to one thread a call) on first use: a
+    process on torch's engine never loads them."""
     from trase import blas_kernels
 
     blas_kernels.single_threaded_blas()
@@ -70,8 +69,10 @@ def _products():
 
 def _rows_times(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """a [N, K] @ b [K, M] -> [N, M], chunked over the rows."""
-    out = np.empty((a.shape[0], b.shape[1]), dtype=a.dtype)
+    from trase.threads import numba_threads
+
     kernels = _products()
+    out = np.empty((a.shape[0], b.shape[1]), dtype=a.dtype)
     with numba_threads() as n:
         (kernels.rows_times if n > 1 else kernels.rows_times_serial)(a, b, out)
     return out
@@ -79,6 +80,8 @@ def _rows_times(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def _transposed_times(g: np.ndarray, x: np.ndarray) -> np.ndarray:
     """g [N, O]^T @ x [N, I] -> [O, I], summed over the row chunks in their order."""
+    from trase.threads import numba_threads
+
     kernels = _products()
     partial = np.empty((kernels.n_chunks(g.shape[0]), g.shape[1], x.shape[1]), dtype=g.dtype)
     with numba_threads() as n:
