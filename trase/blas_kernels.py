@@ -42,45 +42,40 @@ def single_threaded_blas() -> None:
 
 
 @njit(cache=True, nogil=True)
-def _rows_chunk(a, b, out, c):
+def rows_chunk(a, b, out, c):
+    """out[chunk c] = a[chunk c] @ b for a [N, K], b [K, M], out [N, M] (C-contiguous)."""
     i0 = c * CHUNK
     i1 = min(a.shape[0], i0 + CHUNK)
     np.dot(a[i0:i1], b, out[i0:i1])
 
 
-@njit(parallel=True, cache=True, nogil=True)
-def rows_times(a, b, out):
-    """out [N, M] = a [N, K] @ b [K, M], all C-contiguous, chunk by chunk over numba's threads."""
-    for c in prange((a.shape[0] + CHUNK - 1) // CHUNK):
-        _rows_chunk(a, b, out, c)
-
-
 @njit(cache=True, nogil=True)
-def rows_times_serial(a, b, out):
-    """``rows_times`` on the calling thread (one thread does not wake numba's pool)."""
-    for c in range((a.shape[0] + CHUNK - 1) // CHUNK):
-        _rows_chunk(a, b, out, c)
-
-
-@njit(cache=True, nogil=True)
-def _transposed_chunk(g, x, partial, c):
+def transposed_chunk(g, x, partial, c):
+    """partial[c] [O, I] = g[chunk c].T @ x[chunk c] for g [N, O], x [N, I] (C-contiguous)."""
     i0 = c * CHUNK
     i1 = min(g.shape[0], i0 + CHUNK)
     np.dot(np.ascontiguousarray(g[i0:i1].T), x[i0:i1], partial[c])
 
 
 @njit(parallel=True, cache=True, nogil=True)
+def rows_times(a, b, out):
+    """``rows_chunk`` for every chunk, over numba's threads."""
+    for c in prange((a.shape[0] + CHUNK - 1) // CHUNK):
+        rows_chunk(a, b, out, c)
+
+
+@njit(parallel=True, cache=True, nogil=True)
 def transposed_times(g, x, partial):
-    """partial[c] [O, I] = g[chunk c].T @ x[chunk c] for g [N, O], x [N, I] (C-contiguous)."""
+    """``transposed_chunk`` for every chunk, over numba's threads."""
     for c in prange((g.shape[0] + CHUNK - 1) // CHUNK):
-        _transposed_chunk(g, x, partial, c)
+        transposed_chunk(g, x, partial, c)
 
 
-@njit(cache=True, nogil=True)
-def transposed_times_serial(g, x, partial):
-    """``transposed_times`` on the calling thread."""
-    for c in range((g.shape[0] + CHUNK - 1) // CHUNK):
-        _transposed_chunk(g, x, partial, c)
+def on_this_thread(chunk_kernel, rows: int, *arrays) -> None:
+    """A chunk kernel for every chunk in order, on the calling thread: one thread does not wake
+    numba's pool (a few calls from Python, against the pool's wake-up on a loaded machine)."""
+    for c in range(n_chunks(rows)):
+        chunk_kernel(*arrays, c)
 
 
 def sum_in_order(partial: np.ndarray) -> np.ndarray:

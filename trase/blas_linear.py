@@ -74,7 +74,10 @@ def _rows_times(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     kernels = _products()
     out = np.empty((a.shape[0], b.shape[1]), dtype=a.dtype)
     with numba_threads() as n:
-        (kernels.rows_times if n > 1 else kernels.rows_times_serial)(a, b, out)
+        if n > 1:
+            kernels.rows_times(a, b, out)
+        else:
+            kernels.on_this_thread(kernels.rows_chunk, a.shape[0], a, b, out)
     return out
 
 
@@ -85,7 +88,10 @@ def _transposed_times(g: np.ndarray, x: np.ndarray) -> np.ndarray:
     kernels = _products()
     partial = np.empty((kernels.n_chunks(g.shape[0]), g.shape[1], x.shape[1]), dtype=g.dtype)
     with numba_threads() as n:
-        (kernels.transposed_times if n > 1 else kernels.transposed_times_serial)(g, x, partial)
+        if n > 1:
+            kernels.transposed_times(g, x, partial)
+        else:
+            kernels.on_this_thread(kernels.transposed_chunk, g.shape[0], g, x, partial)
     return kernels.sum_in_order(partial)
 
 
