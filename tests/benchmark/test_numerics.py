@@ -71,12 +71,20 @@ def test_each_mode_loads_the_libraries_as_it_says():
     """In fresh processes: portable pins torch at AVX2 and numba at the baseline; native leaves
     them to the processor; each passes its own check."""
     code = ("import sys; from benchmark import numerics as n; m = sys.argv[1]; n.apply(m); "
-            "import numpy, torch, numba; n.check(m); d = n.kernels(); "
-            "print(d['torch_cpu_capability'], d['numba_cpu'])")
+            "import numpy, torch, numba, trase.blas_linear; n.check(m); d = n.kernels(); "
+            "print(d['torch_cpu_capability'], d['numba_cpu'], d['products'])")
     out = {m: subprocess.run([sys.executable, "-c", code, m], cwd=ROOT, capture_output=True, text=True, check=True,
                              timeout=120).stdout.split() for m in numerics.MODES}
-    assert out["portable"] == ["AVX2", "x86-64-v3"]
-    assert out["native"][1] != "x86-64-v3"
+    assert out["portable"] == ["AVX2", "x86-64-v3", "openblas"]
+    assert out["native"][1] != "x86-64-v3" and out["native"][2] == "torch"
+
+
+def test_a_process_whose_network_products_are_not_its_mode_s_is_told(monkeypatch):
+    from trase import blas_linear
+
+    assert "products" not in numerics.live_mismatch("portable")  # this process: portable, OpenBLAS
+    monkeypatch.setattr(blas_linear, "_engine", "torch")
+    assert "the deformation network's products through torch" in numerics.live_mismatch("portable")
 
 
 def test_a_record_says_the_mode_and_the_machine():
