@@ -36,6 +36,12 @@ BASELINE = "x86-64-v3"
 # protocol label, so the bits of two pinnings never mix.
 PINNING = 3
 
+
+def pinning_name(pinning: int) -> str:
+    """"pinning N" for portable bits from the second pinning on; "" for the first, whose labels,
+    groups and pages never named one (so its results keep their names)."""
+    return f"pinning {pinning}" if pinning > 1 else ""
+
 # What x86-64-v3 requires, in LLVM's feature names (llvmlite reports the host's in them).
 BASELINE_FEATURES = ("avx", "avx2", "bmi", "bmi2", "cx16", "f16c", "fma", "lzcnt", "movbe", "popcnt", "sahf",
                      "sse3", "sse4.1", "sse4.2", "ssse3", "xsave")
@@ -272,6 +278,7 @@ __all__ = [
     "missing_features",
     "mode_from_argv",
     "mode_from_sets",
+    "pinning_name",
     "requested_mode",
     "wanted_env",
 ]

@@ -225,10 +225,13 @@ def default_sequences(spec, data_root: Path | None) -> list[str | None]:
     on stderr where a data root was given (a layout the loader does not know looks empty)."""
     from benchmark.datasets import data_root as real_root
     from benchmark.datasets import find_scene_dir
+    from benchmark.datasets.synthetic import sequence_name, synthetic_copy
 
     root = real_root(data_root)
     found = [s for s in spec.sequences if root and find_scene_dir(spec.key, s, root)]
     if root is not None and not found:
+        copy = synthetic_copy(root, spec.key, sequence_name("small"))
+        runs = f"running the synthetic scene written there, {copy}" if copy else "running the built-in synthetic scene"
         print(f"note: no {spec.key} sequence under {root} (looked in {root / spec.key}/ and "
-              f"{root / spec.display_name}/); running the built-in synthetic scene", file=sys.stderr, flush=True)
+              f"{root / spec.display_name}/); {runs}", file=sys.stderr, flush=True)
     return found or [None]

@@ -19,6 +19,7 @@ import platform
 from pathlib import Path
 
 from benchmark.errors import UserError
+from benchmark.numerics import pinning_name
 from benchmark.results.figures_format import (
     FORMATS,
     GEOMETRIES,
@@ -134,7 +135,7 @@ def run_instruction_sets(records: list[dict]) -> list[str]:
         cap, cpu = m.get("torch_cpu_capability"), m.get("numba_cpu")
         pinning = numerics_pinning(r.get("config") or {}, m)
         name = f"torch {cap}, numba {cpu}" if cap and cpu else "unrecorded"
-        name += f", pinning {pinning}" if pinning > 1 and cap and cpu else ""
+        name = ", ".join(filter(None, (name, pinning_name(pinning) if cap and cpu else "")))
         if name not in seen:
             seen.append(name)
     return sorted(seen)

@@ -8,6 +8,7 @@ import json
 from pathlib import Path
 
 from benchmark.errors import UserError
+from benchmark.numerics import pinning_name
 
 PERF_BEGIN = ("<!-- PERF:BEGIN (trase-bench perf --json docs/perf-runs/current.json --from-json "
               "--write-page docs/performance.md; do not edit by hand) -->")
@@ -80,8 +81,12 @@ ROWS = {"raster": raster_rows, "features": feature_rows, "knn": knn_rows, "clust
 def machine_line(data: dict) -> str:
     m = data["machine"]
     isa = "AVX-512" if (m.get("numerics") or {}).get("avx512") else "AVX2"
-    mode = (m.get("numerics") or {}).get("mode", "native")
-    return (f"{m.get('cpu_count', '?')} cores, {m.get('cpu', '?')} ({isa}), {mode} numerics, torch threads "
+    numerics = m.get("numerics") or {}
+    mode = numerics.get("mode", "native")
+    label = f"{mode} numerics"
+    if mode == "portable":  # its bits are its pinning's (benchmark.numerics.PINNING)
+        label = " ".join(filter(None, (label, pinning_name(int(numerics.get("pinning", 1))))))
+    return (f"{m.get('cpu_count', '?')} cores, {m.get('cpu', '?')} ({isa}), {label}, torch threads "
             f"{m.get('torch_threads', '?')}; measured {data.get('started', '?')[:10]}"
             f"{' (quick settings)' if any(s.get('quick') for s in data['suites'].values()) else ''}")
 

@@ -27,7 +27,7 @@ import sys
 from pathlib import Path
 
 from benchmark.errors import UserError
-from benchmark.numerics import BASELINE, PINNING
+from benchmark.numerics import BASELINE, PINNING, pinning_name
 from benchmark.results.record import (
     LEGACY_SCHEMAS,
     RUN_KINDS,
@@ -176,7 +176,7 @@ def numerics_protocol(cfg: dict, machine: dict | None = None) -> str:
     modes computed natively."""
     mode = (cfg.get("machine") or {}).get("numerics", "native")
     pinning = numerics_pinning(cfg, machine)  # 1 for native runs
-    return mode if mode != "portable" else f"portable {BASELINE}" + (f" pinning {pinning}" if pinning > 1 else "")
+    return mode if mode != "portable" else " ".join(filter(None, ("portable", BASELINE, pinning_name(pinning))))
 
 
 def numerics_pinning(cfg: dict, machine: dict | None) -> int:
@@ -292,7 +292,7 @@ def group(record: dict) -> str:
     """The run's config without its seed, and the pinning its portable bits came from: runs of one
     config under two pinnings are two configs, never one mean."""
     pinning = numerics_pinning(record.get("config") or {}, record.get("machine"))
-    return record["run"]["group"] + (f"/pinning {pinning}" if pinning > 1 else "")
+    return "/".join(filter(None, (record["run"]["group"], pinning_name(pinning))))
 
 
 def one_config_per_row(records: list[dict]) -> list[dict]:

@@ -140,6 +140,21 @@ def test_a_missing_data_root_is_an_error_and_an_empty_one_is_said(tmp_path, caps
     assert capsys.readouterr().err == ""
 
 
+def test_a_synthetic_scene_under_the_data_root_is_named_as_the_one_run(tmp_path, capsys):
+    """`trase-bench synth --out ROOT/D/synthetic` writes a scene a run then takes in place of the
+    built-in one: the note says so, with its path."""
+    from benchmark.datasets import get_dataset
+    from benchmark.runner import default_sequences
+
+    scene = tmp_path / "hypernerf" / "synthetic"
+    (scene / "synthetic").mkdir(parents=True)
+    (scene / "synthetic" / "manifest.json").write_text("{}")
+    assert default_sequences(get_dataset("hypernerf"), tmp_path) == [None]
+    err = capsys.readouterr().err
+    assert f"running the synthetic scene written there, {scene}" in err
+    assert "built-in" not in err
+
+
 def test_overrides_parse_and_merge():
     o = parse_overrides(["a.b=3", "a.c=true", "d=text", "e=[1, 2]"])
     assert o == {"a": {"b": 3, "c": True}, "d": "text", "e": [1, 2]}

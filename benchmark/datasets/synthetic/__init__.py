@@ -5,6 +5,7 @@ Public API::
     generate(dataset, out_dir, seed=0, size="small", difficulty="standard") -> Path  # raw format + truth
     ensure_synthetic(dataset, size="small", seed=0, cache_dir=None, difficulty="standard") -> Path
     find_or_generate(dataset, sequence, data_root) -> (scene_dir, variant)
+    synthetic_copy(root, dataset, sequence) -> Path | None  # a scene `synth` wrote under a data root
     build_world(seed) -> World; render(world, camera, t) -> (rgb, depth, ids)
     SIZES, DATASET_KEYS, GENERATOR_VERSION, SyntheticError
 
@@ -13,7 +14,7 @@ casting), ``rays`` (pixel rays through distorted / fisheye lenses), ``rigs`` (ca
 dataset), ``formats`` (raw writers), ``gaussians`` (geometry.npz), ``generate``, ``cache``.
 """
 
-from .cache import default_cache_dir, ensure_synthetic, find_or_generate
+from .cache import default_cache_dir, ensure_synthetic, find_or_generate, synthetic_copy
 from .generate import (
     GENERATOR_VERSION,
     SEQUENCE_NAMES,
@@ -42,4 +43,5 @@ __all__ = [
     "parse_sequence_name",
     "render",
     "sequence_name",
+    "synthetic_copy",
 ]

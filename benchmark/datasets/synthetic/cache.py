@@ -38,6 +38,13 @@ def _is_complete(scene_dir: Path) -> bool:
     return (scene_dir / "synthetic" / "manifest.json").is_file()
 
 
+def synthetic_copy(root: Path, dataset: str, sequence: str) -> Path | None:
+    """``<root>/<dataset>/<sequence>`` where it holds a whole synthetic scene (one that
+    ``trase-bench synth`` wrote there), else None: a run uses it in place of the built-in one."""
+    d = Path(root) / dataset / sequence
+    return d if _is_complete(d) else None
+
+
 def _check_version(scene_dir: Path) -> None:
     """A cached scene written by another generator version is an error, never silently used."""
     import json
@@ -126,8 +133,8 @@ def find_or_generate(dataset: str, sequence: str | None = None,
             f"or set TRASE_DATA, or use the synthetic default (sequence 'synthetic')"
         )
     for root in roots:  # a real copy of a synthetic scene under the data root is used as is
-        d = root / spec.key / seq
-        if _is_complete(d):
+        d = synthetic_copy(root, spec.key, seq)
+        if d is not None:
             return d, "synthetic"
     size, difficulty = synthetic
     return ensure_synthetic(spec.key, size=size, cache_dir=cache_dir, difficulty=difficulty, create=create,

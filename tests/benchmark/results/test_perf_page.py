@@ -38,6 +38,17 @@ def test_rows_carry_medians_ratios_and_the_machine():
             "kd_tree n_jobs=-1 64.00 s |") in block
 
 
+def test_the_machine_names_the_pinning_of_portable_bits_from_the_second_on():
+    from benchmark.results.perf_page import machine_line
+
+    pinned = {**DATA, "machine": {**DATA["machine"], "numerics": {"mode": "portable", "pinning": 3}}}
+    assert "(AVX2), portable numerics pinning 3, torch threads 2" in machine_line(pinned)
+    first = {**DATA, "machine": {**DATA["machine"], "numerics": {"mode": "portable", "pinning": 1}}}
+    assert "portable numerics, torch" in machine_line(first)
+    native = {**DATA, "machine": {**DATA["machine"], "numerics": {"mode": "native", "pinning": 3}}}
+    assert "native numerics, torch" in machine_line(native)
+
+
 def test_the_page_block_is_replaced_and_a_page_without_one_refused(tmp_path):
     data = tmp_path / "perf.json"
     data.write_text(json.dumps(DATA))
