@@ -51,10 +51,12 @@ def rows_chunk(a, b, out, c):
 
 @njit(cache=True, nogil=True)
 def transposed_chunk(g, x, partial, c):
-    """partial[c] [O, I] = g[chunk c].T @ x[chunk c] for g [N, O], x [N, I] (C-contiguous)."""
+    """partial[c] [O, I] = g[chunk c].T @ x[chunk c] for g [N, O], x [N, I] (C-contiguous). The
+    transposed chunk goes to OpenBLAS as it lies (Fortran order, a transpose flag): the same bits
+    as a C-ordered copy, without the copy."""
     i0 = c * CHUNK
     i1 = min(g.shape[0], i0 + CHUNK)
-    np.dot(np.ascontiguousarray(g[i0:i1].T), x[i0:i1], partial[c])
+    np.dot(g[i0:i1].T, x[i0:i1], partial[c])
 
 
 @njit(parallel=True, cache=True, nogil=True)
@@ -69,6 +71,51 @@ def transposed_times(g, x, partial):
     """``transposed_chunk`` for every chunk, over numba's threads."""
     for c in prange((g.shape[0] + CHUNK - 1) // CHUNK):
         transposed_chunk(g, x, partial, c)
+
+
+@njit(cache=True, nogil=True)
+def relu_sum_chunk(a, b, a2, b2, two, row, out, c):
+    """out[chunk c] = relu((a @ b [+ a2 @ b2 where ``two``]) + row), the sums in that order, for
+    a [N, K], b [K, M], a2 [N, K2], b2 [K2, M], row [M], out [N, M] (C-contiguous). The ReLU is
+    torch's (NaN kept, -0 kept: ``0 if v < 0 else v``)."""
+    i0 = c * CHUNK
+    i1 = min(a.shape[0], i0 + CHUNK)
+    np.dot(a[i0:i1], b, out[i0:i1])
+    second = np.empty((i1 - i0 if two else 0, out.shape[1]), dtype=out.dtype)
+    if two:
+        np.dot(a2[i0:i1], b2, second)
+    for i in range(i0, i1):
+        for j in range(out.shape[1]):
+            v = out[i, j]
+            if two:
+                v = v + second[i - i0, j]
+            v = v + row[j]
+            out[i, j] = 0.0 if v < 0 else v
+
+
+@njit(cache=True, nogil=True)
+def relu_grad_chunk(grad, y, out, c):
+    """out[chunk c] = the gradient through a ReLU whose output is ``y``: 0 where y <= 0, else
+    ``grad`` (torch's ``threshold_backward``), [N, M] each."""
+    i0 = c * CHUNK
+    i1 = min(grad.shape[0], i0 + CHUNK)
+    for i in range(i0, i1):
+        for j in range(grad.shape[1]):
+            out[i, j] = 0.0 if y[i, j] <= 0 else grad[i, j]
+
+
+@njit(parallel=True, cache=True, nogil=True)
+def relu_sum_times(a, b, a2, b2, two, row, out):
+    """``relu_sum_chunk`` for every chunk, over numba's threads."""
+    for c in prange((a.shape[0] + CHUNK - 1) // CHUNK):
+        relu_sum_chunk(a, b, a2, b2, two, row, out, c)
+
+
+@njit(parallel=True, cache=True, nogil=True)
+def relu_grad_times(grad, y, out):
+    """``relu_grad_chunk`` for every chunk, over numba's threads."""
+    for c in prange((grad.shape[0] + CHUNK - 1) // CHUNK):
+        relu_grad_chunk(grad, y, out, c)
 
 
 def on_this_thread(chunk_kernel, rows: int, *arrays) -> None:
@@ -91,6 +138,13 @@ def sum_in_order(partial: np.ndarray) -> np.ndarray:
 def reference_rows_times(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The plain product in float64: what ``rows_times`` computes up to float32 rounding."""
     return a.astype(np.float64) @ b.astype(np.float64)
+
+
+def reference_relu_sum(a: np.ndarray, b: np.ndarray, row: np.ndarray, a2: np.ndarray | None = None,
+                       b2: np.ndarray | None = None) -> np.ndarray:
+    """The plain relu(a b [+ a2 b2] + row) in float64."""
+    total = reference_rows_times(a, b) + (0.0 if a2 is None else reference_rows_times(a2, b2))
+    return np.maximum(total + row.astype(np.float64), 0.0)
 
 
 def reference_transposed_times(g: np.ndarray, x: np.ndarray) -> np.ndarray:

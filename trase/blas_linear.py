@@ -9,7 +9,9 @@ engine in ``$TRASE_PRODUCTS`` (read once, at import):
 
 * ``torch`` (the default): ``torch.nn.functional.linear``.
 * ``openblas``: ``linear`` below, forward and backward as OpenBLAS products (float32 and float64
-  tensors on the CPU; any other tensor goes to torch). The rows are cut into chunks of a fixed
+  tensors on the CPU; any other tensor goes to torch). ``relu_sum`` and ``relu_layer`` compute a
+  hidden layer's additions and ReLU in the same chunk loop as its products, with the same
+  operations in the same order as the separate steps, so the same bits. The rows are cut into chunks of a fixed
   size, each multiplied by one single-threaded OpenBLAS call on one of numba's threads (the
   OpenMP pool torch shares, so nothing spins against it); a weight's gradient sums the chunks'
   in chunk order. The bits therefore do not depend on the thread count (MKL's do).
@@ -67,31 +69,31 @@ def _products():
     return blas_kernels
 
 
-def _rows_times(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """a [N, K] @ b [K, M] -> [N, M], chunked over the rows."""
+def _chunked(parallel_kernel, chunk_kernel, rows: int, *arrays) -> None:
+    """A chunk kernel over all chunks of ``rows``: over numba's threads, or in order on this
+    thread when the count is one (the bits are the same either way)."""
     from trase.threads import numba_threads
 
-    kernels = _products()
-    out = np.empty((a.shape[0], b.shape[1]), dtype=a.dtype)
     with numba_threads() as n:
         if n > 1:
-            kernels.rows_times(a, b, out)
+            parallel_kernel(*arrays)
         else:
-            kernels.on_this_thread(kernels.rows_chunk, a.shape[0], a, b, out)
+            _products().on_this_thread(chunk_kernel, rows, *arrays)
+
+
+def _rows_times(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a [N, K] @ b [K, M] -> [N, M], chunked over the rows."""
+    kernels = _products()
+    out = np.empty((a.shape[0], b.shape[1]), dtype=a.dtype)
+    _chunked(kernels.rows_times, kernels.rows_chunk, a.shape[0], a, b, out)
     return out
 
 
 def _transposed_times(g: np.ndarray, x: np.ndarray) -> np.ndarray:
     """g [N, O]^T @ x [N, I] -> [O, I], summed over the row chunks in their order."""
-    from trase.threads import numba_threads
-
     kernels = _products()
     partial = np.empty((kernels.n_chunks(g.shape[0]), g.shape[1], x.shape[1]), dtype=g.dtype)
-    with numba_threads() as n:
-        if n > 1:
-            kernels.transposed_times(g, x, partial)
-        else:
-            kernels.on_this_thread(kernels.transposed_chunk, g.shape[0], g, x, partial)
+    _chunked(kernels.transposed_times, kernels.transposed_chunk, g.shape[0], g, x, partial)
     return kernels.sum_in_order(partial)
 
 
@@ -118,6 +120,55 @@ class _BlasLinear(torch.autograd.Function):
         return grad_x, grad_w, grad_b
 
 
+def _relu_sum(x: np.ndarray, wt: np.ndarray, x2: np.ndarray | None, wt2: np.ndarray | None,
+              row: np.ndarray) -> np.ndarray:
+    """relu(x wt [+ x2 wt2] + row) -> [N, M], chunked over the rows (wt [K, M] transposed weights)."""
+    kernels = _products()
+    two = x2 is not None
+    if not two:
+        x2, wt2 = x[:, :0], wt[:0]
+    out = np.empty((x.shape[0], wt.shape[1]), dtype=x.dtype)
+    _chunked(kernels.relu_sum_times, kernels.relu_sum_chunk, x.shape[0], x, wt, x2, wt2, two, row, out)
+    return out
+
+
+def _relu_grad(grad: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """The gradient [N, M] through the ReLU whose output is y [N, M]."""
+    kernels = _products()
+    out = np.empty_like(grad)
+    _chunked(kernels.relu_grad_times, kernels.relu_grad_chunk, grad.shape[0], grad, y, out)
+    return out
+
+
+class _BlasReluSum(torch.autograd.Function):
+    """y = relu(x W^T [+ x2 W2^T] + row): a hidden layer of the network, its sums and ReLU done
+    in the products' chunk loop while the chunk is in cache. The same operations in the same
+    order as ``linear``, the additions and ``F.relu``, so the same bits."""
+
+    @staticmethod
+    def forward(ctx, row, x, weight, x2, weight2):
+        # row [O] or [1, O]; x [N, I], weight [O, I]; x2 [N, I2], weight2 [O, I2] or None -> [N, O]
+        wt = np.ascontiguousarray(_array(weight).T)
+        wt2 = None if x2 is None else np.ascontiguousarray(_array(weight2).T)
+        a2 = None if x2 is None else _array(x2)
+        y = torch.from_numpy(_relu_sum(_array(x), wt, a2, wt2, _array(row).reshape(-1)))
+        ctx.save_for_backward(x, weight, x2, weight2, y)
+        ctx.row_shape = row.shape
+        return y
+
+    @staticmethod
+    def backward(ctx, grad: torch.Tensor):
+        x, weight, x2, weight2, y = ctx.saved_tensors
+        g = _relu_grad(_array(grad), _array(y))  # [N, O]: the gradient before the ReLU
+        needs = ctx.needs_input_grad
+        grad_row = torch.from_numpy(g).sum(0).reshape(ctx.row_shape) if needs[0] else None  # [O] or [1, O]
+        grads = [grad_row]
+        for k, (inp, w) in enumerate(((x, weight), (x2, weight2))):
+            grads.append(torch.from_numpy(_rows_times(g, _array(w))) if needs[1 + 2 * k] else None)  # [N, I]
+            grads.append(torch.from_numpy(_transposed_times(g, _array(inp))) if needs[2 + 2 * k] else None)  # [O, I]
+        return tuple(grads)
+
+
 def _blas_ok(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None) -> bool:
     tensors = (x, weight) if bias is None else (x, weight, bias)
     return (x.dim() == 2 and weight.dim() == 2 and x.dtype in (torch.float32, torch.float64)
@@ -134,3 +185,23 @@ def linear(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None = No
 def layer(module: torch.nn.Linear, x: torch.Tensor) -> torch.Tensor:
     """``module(x)`` for an ``nn.Linear``, by this process's engine."""
     return linear(x, module.weight, module.bias)
+
+
+def relu_sum(row: torch.Tensor, x: torch.Tensor, weight: torch.Tensor, x2: torch.Tensor | None = None,
+             weight2: torch.Tensor | None = None) -> torch.Tensor:
+    """``F.relu((linear(x, weight) [+ linear(x2, weight2)]) + row)`` by this process's engine: the
+    network's split layers (row [1, O] from the time encoding and the bias)."""
+    if _engine == "openblas" and _blas_ok(x, weight, row) and (x2 is None or _blas_ok(x2, weight2, row)):
+        return _BlasReluSum.apply(row, x, weight, x2, weight2)
+    out = F.linear(x, weight)
+    if x2 is not None:
+        out = out + F.linear(x2, weight2)
+    return F.relu(out + row)
+
+
+def relu_layer(module: torch.nn.Linear, x: torch.Tensor) -> torch.Tensor:
+    """``F.relu(module(x))`` for an ``nn.Linear`` by this process's engine (torch's: one
+    ``F.linear`` with its bias, then the ReLU)."""
+    if _engine == "openblas" and module.bias is not None and _blas_ok(x, module.weight, module.bias):
+        return _BlasReluSum.apply(module.bias, x, module.weight, None, None)
+    return F.relu(layer(module, x))

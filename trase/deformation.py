@@ -174,21 +174,21 @@ class DeformMLP(nn.Module):
         x_emb = positional_encoding(xyz, self.xyz_freqs)  # [N, 3 (1 + 2F)]
         nx = x_emb.shape[1]
 
-        def split_linear(layer: nn.Linear, h: torch.Tensor | None) -> torch.Tensor:
-            # layer input is [x_emb, t_emb] (layer 0) or [x_emb, t_emb, h] (after the skip)
+        def split_layer(layer: nn.Linear, h: torch.Tensor | None) -> torch.Tensor:
+            # layer input is [x_emb, t_emb] (layer 0) or [x_emb, t_emb, h] (after the skip):
+            # relu((x_emb W_x^T [+ h W_h^T]) + row) -> [N, W]
             w = layer.weight
             row = F.linear(t_emb, w[:, nx:nx + t_emb.shape[1]], layer.bias)  # [1, W]
-            out = blas_linear.linear(x_emb, w[:, :nx])  # [N, W]
-            if h is not None:
-                out = out + blas_linear.linear(h, w[:, nx + t_emb.shape[1]:])
-            return out + row
+            if h is None:
+                return blas_linear.relu_sum(row, x_emb, w[:, :nx])
+            return blas_linear.relu_sum(row, x_emb, w[:, :nx], h, w[:, nx + t_emb.shape[1]:])
 
         h = None
         for i, layer in enumerate(self.linear):
             if i == 0 or i == self.skip + 1:
-                h = F.relu(split_linear(layer, h))
+                h = split_layer(layer, h)
             else:
-                h = F.relu(blas_linear.layer(layer, h))
+                h = blas_linear.relu_layer(layer, h)
         return tuple(blas_linear.layer(head, h) for head in (self.gaussian_warp, self.gaussian_rotation, self.gaussian_scaling))
 
     def forward_reference(self, xyz: torch.Tensor, t: float | torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:

@@ -73,8 +73,9 @@ def test_bits_do_not_depend_on_the_thread_count(openblas):
         with torch_threads(n):
             xs, ws = x.clone().requires_grad_(True), w.clone().requires_grad_(True)
             y = blas_linear.linear(xs, ws, b)
-            y.square().sum().backward()
-            out[n] = (y.detach(), xs.grad, ws.grad)
+            z = blas_linear.relu_sum(b[None], xs, ws, y, ws)  # the fused hidden layer too
+            (y.square().sum() + z.sum()).backward()
+            out[n] = (y.detach(), z.detach(), xs.grad, ws.grad)
     for one, two in zip(out[1], out[2]):
         assert torch.equal(one, two)
 
@@ -106,3 +107,59 @@ def test_engine_from_env_names_a_wrong_value(monkeypatch):
     assert blas_linear.engine_from_env() == "torch"
     with pytest.raises(ValueError, match="one of torch, openblas"):
         blas_linear.set_engine("cublas")
+
+
+def _unfused(row, x, w, x2=None, w2=None):
+    """The hidden layer as separate steps: products, additions, then torch's ReLU."""
+    out = blas_linear.linear(x, w)
+    if x2 is not None:
+        out = out + blas_linear.linear(x2, w2)
+    return F.relu(out + row)
+
+
+@pytest.mark.parametrize("n", [0, 1, 1023, 1024, 2500])
+def test_fused_relu_kernel_matches_the_plain_layer(n):
+    rng = np.random.default_rng(n)
+    a, b = rng.standard_normal((n, 39)).astype(np.float32), rng.standard_normal((39, 64)).astype(np.float32)
+    a2, b2 = rng.standard_normal((n, 64)).astype(np.float32), rng.standard_normal((64, 64)).astype(np.float32)
+    row = rng.standard_normal(64).astype(np.float32)
+    out = np.empty((n, 64), np.float32)
+    blas_kernels.relu_sum_times(a, b, a2, b2, True, row, out)
+    np.testing.assert_allclose(out, blas_kernels.reference_relu_sum(a, b, row, a2, b2), rtol=1e-5, atol=1e-3)
+    blas_kernels.relu_sum_times(a, b, a2[:, :0], b2[:0], False, row, out)
+    np.testing.assert_allclose(out, blas_kernels.reference_relu_sum(a, b, row), rtol=1e-5, atol=1e-3)
+
+
+@pytest.mark.parametrize("two", [False, True])
+def test_fused_relu_layers_give_the_unfused_bits(openblas, two):
+    """Forward and every gradient bit for bit as the products, the additions and F.relu one
+    after another: fusing them changes no run."""
+    x, w, _ = _inputs(2500, 39, 64, seed=1)
+    x2, w2, b = _inputs(2500, 64, 64, seed=2)
+    row = b[None]  # [1, O], as the time encoding's row
+    results = []
+    for fn in (blas_linear.relu_sum, _unfused):
+        leaves = [t.clone().requires_grad_(True) for t in ((row, x, w, x2, w2) if two else (row, x, w))]
+        y = fn(*leaves)
+        (y * torch.linspace(-1, 1, 64)).sum().backward()
+        results.append([y.detach()] + [t.grad for t in leaves])
+    for fused, plain in zip(*results):
+        assert torch.equal(fused, plain)
+
+
+def test_fused_relu_keeps_torch_s_nan_and_signed_zero(openblas):
+    layer = torch.nn.Linear(2, 3)
+    with torch.no_grad():
+        layer.weight.zero_()
+        layer.bias.copy_(torch.tensor([float("nan"), -0.0, -1.0]))
+    x = torch.ones(1100, 2)
+    ours, theirs = blas_linear.relu_layer(layer, x), F.relu(F.linear(x, layer.weight, layer.bias))
+    assert torch.equal(torch.isnan(ours), torch.isnan(theirs))
+    assert torch.equal(torch.signbit(ours[:, 1:]), torch.signbit(theirs[:, 1:]))
+    assert torch.equal(ours[:, 1:], theirs[:, 1:])
+
+
+def test_fused_relu_gradcheck_in_float64(openblas):
+    x, w, row = (t.requires_grad_(True) for t in _inputs(9, 5, 4, dtype=torch.float64, seed=3))
+    x2, w2, _ = (t.requires_grad_(True) for t in _inputs(9, 6, 4, dtype=torch.float64, seed=4))
+    assert torch.autograd.gradcheck(blas_linear.relu_sum, (row, x, w, x2, w2))
