@@ -52,8 +52,9 @@ def rows_chunk(a, b, out, c):
 @njit(cache=True, nogil=True)
 def transposed_chunk(g, x, partial, c):
     """partial[c] [O, I] = g[chunk c].T @ x[chunk c] for g [N, O], x [N, I] (C-contiguous). The
-    transposed chunk goes to OpenBLAS as it lies (Fortran order, a transpose flag): the same bits
-    as a C-ordered copy, without the copy."""
+    transposed chunk goes to OpenBLAS as it lies (Fortran order, a transpose flag), without a
+    copy. With the Haswell kernels portable numerics pin, the network's shapes get the same bits
+    as from a C-ordered copy; other kernels (SkylakeX) round some other shapes differently."""
     i0 = c * CHUNK
     i1 = min(g.shape[0], i0 + CHUNK)
     np.dot(g[i0:i1].T, x[i0:i1], partial[c])

@@ -140,6 +140,15 @@ def _relu_grad(grad: np.ndarray, y: np.ndarray) -> np.ndarray:
     return out
 
 
+def _row_gradient(g: torch.Tensor, row_shape: torch.Size) -> torch.Tensor:
+    """The gradient of a row [O] or [1, O] added to every row of g [N, O], as autograd gives
+    it: summed over the rows, except a [1, O] row on one row, whose gradient passes unchanged
+    (a sum would turn -0 into +0)."""
+    if tuple(g.shape) == tuple(row_shape):
+        return g
+    return g.sum(0).reshape(row_shape)
+
+
 class _BlasReluSum(torch.autograd.Function):
     """y = relu(x W^T [+ x2 W2^T] + row): a hidden layer of the network, its sums and ReLU done
     in the products' chunk loop while the chunk is in cache. The same operations in the same
@@ -161,7 +170,7 @@ class _BlasReluSum(torch.autograd.Function):
         x, weight, x2, weight2, y = ctx.saved_tensors
         g = _relu_grad(_array(grad), _array(y))  # [N, O]: the gradient before the ReLU
         needs = ctx.needs_input_grad
-        grad_row = torch.from_numpy(g).sum(0).reshape(ctx.row_shape) if needs[0] else None  # [O] or [1, O]
+        grad_row = _row_gradient(torch.from_numpy(g), ctx.row_shape) if needs[0] else None  # [O] or [1, O]
         grads = [grad_row]
         for k, (inp, w) in enumerate(((x, weight), (x2, weight2))):
             grads.append(torch.from_numpy(_rows_times(g, _array(w))) if needs[1 + 2 * k] else None)  # [N, I]
@@ -191,6 +200,8 @@ def relu_sum(row: torch.Tensor, x: torch.Tensor, weight: torch.Tensor, x2: torch
              weight2: torch.Tensor | None = None) -> torch.Tensor:
     """``F.relu((linear(x, weight) [+ linear(x2, weight2)]) + row)`` by this process's engine: the
     network's split layers (row [1, O] from the time encoding and the bias)."""
+    if row.numel() != weight.shape[0] or row.dim() > 2:
+        raise ValueError(f"relu_sum: row {tuple(row.shape)} is not [O] or [1, O] for a weight {tuple(weight.shape)}")
     if _engine == "openblas" and _blas_ok(x, weight, row) and (x2 is None or _blas_ok(x2, weight2, row)):
         return _BlasReluSum.apply(row, x, weight, x2, weight2)
     out = F.linear(x, weight)

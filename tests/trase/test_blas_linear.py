@@ -163,3 +163,20 @@ def test_fused_relu_gradcheck_in_float64(openblas):
     x, w, row = (t.requires_grad_(True) for t in _inputs(9, 5, 4, dtype=torch.float64, seed=3))
     x2, w2, _ = (t.requires_grad_(True) for t in _inputs(9, 6, 4, dtype=torch.float64, seed=4))
     assert torch.autograd.gradcheck(blas_linear.relu_sum, (row, x, w, x2, w2))
+
+
+def test_fused_relu_row_gradient_on_one_row_passes_unchanged(openblas):
+    """One row: autograd hands a [1, O] row the gradient as it is (a sum would turn -0 into +0)."""
+    x, w = torch.ones(1, 2), torch.zeros(2, 2)
+    grads = []
+    for fn in (blas_linear.relu_sum, _unfused):
+        row = torch.zeros(1, 2, requires_grad=True)
+        fn(row, x, w).backward(torch.tensor([[-0.0, -0.0]]))
+        grads.append(row.grad)
+    assert torch.equal(torch.signbit(grads[0]), torch.signbit(grads[1]))
+
+
+def test_fused_relu_refuses_a_row_of_the_wrong_size(openblas):
+    x, w, _ = _inputs(10, 4, 3)
+    with pytest.raises(ValueError, match=r"row \(1,\) is not \[O\] or \[1, O\]"):
+        blas_linear.relu_sum(torch.zeros(1), x, w)
