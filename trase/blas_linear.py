@@ -200,7 +200,7 @@ def relu_sum(row: torch.Tensor, x: torch.Tensor, weight: torch.Tensor, x2: torch
              weight2: torch.Tensor | None = None) -> torch.Tensor:
     """``F.relu((linear(x, weight) [+ linear(x2, weight2)]) + row)`` by this process's engine: the
     network's split layers (row [1, O] from the time encoding and the bias)."""
-    if row.numel() != weight.shape[0] or row.dim() > 2:
+    if tuple(row.shape) not in ((weight.shape[0],), (1, weight.shape[0])):
         raise ValueError(f"relu_sum: row {tuple(row.shape)} is not [O] or [1, O] for a weight {tuple(weight.shape)}")
     if _engine == "openblas" and _blas_ok(x, weight, row) and (x2 is None or _blas_ok(x2, weight2, row)):
         return _BlasReluSum.apply(row, x, weight, x2, weight2)

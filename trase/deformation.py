@@ -179,9 +179,8 @@ class DeformMLP(nn.Module):
             # relu((x_emb W_x^T [+ h W_h^T]) + row) -> [N, W]
             w = layer.weight
             row = F.linear(t_emb, w[:, nx:nx + t_emb.shape[1]], layer.bias)  # [1, W]
-            if h is None:
-                return blas_linear.relu_sum(row, x_emb, w[:, :nx])
-            return blas_linear.relu_sum(row, x_emb, w[:, :nx], h, w[:, nx + t_emb.shape[1]:])
+            w_h = None if h is None else w[:, nx + t_emb.shape[1]:]
+            return blas_linear.relu_sum(row, x_emb, w[:, :nx], h, w_h)
 
         h = None
         for i, layer in enumerate(self.linear):

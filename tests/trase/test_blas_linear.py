@@ -180,3 +180,9 @@ def test_fused_relu_refuses_a_row_of_the_wrong_size(openblas):
     x, w, _ = _inputs(10, 4, 3)
     with pytest.raises(ValueError, match=r"row \(1,\) is not \[O\] or \[1, O\]"):
         blas_linear.relu_sum(torch.zeros(1), x, w)
+
+
+def test_fused_relu_refuses_a_column_row(openblas):
+    x, w, b = _inputs(3, 4, 3)
+    with pytest.raises(ValueError, match=r"row \(3, 1\) is not \[O\] or \[1, O\]"):
+        blas_linear.relu_sum(b[:, None], x, w)
