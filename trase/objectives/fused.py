@@ -59,8 +59,8 @@ class _Plan:
     factors, thresholds, selection rule. The forward fills in anchors, counts, Z and the packed
     per-pair bits the backward needs (V (V - 1) / 16 bytes: 1.5 MB at V = 5000)."""
 
-    def __init__(self, bits, b, kw, hard, tp, tn, side, normalise):
-        self.bits, self.b, self.kw = bits, b, np.float32(kw)
+    def __init__(self, bits, cnt, b, kw, hard, tp, tn, side, normalise):
+        self.bits, self.cnt, self.b, self.kw = bits, cnt, b, np.float32(kw)
         self.hard, self.tp, self.tn = bool(hard), float(tp), float(tn)
         self.side, self.normalise = side, normalise
         V = bits.shape[1]
@@ -88,12 +88,12 @@ class _Plan:
 
         Scans (ANCHOR, HARD, SELECT) get the block's C_F by BLAS; COEF gets an empty block that
         the kernel fills with coefficients S, then grad += S fn[i0:] and grad[i0:] += S^T fn[rows]
-        (BLAS). Returns (rows [V, 5] per-row results, cols [5, V] per-column results)."""
+        (BLAS). Returns (rows [V, 6] per-row results, cols [n_cols, V] per-column results)."""
         V, _ = fn.shape
         dt = np.float32 if fn.dtype == torch.float32 else np.float64
         B = int(min(V, max(32, BLOCK_BYTES // max(V * fn.element_size(), 1))))
         wc, wr, qpos, posA, negA = self._selection(dt)
-        rows = np.zeros((V, 5), dt)
+        rows = np.zeros((V, 6), dt)
         with numba_threads(V, PARALLEL_MIN_PIXELS) as T:
             crow = np.zeros((T, V), dt)
             cols = np.zeros((T, n_cols, V), dt)
@@ -105,7 +105,7 @@ class _Plan:
                 mat = buf[: (i1 - i0) * (V - i0)].view(i1 - i0, V - i0)
                 if kind != COEF:
                     torch.mm(fn[i0:i1], fn[i0:].T, out=mat)  # [B, V - i0] C_F block
-                run(kind, mat.numpy(), i0, self.bits, self.b, self.kw, dt(self.tp), dt(self.tn), posA, negA,
+                run(kind, mat.numpy(), i0, self.bits, self.cnt, self.b, self.kw, dt(self.tp), dt(self.tn), posA, negA,
                     wc, wr, qpos, dt(coef[0]), dt(coef[1]), UNPACK, crow, cols, rows, self.qbits, self.qoff, qbuf)
                 if grad is not None:
                     grad[i0:i1].addmm_(mat, fn[i0:])
@@ -123,8 +123,8 @@ class _Plan:
             self.n_pos, self.n_neg = int(np.rint(rows[:, 2].sum())), int(np.rint(rows[:, 3].sum()))
             self.z_pos, self.z_neg = max(self.n_pos, 1), max(self.n_neg, 1)
             return float(rows[:, 0].sum()), float(rows[:, 1].sum())
-        rows, col = self._pass(ANCHOR, fn, n_cols=5)
-        row = rows.T  # [5, V]
+        rows, col = self._pass(ANCHOR, fn, n_cols=6)
+        row = rows.T  # [6, V]
         pa = (row[3] + col[3]) > 0  # [V] anchors: an imperfect partner on either side
         na = (row[4] + col[4]) > 0
         self.posA, self.negA = pa.astype(np.float32), na.astype(np.float32)
@@ -132,12 +132,12 @@ class _Plan:
         if self.side == "column":  # pair (i, j) belongs to its column j: partners i < j
             sp, sn = col[0][pa].sum(), col[1][na].sum()
             n_pos = int(np.rint(col[2][pa].sum()))
-            n_neg = int(np.rint((idx - col[2])[na].sum()))
+            n_neg = int(np.rint(col[5][na].sum()))
             z_pos, z_neg = int(idx[pa].sum()), int(idx[na].sum())
         elif self.side == "row":  # pair (i, j) belongs to its row i: partners j > i
             sp, sn = row[0][pa].sum(), row[1][na].sum()
             n_pos = int(np.rint(row[2][pa].sum()))
-            n_neg = int(np.rint((V - 1 - idx - row[2])[na].sum()))
+            n_neg = int(np.rint(row[5][na].sum()))
             z_pos, z_neg = int((V - 1 - idx)[pa].sum()), int((V - 1 - idx)[na].sum())
         else:  # either member: not separable per pixel, a second pass with the anchors known
             sel, _ = self._pass(SELECT, fn)
@@ -188,6 +188,7 @@ def fused_pair_losses(
     tau_neg: float,
     side: str = "column",
     normalise: str = "anchor_pairs",
+    correspondence: str = "binary",
 ) -> tuple[torch.Tensor, torch.Tensor, int, int, int]:
     """features [Np, D] -> (L_pos, L_neg, n_pos, n_neg, n_valid), equal to the reference
     (``pair_stats`` + anchors + ``select_pairs`` + ``weighted_pair_losses``) for
@@ -196,6 +197,8 @@ def fused_pair_losses(
       (positive) / C = 0 and C_F > tau_neg (negative); tau_pos = inf, tau_neg = -inf give
       "all" mining; ``side`` and ``normalise`` as ``SoftMining``;
     * ``hard=True``: the individually violating pairs, each term divided by its pair count.
+
+    ``correspondence="jaccard"``: the soft C of ``soft.mask_jaccard`` (soft and all mining).
     """
     check_features(features, sample)
     if side not in SIDES:
@@ -203,9 +206,14 @@ def fused_pair_losses(
     member = sample.membership
     valid = member.any(dim=1)  # [Np]
     fn = F.normalize(features[valid], dim=1, eps=1e-12)  # [V, D]; zero features stay zero
-    bits = pack_membership(member[valid].cpu().numpy())
+    if correspondence not in ("binary", "jaccard") or (hard and correspondence != "binary"):
+        raise ValueError(f"correspondence {correspondence!r}: 'binary', or 'jaccard' without hard mining")
+    member_np = member[valid].cpu().numpy()
+    bits = pack_membership(member_np)
+    soft = correspondence == "jaccard"
+    cnt = member_np.sum(axis=1).astype(np.float32) if soft else np.zeros(0, np.float32)  # [V] masks per pixel
     b, kw = weight_factors(sample.pixel_mean_area[valid])
-    plan = _Plan(bits, b, kw, hard, tau_pos, tau_neg, side, normalise)
+    plan = _Plan(bits, cnt, b, kw, hard, tau_pos, tau_neg, side, normalise)
     if fn.device.type != "cpu":
         raise ValueError("the fused pair losses run on CPU tensors; use impl='reference' on other devices")
     l_pos, l_neg = _PairLosses.apply(fn, plan)

@@ -56,8 +56,36 @@ UNPACK = _unpack_table()
 
 
 @njit(inline="always")
-def _c_row(bits, i, j0, cr):
-    """cr[k] = C[i, j0 + k] as 0/1 in cr's dtype, for k < len(cr) = V - j0."""
+def _popcount(x):
+    """Set bits of a uint64 (the SWAR count; numba has no popcount intrinsic)."""
+    x = x - ((x >> np.uint64(1)) & np.uint64(0x5555555555555555))
+    x = (x & np.uint64(0x3333333333333333)) + ((x >> np.uint64(2)) & np.uint64(0x3333333333333333))
+    x = (x + (x >> np.uint64(4))) & np.uint64(0x0F0F0F0F0F0F0F0F)
+    return (x * np.uint64(0x0101010101010101)) >> np.uint64(56)
+
+
+@njit(inline="always")
+def _jaccard_row(bits, cnt, i, j0, cr):
+    """cr[k] = shared masks / masks covering i or j0 + k (the soft C, rounded in float32 as
+    ``soft.mask_jaccard`` rounds it); ``cnt`` [V] float32 masks per pixel."""
+    nw = bits.shape[0]
+    ci = cnt[i]
+    cj = cnt[j0:]
+    for k in range(cr.shape[0]):
+        shared = np.uint64(0)
+        for w in range(nw):
+            shared += _popcount(bits[w, i] & bits[w, j0 + k])
+        sh = np.float32(shared)
+        cr[k] = sh / ((ci + cj[k]) - sh)
+
+
+@njit(inline="always")
+def _c_row(bits, cnt, i, j0, cr):
+    """cr[k] = C[i, j0 + k] as 0/1 in cr's dtype, for k < len(cr) = V - j0; the soft C
+    (``_jaccard_row``) when ``cnt`` is not empty."""
+    if cnt.shape[0] > 0:
+        _jaccard_row(bits, cnt, i, j0, cr)
+        return
     nw = bits.shape[0]
     one = cr.dtype.type(1.0)
     zero = cr.dtype.type(0.0)
@@ -91,13 +119,13 @@ ANCHOR, HARD, SELECT, COEF = 0, 1, 2, 3
 
 
 @njit(inline="always")
-def _row_setup(mat, r, i0, bits, b, cr_all):
-    """Row i = i0 + r against columns j >= j0 = i + 1: -> (i, j0, cr = C[i, j0:] as 0/1,
+def _row_setup(mat, r, i0, bits, cnt, b, cr_all):
+    """Row i = i0 + r against columns j >= j0 = i + 1: -> (i, j0, cr = C[i, j0:],
     v_ = the row's block entries from j0, b_ = b[j0:], b[i])."""
     i = i0 + r
     j0 = i + 1
     cr = cr_all[j0:]
-    _c_row(bits, i, j0, cr)
+    _c_row(bits, cnt, i, j0, cr)
     return i, j0, cr, mat[r, j0 - i0:], b[j0:], b[i]
 
 
@@ -109,23 +137,25 @@ def _pair_weight(bi, bj, kw, one):
 
 
 @njit(fastmath=FASTMATH, cache=True, nogil=True)
-def _anchor_row(mat, r, i0, bits, b, kw, tp, tn, cr_all, col, rows, qbits, qoff, q64):
+def _anchor_row(mat, r, i0, bits, cnt, b, kw, tp, tn, cr_all, col, rows, qbits, qoff, q64):
     """Soft/all mining scan. Adds to row i (``rows[i]``) and to each column j (``col[:, j]``)
-    0: sum of W C_F over positive pairs (C = 1), 1: sum of W relu(C_F) over negative pairs,
-    2: number of positive pairs, 3: imperfect positives (C = 1, C_F < tp), 4: imperfect
-    negatives (C = 0, C_F > tn). Stores the bit C_F > 0 of each pair for the backward."""
+    0: sum of W C C_F over positive pairs (C > 0), 1: sum of W (1 - C) relu(C_F) over negative
+    pairs (C < 1), 2: number of positive pairs, 3: imperfect positives (C > 0, C_F < tp; > 0
+    marks one), 4: imperfect negatives (C < 1, C_F > tn), 5: number of negative pairs.
+    Stores the bit C_F > 0 of each pair for the backward."""
     V = bits.shape[1]
     one = b.dtype.type(1.0)
     zero = mat.dtype.type(0.0)
     q8 = q64.view(np.uint8)
-    i, j0, cr, v_, b_, bi = _row_setup(mat, r, i0, bits, b, cr_all)
+    i, j0, cr, v_, b_, bi = _row_setup(mat, r, i0, bits, cnt, b, cr_all)
     n = V - j0
-    p0, p1, p2, p3, p4 = col[0, j0:], col[1, j0:], col[2, j0:], col[3, j0:], col[4, j0:]
+    p0, p1, p2, p3, p4, p5 = col[0, j0:], col[1, j0:], col[2, j0:], col[3, j0:], col[4, j0:], col[5, j0:]
     s0 = zero
     s1 = zero
     s2 = zero
     s3 = zero
     s4 = zero
+    s5 = zero
     for k in range(n):
         v = v_[k]
         c = cr[k]
@@ -135,35 +165,40 @@ def _anchor_row(mat, r, i0, bits, b, kw, tp, tn, cr_all, col, rows, qbits, qoff,
         nv = wv - pv if v > zero else zero
         ip = c if v < tp else zero
         iq = (1 - c) if v > tn else zero
+        np_ = one if c > zero else zero
+        nn_ = one if c < one else zero
         q8[k] = v > zero
         s0 += pv
         s1 += nv
-        s2 += c
+        s2 += np_
         s3 += ip
         s4 += iq
+        s5 += nn_
         p0[k] += pv
         p1[k] += nv
-        p2[k] += c
+        p2[k] += np_
         p3[k] += ip
         p4[k] += iq
+        p5[k] += nn_
     rows[i, 0] += s0
     rows[i, 1] += s1
     rows[i, 2] += s2
     rows[i, 3] += s3
     rows[i, 4] += s4
+    rows[i, 5] += s5
     _pack_row(q8, q64, n, qbits[qoff[i]:])
 
 
 @njit(fastmath=FASTMATH, cache=True, nogil=True)
-def _hard_row(mat, r, i0, bits, b, kw, tp, tn, cr_all, rows, qbits, qoff, q64):
+def _hard_row(mat, r, i0, bits, cnt, b, kw, tp, tn, cr_all, rows, qbits, qoff, q64):
     """Hard mining scan: rows[i] 0: sum of W C_F over selected positives (C = 1, C_F < tp),
     1: sum of W relu(C_F) over selected negatives (C = 0, C_F > tn), 2, 3: their counts.
-    Stores the bit "pair has a nonzero coefficient" for the backward."""
+    Stores the bit "pair has a nonzero coefficient" for the backward. Binary C only."""
     V = bits.shape[1]
     one = b.dtype.type(1.0)
     zero = mat.dtype.type(0.0)
     q8 = q64.view(np.uint8)
-    i, j0, cr, v_, b_, bi = _row_setup(mat, r, i0, bits, b, cr_all)
+    i, j0, cr, v_, b_, bi = _row_setup(mat, r, i0, bits, cnt, b, cr_all)
     n = V - j0
     s0 = zero
     s1 = zero
@@ -189,13 +224,13 @@ def _hard_row(mat, r, i0, bits, b, kw, tp, tn, cr_all, rows, qbits, qoff, q64):
 
 
 @njit(fastmath=FASTMATH, cache=True, nogil=True)
-def _select_row(mat, r, i0, bits, b, kw, posA, negA, wc, wr, cr_all, rows):
-    """Anchors known: rows[i] 0: sum of W C_F over selected positives, 1: sum of W relu(C_F)
-    over selected negatives, 2, 3: their counts. A pair (i, j)'s anchor flag is
-    1 - (1 - wc A_j)(1 - wr A_i) (column side: wc = 1; row: wr = 1; either: both)."""
+def _select_row(mat, r, i0, bits, cnt, b, kw, posA, negA, wc, wr, cr_all, rows):
+    """Anchors known: rows[i] 0: sum of W C C_F over selected positives, 1: sum of
+    W (1 - C) relu(C_F) over selected negatives, 2, 3: their counts. A pair (i, j)'s anchor
+    flag is 1 - (1 - wc A_j)(1 - wr A_i) (column side: wc = 1; row: wr = 1; either: both)."""
     one = b.dtype.type(1.0)
     zero = mat.dtype.type(0.0)
-    i, j0, cr, v_, b_, bi = _row_setup(mat, r, i0, bits, b, cr_all)
+    i, j0, cr, v_, b_, bi = _row_setup(mat, r, i0, bits, cnt, b, cr_all)
     pa = posA[j0:]
     na = negA[j0:]
     rp = 1 - wr * posA[i]
@@ -208,12 +243,14 @@ def _select_row(mat, r, i0, bits, b, kw, posA, negA, wc, wr, cr_all, rows):
         v = v_[k]
         c = cr[k]
         wt = _pair_weight(bi, b_[k], kw, one)
-        sp = c * (1 - (1 - wc * pa[k]) * rp)
-        sn = (1 - c) * (1 - (1 - wc * na[k]) * rn)
+        ap = 1 - (1 - wc * pa[k]) * rp
+        an = 1 - (1 - wc * na[k]) * rn
+        sp = c * ap
+        sn = (1 - c) * an
         s0 += sp * wt * v
         s1 += sn * wt * v if v > zero else zero
-        s2 += sp
-        s3 += sn
+        s2 += ap if c > zero else zero
+        s3 += an if c < one else zero
     rows[i, 0] += s0
     rows[i, 1] += s1
     rows[i, 2] += s2
@@ -221,9 +258,9 @@ def _select_row(mat, r, i0, bits, b, kw, posA, negA, wc, wr, cr_all, rows):
 
 
 @njit(fastmath=FASTMATH, cache=True, nogil=True)
-def _coef_row(mat, r, i0, bits, b, kw, posA, negA, wc, wr, qpos, cpos, cneg, cr_all, qbits, qoff, q64, table):
-    """Row r of the coefficient block S = ``mat``: S[r, j - i0] = cpos W on selected positives,
-    cneg W on selected negatives with C_F > 0 (relu's gradient), 0 elsewhere (j <= i too).
+def _coef_row(mat, r, i0, bits, cnt, b, kw, posA, negA, wc, wr, qpos, cpos, cneg, cr_all, qbits, qoff, q64, table):
+    """Row r of the coefficient block S = ``mat``: S[r, j - i0] = cpos W C on selected positives,
+    cneg W (1 - C) on selected negatives with C_F > 0 (relu's gradient), 0 elsewhere (j <= i too).
     Selection: anchors as ``_select_row`` and the stored bit q (soft: C_F > 0, applied to the
     negatives; hard, qpos = 1, anchors all 1: the whole selection)."""
     V = bits.shape[1]
@@ -240,7 +277,7 @@ def _coef_row(mat, r, i0, bits, b, kw, posA, negA, wc, wr, qpos, cpos, cneg, cr_
         return
     s_ = mat[r, j0 - i0:]
     cr = cr_all[j0:]
-    _c_row(bits, i, j0, cr)
+    _c_row(bits, cnt, i, j0, cr)
     qb = qbits[qoff[i]:]
     for k in range((n + 7) // 8):
         q64[k] = table[qb[k]]
@@ -260,30 +297,31 @@ def _coef_row(mat, r, i0, bits, b, kw, posA, negA, wc, wr, qpos, cpos, cneg, cr_
 
 
 @njit(cache=True, nogil=True)
-def _run_row(kind, mat, r, i0, bits, b, kw, tp, tn, posA, negA, wc, wr, qpos, cpos, cneg, table,
+def _run_row(kind, mat, r, i0, bits, cnt, b, kw, tp, tn, posA, negA, wc, wr, qpos, cpos, cneg, table,
              crow, col, rows, qbits, qoff, q64):
     if kind == ANCHOR:
-        _anchor_row(mat, r, i0, bits, b, kw, tp, tn, crow, col, rows, qbits, qoff, q64)
+        _anchor_row(mat, r, i0, bits, cnt, b, kw, tp, tn, crow, col, rows, qbits, qoff, q64)
     elif kind == HARD:
-        _hard_row(mat, r, i0, bits, b, kw, tp, tn, crow, rows, qbits, qoff, q64)
+        _hard_row(mat, r, i0, bits, cnt, b, kw, tp, tn, crow, rows, qbits, qoff, q64)
     elif kind == SELECT:
-        _select_row(mat, r, i0, bits, b, kw, posA, negA, wc, wr, crow, rows)
+        _select_row(mat, r, i0, bits, cnt, b, kw, posA, negA, wc, wr, crow, rows)
     else:
-        _coef_row(mat, r, i0, bits, b, kw, posA, negA, wc, wr, qpos, cpos, cneg, crow, qbits, qoff, q64, table)
+        _coef_row(mat, r, i0, bits, cnt, b, kw, posA, negA, wc, wr, qpos, cpos, cneg, crow, qbits, qoff, q64,
+                  table)
 
 
 @njit(cache=True, nogil=True)
-def rows_serial(kind, mat, i0, bits, b, kw, tp, tn, posA, negA, wc, wr, qpos, cpos, cneg, table,
+def rows_serial(kind, mat, i0, bits, cnt, b, kw, tp, tn, posA, negA, wc, wr, qpos, cpos, cneg, table,
                  crow, cols, rows, qbits, qoff, qbuf):
     """All rows of a block on the calling thread. (One thread does not go through numba's
     parallel pool: on a loaded machine waking the pool cost ~10 ms per call, measured.)"""
     for r in range(mat.shape[0]):
-        _run_row(kind, mat, r, i0, bits, b, kw, tp, tn, posA, negA, wc, wr, qpos, cpos, cneg, table,
+        _run_row(kind, mat, r, i0, bits, cnt, b, kw, tp, tn, posA, negA, wc, wr, qpos, cpos, cneg, table,
                  crow[0], cols[0], rows, qbits, qoff, qbuf[0])
 
 
 @njit(parallel=True, cache=True, nogil=True)
-def rows_parallel(kind, mat, i0, bits, b, kw, tp, tn, posA, negA, wc, wr, qpos, cpos, cneg, table,
+def rows_parallel(kind, mat, i0, bits, cnt, b, kw, tp, tn, posA, negA, wc, wr, qpos, cpos, cneg, table,
                    crow, cols, rows, qbits, qoff, qbuf):
     """The rows of a block split into T = crow.shape[0] contiguous chunks, one per thread,
     each with its own scratch row and column accumulators (``cols[t]``); rows are disjoint."""
@@ -292,5 +330,5 @@ def rows_parallel(kind, mat, i0, bits, b, kw, tp, tn, posA, negA, wc, wr, qpos, 
     per = (B + T - 1) // T
     for t in prange(T):
         for r in range(t * per, min(B, (t + 1) * per)):
-            _run_row(kind, mat, r, i0, bits, b, kw, tp, tn, posA, negA, wc, wr, qpos, cpos, cneg, table,
+            _run_row(kind, mat, r, i0, bits, cnt, b, kw, tp, tn, posA, negA, wc, wr, qpos, cpos, cneg, table,
                      crow[t], cols[t], rows, qbits, qoff, qbuf[t])

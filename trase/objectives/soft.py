@@ -23,6 +23,12 @@ Exact choices (the paper's equations and the public code differ in details):
   considered); ``"selected"`` divides by the number of selected pairs of that term. Z is
   clamped to >= 1 so an empty selection gives a zero (not NaN) term.
 * L = L_pos + L_neg + reg_weight * (1 - mean ||F(p)||)^2 with reg_weight = 1.
+* Correspondence (``correspondence``): ``"binary"`` (the paper's C: 1 iff two pixels share a
+  sampled mask) or ``"jaccard"``, the soft C the paper's limitations section proposes for small
+  objects that a larger mask also covers: C = |shared masks| / |masks covering either pixel|.
+  A pair counts as positive with weight W C where C > 0 and as negative with weight W (1 - C)
+  where C < 1; the anchor tests read C > 0 and C < 1. With every C in {0, 1} it is the binary
+  rule.
 
 Implementations (``impl``): ``"fused"`` (``trase.objectives.fused``: bit-packed membership,
 blockwise BLAS C_F, numba pair kernels, O(V (D + M / 64)) memory, a custom autograd Function)
@@ -51,6 +57,7 @@ from trase.objectives.fused import fused_pair_losses
 ANCHOR_SIDES = ("column", "row", "either")
 NORMALISATIONS = ("anchor_pairs", "selected")
 IMPLS = ("auto", "fused", "reference")
+CORRESPONDENCES = ("binary", "jaccard")
 
 
 def use_fused(impl: str, features: torch.Tensor) -> bool:
@@ -69,18 +76,33 @@ def _any_offdiag(m: torch.Tensor) -> torch.Tensor:
     return m.any(dim=0)
 
 
-def soft_anchors(ps: PairStats, tau_pos: float = TAU_POS, tau_neg: float = TAU_NEG):
+def soft_anchors(ps: PairStats, tau_pos: float = TAU_POS, tau_neg: float = TAU_NEG,
+                 positive: torch.Tensor | None = None, negative: torch.Tensor | None = None):
     """-> (pos_anchor [V] bool, neg_anchor [V] bool): pixels with at least one imperfect
-    positive (C=1, C_F < tau_pos) or negative (C=0, C_F > tau_neg) partner, diagonal excluded."""
+    positive (C=1, C_F < tau_pos) or negative (C=0, C_F > tau_neg) partner, diagonal excluded.
+    ``positive`` / ``negative`` [V, V] bool: the pairs that count as such (default C, ~C)."""
     CF = ps.CF.detach()
-    pos = _any_offdiag(ps.C & (CF < tau_pos))
-    neg = _any_offdiag(~ps.C & (CF > tau_neg))
+    positive = ps.C if positive is None else positive
+    negative = ~ps.C if negative is None else negative
+    pos = _any_offdiag(positive & (CF < tau_pos))
+    neg = _any_offdiag(negative & (CF > tau_neg))
     return pos, neg
 
 
-def all_anchors(ps: PairStats):
+def mask_jaccard(member: torch.Tensor) -> torch.Tensor:
+    """[V, M] bool membership of pixels in >= 1 mask -> [V, V] float32: shared masks over the
+    masks covering either pixel (the soft correspondence; 1 on the diagonal)."""
+    m = member.to(torch.float32)
+    shared = m @ m.T  # [V, V] counts, exact in float32 for M < 2^24
+    count = m.sum(dim=1)  # [V] >= 1
+    return shared / (count[:, None] + count[None, :] - shared)
+
+
+def all_anchors(ps: PairStats, positive: torch.Tensor | None = None, negative: torch.Tensor | None = None):
     """-> (pos_anchor, neg_anchor): pixels with any positive / any negative partner ("all")."""
-    return _any_offdiag(ps.C.clone()), _any_offdiag(~ps.C)
+    positive = ps.C if positive is None else positive
+    negative = ~ps.C if negative is None else negative
+    return _any_offdiag(positive.clone()), _any_offdiag(negative.clone())
 
 
 def anchor_pair_count(anchor: torch.Tensor, side: str = "column") -> int:
@@ -120,7 +142,7 @@ def select_pairs(ps: PairStats, pos_anchor, neg_anchor, side: str = "column"):
     return pos_cand & ps.C, neg_cand & ~ps.C, pos_cand, neg_cand
 
 
-def weighted_pair_losses(ps: PairStats, pos_pairs, neg_pairs, z_pos, z_neg):
+def weighted_pair_losses(ps: PairStats, pos_pairs, neg_pairs, z_pos, z_neg, pos_scale=None, neg_scale=None):
     """L_pos = -sum(W C_F)/Z_pos over pos_pairs, L_neg = sum(W relu(C_F))/Z_neg over neg_pairs.
 
     W and the selections are constants, so each term is ``ps.pair_sum(coef)`` with one
@@ -131,8 +153,10 @@ def weighted_pair_losses(ps: PairStats, pos_pairs, neg_pairs, z_pos, z_neg):
     zp = max(float(z_pos), 1.0)
     zn = max(float(z_neg), 1.0)
     zero = W.new_zeros(())
-    l_pos = -ps.pair_sum(torch.where(pos_pairs, W, zero)) / zp
-    l_neg = ps.pair_sum(torch.where(neg_pairs & (CF > 0), W, zero)) / zn
+    w_pos = W if pos_scale is None else W * pos_scale
+    w_neg = W if neg_scale is None else W * neg_scale
+    l_pos = -ps.pair_sum(torch.where(pos_pairs, w_pos, zero)) / zp
+    l_neg = ps.pair_sum(torch.where(neg_pairs & (CF > 0), w_neg, zero)) / zn
     return l_pos, l_neg
 
 
@@ -180,10 +204,13 @@ class SoftMining(Objective):
         normalise: str = "anchor_pairs",
         reg_weight: float = 1.0,
         impl: str = "auto",
+        correspondence: str = "binary",
     ) -> None:
         super().__init__()
         if impl not in IMPLS:
             raise ValueError(f"impl must be one of {IMPLS}, got {impl!r}")
+        if correspondence not in CORRESPONDENCES:
+            raise ValueError(f"correspondence must be one of {CORRESPONDENCES}, got {correspondence!r}")
         if anchor_side not in ANCHOR_SIDES:
             raise ValueError(f"anchor_side must be one of {ANCHOR_SIDES}, got {anchor_side!r}")
         if normalise not in NORMALISATIONS:
@@ -192,14 +219,15 @@ class SoftMining(Objective):
         self.anchor_side, self.normalise = anchor_side, normalise
         self.reg_weight = float(reg_weight)
         self.impl = impl
+        self.correspondence = correspondence
 
     def thresholds(self) -> tuple[float, float]:
         """(tau_pos, tau_neg) of the anchor test; (inf, -inf) makes every pixel with a
         positive (negative) partner an anchor ("all" mining)."""
         return self.tau_pos, self.tau_neg
 
-    def anchors(self, ps: PairStats):
-        return soft_anchors(ps, *self.thresholds())
+    def anchors(self, ps: PairStats, positive=None, negative=None):
+        return soft_anchors(ps, *self.thresholds(), positive=positive, negative=negative)
 
     def forward(self, features: torch.Tensor, sample: PixelSample) -> tuple[torch.Tensor, dict]:
         """features [Np, D] rendered at sample.pixels -> (loss, stats)."""
@@ -208,22 +236,26 @@ class SoftMining(Objective):
         tau_pos, tau_neg = self.thresholds()
         l_pos, l_neg, n_pos, n_neg, n_valid = fused_pair_losses(
             features, sample, tau_pos=tau_pos, tau_neg=tau_neg, side=self.anchor_side,
-            normalise=self.normalise)
+            normalise=self.normalise, correspondence=self.correspondence)
         return combine_pair_losses(n_valid, regulariser_features(features, sample), l_pos, l_neg, n_pos, n_neg,
                                    self.reg_weight)
 
     def forward_reference(self, features: torch.Tensor, sample: PixelSample) -> tuple[torch.Tensor, dict]:
         """The dense torch form (readable; the tests compare ``forward`` against it)."""
         ps = pair_stats(features, sample)
-        pos_a, neg_a = self.anchors(ps)
-        pos = anchor_pairs(pos_a, ps.upper, self.anchor_side) & ps.C
-        neg = anchor_pairs(neg_a, ps.upper, self.anchor_side) & ~ps.C
+        positive, negative, pos_scale, neg_scale = ps.C, ~ps.C, None, None
+        if self.correspondence == "jaccard":
+            pos_scale = mask_jaccard(sample.membership[ps.valid]).to(features.dtype)  # [V, V]
+            positive, negative, neg_scale = pos_scale > 0, pos_scale < 1, 1.0 - pos_scale
+        pos_a, neg_a = self.anchors(ps, positive, negative)
+        pos = anchor_pairs(pos_a, ps.upper, self.anchor_side) & positive
+        neg = anchor_pairs(neg_a, ps.upper, self.anchor_side) & negative
         n_pos, n_neg = int(torch.count_nonzero(pos)), int(torch.count_nonzero(neg))
         if self.normalise == "anchor_pairs":
             z_pos = anchor_pair_count(pos_a, self.anchor_side)
             z_neg = anchor_pair_count(neg_a, self.anchor_side)
         else:
             z_pos, z_neg = n_pos, n_neg
-        l_pos, l_neg = weighted_pair_losses(ps, pos, neg, z_pos, z_neg)
+        l_pos, l_neg = weighted_pair_losses(ps, pos, neg, z_pos, z_neg, pos_scale, neg_scale)
         return combine_pair_losses(ps, regulariser_features(features, sample), l_pos, l_neg, n_pos, n_neg,
                                    self.reg_weight)

@@ -135,6 +135,21 @@ def test_render_rule_visible_under_the_cpu_preset_on_a_monocular_rig_only():
                      ("paper", True): "alone", ("paper", False): "alone"}
 
 
+def test_the_soft_correspondence_on_small_monocular_images_is_trases_own():
+    from lazyspecs.presets import Context
+
+    def params(name, monocular, size):
+        ctx = Context(dataset="nerfds" if monocular else "neu3d", monocular=monocular, image_size=size)
+        return get_method(name).resolve_settings("cpu", ctx).config.features.objective_params
+
+    assert params("trase", True, (64, 48)) == {"correspondence": "jaccard"}
+    assert params("trase", False, (48, 36)) == {}  # the multi-view tiny scenes lost under it
+    assert params("trase", True, (160, 120)) == {}  # small scenes: not measured for it
+    for name in ("trase-hard", "trase-all", "opengaussian"):  # chosen on TRASE's loss, not theirs
+        assert params(name, True, (64, 48)) == {}, name
+    assert params("cgc", True, (64, 48)) == {"min_mask_pixels": "auto"}
+
+
 def test_each_click_is_lifted_in_its_own_frame(monkeypatch):
     # prompts from several test frames: a click is lifted with the camera of the frame it was
     # made in, not the first prompted frame's

@@ -52,6 +52,16 @@ OBJECTIVES = [
 ]
 
 
+# the soft correspondence: pixels in several masks give C strictly between 0 and 1
+JACCARD = [
+    ("jaccard column", lambda impl: SoftMining(correspondence="jaccard", impl=impl)),
+    ("jaccard row", lambda impl: SoftMining(anchor_side="row", correspondence="jaccard", impl=impl)),
+    ("jaccard either selected", lambda impl: SoftMining(anchor_side="either", normalise="selected",
+                                                        correspondence="jaccard", impl=impl)),
+    ("jaccard all", lambda impl: AllMining(correspondence="jaccard", impl=impl)),
+]
+
+
 def _compare(make, f, s, rtol):
     lf, sf, gf = _run(make("fused"), f, s)
     lr, sr, gr = _run(make("reference"), f, s)
@@ -75,7 +85,17 @@ def test_fused_matches_reference(name, make, dtype):
     _compare(make, f, s, rtol=1e-9 if dtype == torch.float64 else 1e-5)
 
 
-@pytest.mark.parametrize("name,make", OBJECTIVES[:1] + OBJECTIVES[-3:], ids=["soft", "all", "all row", "hard"])
+@pytest.mark.parametrize("name,make", JACCARD, ids=[o[0] for o in JACCARD])
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_fused_jaccard_matches_reference(name, make, dtype):
+    s = _sample(150, 6, p=0.4)
+    assert ((s.membership.sum(1) > 1).sum()) > 50  # many pixels in several masks
+    f = _features(150, 8, dtype)
+    _compare(make, f, s, rtol=1e-9 if dtype == torch.float64 else 1e-5)
+
+
+@pytest.mark.parametrize("name,make", OBJECTIVES[:1] + OBJECTIVES[-3:] + JACCARD[:1],
+                         ids=["soft", "all", "all row", "hard", "jaccard"])
 def test_fused_matches_reference_many_masks_and_blocks(name, make, monkeypatch):
     from trase.objectives import fused
 
@@ -85,7 +105,8 @@ def test_fused_matches_reference_many_masks_and_blocks(name, make, monkeypatch):
     _compare(make, f, s, rtol=1e-9)
 
 
-def test_two_threads_match_one(monkeypatch):
+@pytest.mark.parametrize("correspondence", ["binary", "jaccard"])
+def test_two_threads_match_one(monkeypatch, correspondence):
     from trase.objectives import fused
 
     monkeypatch.setattr(fused, "PARALLEL_MIN_PIXELS", 0)  # the parallel driver even for 300 pixels
@@ -95,9 +116,9 @@ def test_two_threads_match_one(monkeypatch):
     old = torch.get_num_threads()
     try:
         torch.set_num_threads(1)
-        one = _run(SoftMining(impl="fused"), f, s)
+        one = _run(SoftMining(impl="fused", correspondence=correspondence), f, s)
         torch.set_num_threads(2)
-        two = _run(SoftMining(impl="fused"), f, s)
+        two = _run(SoftMining(impl="fused", correspondence=correspondence), f, s)
         assert torch.get_num_threads() == 2  # numba's thread setting did not leak into torch
     finally:
         torch.set_num_threads(old)
@@ -159,10 +180,10 @@ DEGENERATE = [
 
 
 @pytest.mark.parametrize("name,s,f", DEGENERATE, ids=[d[0] for d in DEGENERATE])
-@pytest.mark.parametrize("which", ["soft", "soft either", "all", "hard"])
+@pytest.mark.parametrize("which", ["soft", "soft either", "all", "hard", "jaccard", "jaccard either"])
 def test_degenerate_inputs_match_reference_and_are_finite(name, s, f, which):
     make = {"soft": OBJECTIVES[0][1], "soft either": OBJECTIVES[2][1], "all": OBJECTIVES[6][1],
-            "hard": OBJECTIVES[8][1]}[which]
+            "hard": OBJECTIVES[8][1], "jaccard": JACCARD[0][1], "jaccard either": JACCARD[2][1]}[which]
     _compare(make, f.double(), s, rtol=1e-9)
 
 
