@@ -125,6 +125,7 @@ class _Plan:
             return float(rows[:, 0].sum()), float(rows[:, 1].sum())
         rows, col = self._pass(ANCHOR, fn, n_cols=6)
         row = rows.T  # [6, V]
+        soft = self.cnt is not None
         pa = (row[3] + col[3]) > 0  # [V] anchors: an imperfect partner on either side
         na = (row[4] + col[4]) > 0
         self.posA, self.negA = pa.astype(np.float32), na.astype(np.float32)
@@ -132,12 +133,12 @@ class _Plan:
         if self.side == "column":  # pair (i, j) belongs to its column j: partners i < j
             sp, sn = col[0][pa].sum(), col[1][na].sum()
             n_pos = int(np.rint(col[2][pa].sum()))
-            n_neg = int(np.rint(col[5][na].sum()))
+            n_neg = int(np.rint((col[5] if soft else idx - col[2])[na].sum()))
             z_pos, z_neg = int(idx[pa].sum()), int(idx[na].sum())
         elif self.side == "row":  # pair (i, j) belongs to its row i: partners j > i
             sp, sn = row[0][pa].sum(), row[1][na].sum()
             n_pos = int(np.rint(row[2][pa].sum()))
-            n_neg = int(np.rint(row[5][na].sum()))
+            n_neg = int(np.rint((row[5] if soft else V - 1 - idx - row[2])[na].sum()))
             z_pos, z_neg = int((V - 1 - idx)[pa].sum()), int((V - 1 - idx)[na].sum())
         else:  # either member: not separable per pixel, a second pass with the anchors known
             sel, _ = self._pass(SELECT, fn)
@@ -211,7 +212,7 @@ def fused_pair_losses(
     member_np = member[valid].cpu().numpy()
     bits = pack_membership(member_np)
     soft = correspondence == "jaccard"
-    cnt = member_np.sum(axis=1).astype(np.float32) if soft else np.zeros(0, np.float32)  # [V] masks per pixel
+    cnt = member_np.sum(axis=1).astype(np.float32) if soft else None  # [V] masks per pixel
     b, kw = weight_factors(sample.pixel_mean_area[valid])
     plan = _Plan(bits, cnt, b, kw, hard, tau_pos, tau_neg, side, normalise)
     if fn.device.type != "cpu":

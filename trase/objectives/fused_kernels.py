@@ -57,11 +57,15 @@ UNPACK = _unpack_table()
 
 @njit(inline="always")
 def _popcount(x):
-    """Set bits of a uint64 (the SWAR count; numba has no popcount intrinsic)."""
+    """Set bits of a uint64: the SWAR count with shifts and adds only (numba has no popcount
+    intrinsic, and AVX2 has no vector 64-bit multiply)."""
     x = x - ((x >> np.uint64(1)) & np.uint64(0x5555555555555555))
     x = (x & np.uint64(0x3333333333333333)) + ((x >> np.uint64(2)) & np.uint64(0x3333333333333333))
     x = (x + (x >> np.uint64(4))) & np.uint64(0x0F0F0F0F0F0F0F0F)
-    return (x * np.uint64(0x0101010101010101)) >> np.uint64(56)
+    x = x + (x >> np.uint64(8))
+    x = x + (x >> np.uint64(16))
+    x = x + (x >> np.uint64(32))
+    return x & np.uint64(0x7F)
 
 
 @njit(inline="always")
@@ -69,21 +73,27 @@ def _jaccard_row(bits, cnt, i, j0, cr):
     """cr[k] = shared masks / masks covering i or j0 + k (the soft C, rounded in float32 as
     ``soft.mask_jaccard`` rounds it); ``cnt`` [V] float32 masks per pixel."""
     nw = bits.shape[0]
+    x = bits[0, i]
+    bw = bits[0, j0:]
+    for k in range(cr.shape[0]):
+        cr[k] = _popcount(bw[k] & x)
+    for w in range(1, nw):
+        x = bits[w, i]
+        bw = bits[w, j0:]
+        for k in range(cr.shape[0]):
+            cr[k] += _popcount(bw[k] & x)
     ci = cnt[i]
     cj = cnt[j0:]
     for k in range(cr.shape[0]):
-        shared = np.uint64(0)
-        for w in range(nw):
-            shared += _popcount(bits[w, i] & bits[w, j0 + k])
-        sh = np.float32(shared)
+        sh = np.float32(cr[k])  # a count: exact
         cr[k] = sh / ((ci + cj[k]) - sh)
 
 
 @njit(inline="always")
 def _c_row(bits, cnt, i, j0, cr):
-    """cr[k] = C[i, j0 + k] as 0/1 in cr's dtype, for k < len(cr) = V - j0; the soft C
-    (``_jaccard_row``) when ``cnt`` is not empty."""
-    if cnt.shape[0] > 0:
+    """cr[k] = C[i, j0 + k] in cr's dtype, for k < len(cr) = V - j0: 0/1 when ``cnt`` is None
+    (the binary C; numba prunes the other branch), else the soft C (``_jaccard_row``)."""
+    if cnt is not None:
         _jaccard_row(bits, cnt, i, j0, cr)
         return
     nw = bits.shape[0]
@@ -165,21 +175,25 @@ def _anchor_row(mat, r, i0, bits, cnt, b, kw, tp, tn, cr_all, col, rows, qbits, 
         nv = wv - pv if v > zero else zero
         ip = c if v < tp else zero
         iq = (1 - c) if v > tn else zero
-        np_ = one if c > zero else zero
-        nn_ = one if c < one else zero
         q8[k] = v > zero
         s0 += pv
         s1 += nv
-        s2 += np_
         s3 += ip
         s4 += iq
-        s5 += nn_
         p0[k] += pv
         p1[k] += nv
-        p2[k] += np_
         p3[k] += ip
         p4[k] += iq
-        p5[k] += nn_
+        if cnt is None:  # binary C: c is the pair's count, and its negatives are the rest
+            s2 += c
+            p2[k] += c
+        else:
+            np_ = one if c > zero else zero
+            nn_ = one if c < one else zero
+            s2 += np_
+            s5 += nn_
+            p2[k] += np_
+            p5[k] += nn_
     rows[i, 0] += s0
     rows[i, 1] += s1
     rows[i, 2] += s2
@@ -249,8 +263,12 @@ def _select_row(mat, r, i0, bits, cnt, b, kw, posA, negA, wc, wr, cr_all, rows):
         sn = (1 - c) * an
         s0 += sp * wt * v
         s1 += sn * wt * v if v > zero else zero
-        s2 += ap if c > zero else zero
-        s3 += an if c < one else zero
+        if cnt is None:
+            s2 += sp
+            s3 += sn
+        else:
+            s2 += ap if c > zero else zero
+            s3 += an if c < one else zero
     rows[i, 0] += s0
     rows[i, 1] += s1
     rows[i, 2] += s2
