@@ -34,6 +34,7 @@ class Context:
     monocular: bool = True  # one moving camera; False: a multi-view rig
     image_size: tuple[int, int] | None = None  # (W, H) of the images a run evaluates at
     device: str = "cpu"  # where it trains: "cpu" or "cuda"
+    objective: str | None = None  # the feature objective a run trains (a method's own, or --set's)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -59,6 +60,11 @@ OWN_CAPTURE = When("a capture of one's own", lambda c: c.dataset is None)
 def dataset(*keys: str) -> When:
     """The run is on one of these benchmarks."""
     return When(f"dataset {'/'.join(keys)}", lambda c: c.dataset in keys)
+
+
+def objective(*names: str) -> When:
+    """The run trains one of these feature objectives."""
+    return When(f"objective {'/'.join(names)}", lambda c: c.objective in names)
 
 
 def images_below(pixels: int) -> When:

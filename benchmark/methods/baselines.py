@@ -32,7 +32,7 @@ import numpy as np
 from baselines.cgc_inference import PATCH, THRESHOLD
 from benchmark.methods import FittedModel, MethodError, register_method
 from benchmark.methods.trase_method import TraseMethod, click_view
-from benchmark.methods.trase_presets import PIPELINE_PRESETS, TraseSettings
+from benchmark.methods.trase_presets import TRASE_PRESETS, TraseSettings
 from lazyspecs.presets import MONOCULAR
 
 BASELINE_METHODS = ("trase-hard", "trase-all", "cgc", "opengaussian")
@@ -46,13 +46,13 @@ BASELINE_METHODS = ("trase-hard", "trase-all", "cgc", "opengaussian")
 # min_cluster_size {25, 50, 100} x filter {0.6, 0.7, 0.8} (and the click rule "weight" at filter
 # 0.7, which chose as "feature" did): 25 and 0.6, mean 0.388 (0.8: 0.388 too, 0.3879 against
 # 0.3882; TRASE's 50 and 0.7: 0.186). The features' learning rate was not searched again.
-TRASE_HARD_PRESETS = PIPELINE_PRESETS.extended("trase-hard")
+TRASE_HARD_PRESETS = TRASE_PRESETS.extended("trase-hard")
 TRASE_HARD_PRESETS.declare("cpu", {"clustering.params.min_cluster_size": 25}, filter_threshold=0.6)
 # the other objectives train the whole feature schedule: TRASE's stopping rule (trase_presets)
 # was chosen on TRASE's loss, not theirs
 FULL_FEATURE_SCHEDULE = {"features.stop_interval": 0}
 TRASE_HARD_PRESETS.declare("cpu", FULL_FEATURE_SCHEDULE)
-TRASE_ALL_PRESETS = PIPELINE_PRESETS.extended("trase-all")
+TRASE_ALL_PRESETS = TRASE_PRESETS.extended("trase-all")
 TRASE_ALL_PRESETS.declare("cpu", FULL_FEATURE_SCHEDULE)
 
 
@@ -86,7 +86,7 @@ class CGCSettings(TraseSettings):
     cgc: CGCInference = dataclasses.field(default_factory=CGCInference)
 
 
-CGC_PRESETS = PIPELINE_PRESETS.extended("cgc", CGCSettings)
+CGC_PRESETS = TRASE_PRESETS.extended("cgc", CGCSettings)
 # CGC's own threshold replaces TRASE's filter; "auto": the public 100-pixel small-segment
 # threshold rescaled to the mask resolution (baselines/cgc.py)
 CGC_PRESETS.declare("paper", {"features.objective_params": {"min_mask_pixels": "auto"}}, filter_threshold=None)
@@ -99,7 +99,7 @@ CGC_PRESETS.declare("cpu", FULL_FEATURE_SCHEDULE, filter_threshold=None)
 # the multi-view rigs, where CGC's features are sharper than on the geometry the benchmark scores
 CGC_PRESETS.declare("cpu", {"cgc.threshold": 0.6}, when=MONOCULAR)
 
-OPENGAUSSIAN_PRESETS = PIPELINE_PRESETS.extended("opengaussian")
+OPENGAUSSIAN_PRESETS = TRASE_PRESETS.extended("opengaussian")
 # every gaussian keeps its class (codebook semantics): no filter
 OPENGAUSSIAN_PRESETS.declare("paper", filter_threshold=None)
 OPENGAUSSIAN_PRESETS.declare("cpu", FULL_FEATURE_SCHEDULE, filter_threshold=None)

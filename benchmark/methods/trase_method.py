@@ -33,7 +33,10 @@ class TraseMethod(Method):
 
     def resolve_settings(self, preset: str, ctx: Context) -> Resolved:
         """The declared settings with this method's objective (``objective``, or the one given
-        to the constructor) and its parameters on top of the declared ones."""
+        to the constructor) and its parameters on top of the declared ones. Declarations that
+        depend on the objective read the run's (``ctx.objective``: --set's), else this one."""
+        if ctx.objective is None:
+            ctx = dataclasses.replace(ctx, objective=self.objective)
         r = super().resolve_settings(preset, ctx)
         features = r.config.features
         features.objective = self.objective
@@ -52,6 +55,7 @@ class TraseMethod(Method):
             raise ConfigError(f"--set method.unseen_min_weight={settings.unseen_min_weight!r}: a weight >= 0 (0: off)")
         if isinstance(settings.unseen_neighbours, bool) or int(settings.unseen_neighbours) < 1:
             raise ConfigError(f"--set method.unseen_neighbours={settings.unseen_neighbours!r}: a whole number >= 1")
+        _check_objective_params(settings.features.objective, settings.features.objective_params)
         if settings.prompts.on_selected not in ON_SELECTED:
             raise ConfigError(f"--set method.prompts.on_selected={settings.prompts.on_selected!r}: one of "
                               f"{', '.join(ON_SELECTED)}")
@@ -203,6 +207,22 @@ def _unseen_from_neighbours(feats: np.ndarray, config: TraseSettings, gaussians,
     seen = np.asarray(weights) >= float(config.unseen_min_weight)
     means = gaussians.means.detach().cpu().numpy()
     return neighbours_features(feats, means, seen, int(config.unseen_neighbours)), int((~seen).sum())
+
+
+def _check_objective_params(name: str, params: dict) -> None:
+    """A parameter the objective's class does not take stops the run before any stage."""
+    import inspect
+
+    from benchmark.config import ConfigError
+    from trase.objectives.base import OBJECTIVES
+
+    taken = inspect.signature(OBJECTIVES.load(name)).parameters
+    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in taken.values()):
+        return
+    for key in params:
+        if key not in taken:
+            raise ConfigError(f"--set method.features.objective_params.{key}: objective {name!r} takes no such "
+                              f"parameter (it takes {', '.join(taken) or 'none'})")
 
 
 def with_objective(objective: str, **params) -> TraseMethod:

@@ -15,7 +15,16 @@ from __future__ import annotations
 import dataclasses
 
 from benchmark.methods import MethodError
-from lazyspecs.presets import MONOCULAR, MULTIVIEW, OWN_CAPTURE, Context, PresetTable, dataset, images_below
+from lazyspecs.presets import (
+    MONOCULAR,
+    MULTIVIEW,
+    OWN_CAPTURE,
+    Context,
+    PresetTable,
+    dataset,
+    images_below,
+    objective,
+)
 from trase.feature_config import CPU_MAX_PIXELS, FEATURE_PRESETS, FeatureConfig
 from trase.prompts import FRONT_SHARE
 from trase.reconstruction_presets import CPU_MAX_GAUSSIANS
@@ -182,11 +191,7 @@ TRASE_PRESETS.declare("cpu", when=TINY_IMAGES, render_rule="visible")
 # format, seed 3), each its oracle; the other five monocular and the three seed-1 multi-view
 # scenes the same (docs/notes/corrective-clicks.md, "A click on a selected cluster").
 TRASE_PRESETS.declare("cpu", {"prompts.on_selected": "next"}, when=TINY_IMAGES)
-# The settings above are those of TRASE's pipeline, which the methods built on it with other
-# objectives share (benchmark.methods.baselines); those below are TRASE's objective's own, chosen
-# on its loss (the ablations' objectives keep the binary correspondence).
-PIPELINE_PRESETS = TRASE_PRESETS.extended("trase-pipeline")
-# On small images on a monocular rig TRASE's objective reads the soft correspondence (C = shared
+# ... and on a monocular rig TRASE's objective reads the soft correspondence (C = shared
 # masks over the masks covering either pixel, trase.objectives.soft), the paper's proposal for
 # small objects that a larger mask also covers. Why: with 3-6 views of 64 x 48 px the masks that merge a small
 # object with the floor around it weigh as much as those that separate it (the seed-0 NeRF-DS
@@ -195,8 +200,10 @@ PIPELINE_PRESETS = TRASE_PRESETS.extended("trase-pipeline")
 # 0.915, 0.844 -> 0.897, 0.807 -> 0.902 (NeRF-DS format), 0.879 -> 0.877, 0.878 -> 0.899, 0.897
 # -> 0.901 (HyperNeRF), each its oracle. Not on the multi-view rigs: their seed-1 tiny scenes lost
 # (Neu3D format 0.584 -> 0.511, Technicolor 0.840 -> 0.814; Immersive 0.599 -> 0.624)
-# (docs/notes/corrective-clicks.md, "A soft correspondence").
-TRASE_PRESETS.declare("cpu", {"features.objective_params.correspondence": "jaccard"}, when=TINY_IMAGES & MONOCULAR)
+# (docs/notes/corrective-clicks.md, "A soft correspondence"). Chosen on TRASE's loss: the other
+# objectives on this pipeline (the ablations, CGC, OpenGaussian, plugins) keep their own.
+TRASE_PRESETS.declare("cpu", {"features.objective_params.correspondence": "jaccard"},
+                      when=TINY_IMAGES & MONOCULAR & objective("trase"))
 
 
 def trase_settings(preset: str, dataset: str | None, monocular: bool = True) -> TraseSettings:
@@ -210,4 +217,4 @@ def trase_settings(preset: str, dataset: str | None, monocular: bool = True) -> 
     return TRASE_PRESETS.resolve(preset, Context(dataset=dataset, monocular=monocular)).config
 
 
-__all__ = ["CLICK_RULE", "PIPELINE_PRESETS", "TINY_IMAGES", "TRASE_PRESETS", "ClickSettings", "ClusteringSettings", "TraseSettings", "trase_settings"]
+__all__ = ["CLICK_RULE", "TINY_IMAGES", "TRASE_PRESETS", "ClickSettings", "ClusteringSettings", "TraseSettings", "trase_settings"]

@@ -28,6 +28,8 @@ FAST_GT = ["geometry.source=ground-truth", "method.features.iterations=40", "met
            RECORDED_CLICK_RULE]
 CASES = {
     "trase-hypernerf-gt": ("trase", "hypernerf", FAST_GT),
+    # the binary correspondence, which the cpu preset's tiny-image rule replaces on this scene
+    "trase-hypernerf-gt-binary": ("trase", "hypernerf", [*FAST_GT, "method.features.objective_params.correspondence=binary"]),
     "cgc-hypernerf-gt": ("cgc", "hypernerf", FAST_GT),
     "opengaussian-hypernerf-gt": ("opengaussian", "hypernerf", FAST_GT),
     "trase-nerfds-gt": ("trase", "nerfds", FAST_GT),

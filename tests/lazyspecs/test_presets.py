@@ -5,7 +5,16 @@ import dataclasses
 
 import pytest
 
-from lazyspecs.presets import MONOCULAR, Context, Derived, PresetError, PresetTable, dataset, images_below
+from lazyspecs.presets import (
+    MONOCULAR,
+    Context,
+    Derived,
+    PresetError,
+    PresetTable,
+    dataset,
+    images_below,
+    objective,
+)
 
 
 @dataclasses.dataclass
@@ -49,6 +58,12 @@ def test_images_below_reads_the_image_area_and_is_false_without_a_size():
     assert small(Context(image_size=(64, 48))) and not small(Context(image_size=(160, 120)))
     assert not small(Context(image_size=(100, 100))) and not small(Context())
     assert small.label == "images under 10,000 px"
+
+
+def test_objective_reads_the_runs_objective_and_is_false_without_one():
+    ours = objective("trase")
+    assert ours(Context(objective="trase")) and not ours(Context(objective="cgc")) and not ours(Context())
+    assert (ours & MONOCULAR).label == "objective trase and monocular"
 
 
 def test_every_value_says_where_it_was_declared():

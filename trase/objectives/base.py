@@ -23,6 +23,9 @@ from lazyspecs import Registry, subclass_of
 TAU_POS = 0.75  # positive pairs with cosine below this are imperfect (public code)
 TAU_NEG = 0.5  # negative pairs with cosine above this are imperfect (public code)
 W_MAX = 10.0  # pixel-pair weights are rescaled to [1, W_MAX]
+# how two pixels' masks make their correspondence C: "binary" (the paper's: 1 iff they share a
+# sampled mask) or "jaccard" (shared masks over the masks covering either; trase.objectives.soft)
+CORRESPONDENCES = ("binary", "jaccard")
 
 
 class ObjectiveInputError(ValueError):

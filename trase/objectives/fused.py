@@ -19,8 +19,11 @@ This module computes the same L_pos, L_neg, n_pos, n_neg (and exact gradients) w
 * The forward also stores one bit per pair (C_F > 0 for soft/all: relu's gradient; hard: "pair
   selected"), packed, V (V - 1) / 16 bytes (1.5 MB at V = 5000).
 * Backward = one more pass without C_F: a numba kernel writes each block's coefficients S
-  (-g_pos W / Z_pos on selected positives, g_neg W / Z_neg on selected negatives with C_F > 0)
-  from the bits and anchors, and two BLAS products add S fn and S^T fn to the gradient.
+  (-g_pos W C / Z_pos on selected positives, g_neg W (1 - C) / Z_neg on selected negatives with
+  C_F > 0) from the bits and anchors, and two BLAS products add S fn and S^T fn to the gradient.
+* The soft correspondence (``correspondence="jaccard"``, soft and all mining): C of a pair is
+  its shared membership bits over the two pixels' counts, recomputed per pair from the bits;
+  C is 0/1 otherwise, and the kernels' soft-only work is compiled out (``cnt`` None).
 Memory: O(V (D + nw)) + the pair bits + one [B, V - i0] block of C_F or S (~4 MB).
 
 Numba kernels run on min(torch threads, numba's pool) threads (one thread: a serial driver).
@@ -35,7 +38,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from trase.objectives.base import PixelSample, check_features
+from trase.objectives.base import CORRESPONDENCES, PixelSample, check_features
 from trase.objectives.fused_kernels import (
     ANCHOR,
     COEF,
@@ -113,8 +116,8 @@ class _Plan:
         return rows.astype(np.float64), cols.sum(axis=0, dtype=np.float64)
 
     def forward(self, fn: torch.Tensor) -> tuple[float, float]:
-        """fn [V, D] normalised features -> (sum of W C_F over selected positives, sum of
-        W relu(C_F) over selected negatives); sets anchors, counts and Z."""
+        """fn [V, D] normalised features -> (sum of W C C_F over selected positives, sum of
+        W (1 - C) relu(C_F) over selected negatives); sets anchors, counts and Z."""
         V = fn.shape[0]
         if V < 2:
             return 0.0, 0.0
@@ -199,7 +202,8 @@ def fused_pair_losses(
       "all" mining; ``side`` and ``normalise`` as ``SoftMining``;
     * ``hard=True``: the individually violating pairs, each term divided by its pair count.
 
-    ``correspondence="jaccard"``: the soft C of ``soft.mask_jaccard`` (soft and all mining).
+    ``correspondence="jaccard"`` (soft and all mining): the soft C of ``soft.mask_jaccard``;
+    positives are the pairs with C > 0 (weighted W C), negatives those with C < 1 (W (1 - C)).
     """
     check_features(features, sample)
     if side not in SIDES:
@@ -207,8 +211,8 @@ def fused_pair_losses(
     member = sample.membership
     valid = member.any(dim=1)  # [Np]
     fn = F.normalize(features[valid], dim=1, eps=1e-12)  # [V, D]; zero features stay zero
-    if correspondence not in ("binary", "jaccard") or (hard and correspondence != "binary"):
-        raise ValueError(f"correspondence {correspondence!r}: 'binary', or 'jaccard' without hard mining")
+    if correspondence not in CORRESPONDENCES or (hard and correspondence != "binary"):
+        raise ValueError(f"correspondence {correspondence!r}: one of {CORRESPONDENCES}, and 'binary' for hard mining")
     member_np = member[valid].cpu().numpy()
     bits = pack_membership(member_np)
     soft = correspondence == "jaccard"

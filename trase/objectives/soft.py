@@ -42,6 +42,7 @@ from __future__ import annotations
 import torch
 
 from trase.objectives.base import (
+    CORRESPONDENCES,
     TAU_NEG,
     TAU_POS,
     Objective,
@@ -57,7 +58,6 @@ from trase.objectives.fused import fused_pair_losses
 ANCHOR_SIDES = ("column", "row", "either")
 NORMALISATIONS = ("anchor_pairs", "selected")
 IMPLS = ("auto", "fused", "reference")
-CORRESPONDENCES = ("binary", "jaccard")
 
 
 def use_fused(impl: str, features: torch.Tensor) -> bool:
@@ -180,13 +180,16 @@ def combine_pair_losses(n_valid: int, features, l_pos, l_neg, n_pos: int, n_neg:
     return loss, stats
 
 
-def weighted_pair_losses_reference(ps: PairStats, pos_pairs, neg_pairs, z_pos, z_neg):
+def weighted_pair_losses_reference(ps: PairStats, pos_pairs, neg_pairs, z_pos, z_neg, pos_scale=None,
+                                   neg_scale=None):
     """Plain form of ``weighted_pair_losses`` with C_F rebuilt in the autograd graph."""
     CF = ps.fn @ ps.fn.T
     zp = max(float(z_pos), 1.0)
     zn = max(float(z_neg), 1.0)
-    l_pos = -(ps.W * CF * pos_pairs).sum() / zp
-    l_neg = (ps.W * torch.relu(CF) * neg_pairs).sum() / zn
+    w_pos = ps.W if pos_scale is None else ps.W * pos_scale
+    w_neg = ps.W if neg_scale is None else ps.W * neg_scale
+    l_pos = -(w_pos * CF * pos_pairs).sum() / zp
+    l_neg = (w_neg * torch.relu(CF) * neg_pairs).sum() / zn
     return l_pos, l_neg
 
 

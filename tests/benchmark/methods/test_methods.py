@@ -136,11 +136,14 @@ def test_render_rule_visible_under_the_cpu_preset_on_a_monocular_rig_only():
 
 
 def test_the_soft_correspondence_on_small_monocular_images_is_trases_own():
+    from benchmark.methods.trase_method import with_objective
     from lazyspecs.presets import Context
 
-    def params(name, monocular, size):
-        ctx = Context(dataset="nerfds" if monocular else "neu3d", monocular=monocular, image_size=size)
-        return get_method(name).resolve_settings("cpu", ctx).config.features.objective_params
+    def params(method, monocular, size, objective=None):
+        ctx = Context(dataset="nerfds" if monocular else "neu3d", monocular=monocular, image_size=size,
+                      objective=objective)
+        method = get_method(method) if isinstance(method, str) else method
+        return method.resolve_settings("cpu", ctx).config.features.objective_params
 
     assert params("trase", True, (64, 48)) == {"correspondence": "jaccard"}
     assert params("trase", False, (48, 36)) == {}  # the multi-view tiny scenes lost under it
@@ -148,6 +151,19 @@ def test_the_soft_correspondence_on_small_monocular_images_is_trases_own():
     for name in ("trase-hard", "trase-all", "opengaussian"):  # chosen on TRASE's loss, not theirs
         assert params(name, True, (64, 48)) == {}, name
     assert params("cgc", True, (64, 48)) == {"min_mask_pixels": "auto"}
+    assert params(with_objective("cgc"), True, (64, 48)) == {}
+    assert params("trase", True, (64, 48), objective="cgc") == {}  # --set method.features.objective=cgc
+
+
+def test_a_parameter_the_objective_does_not_take_stops_the_run_before_any_stage():
+    from benchmark.config import ConfigError
+
+    cfg = TraseMethod().settings("cpu", "hypernerf")
+    cfg.features.objective, cfg.features.objective_params = "cgc", {"correspondence": "jaccard"}
+    with pytest.raises(ConfigError, match="objective_params.correspondence: objective 'cgc' takes no such"):
+        TraseMethod().check_settings(cfg)
+    cfg.features.objective_params = {"min_mask_pixels": 12}
+    TraseMethod().check_settings(cfg)
 
 
 def test_each_click_is_lifted_in_its_own_frame(monkeypatch):

@@ -51,7 +51,9 @@ def _check_kernel_suites(s: dict) -> None:
     assert real["loss_abs_diff"] < 1e-5 and ft["whole_step_real_scale"]["feature_max_abs_diff"] < 1e-5
     assert real["ceiling_free_objective"] >= real["ratio_bound"] > 0
     assert ft["operators"]["bytes_per_view"] > 0
-    assert all(o["fused_jaccard_s"]["median"] > 0 for o in ft["objective_alone"])
+    for o in ft["objective_alone"]:  # the soft C's fused kernels against its dense form
+        soft = o["jaccard_vs_reference"]
+        assert soft["stats_equal"] and soft["loss_abs_diff"] < 1e-4 and soft["grad_max_rel_diff"] < 1e-4
     step = ft["steps"][0]
     assert step["max_abs_rendered_diff"] < 1e-4 and step["loss_abs_diff"] < 1e-4
     assert step["fastpath_render_s"]["median"] > 0 and step["rasterizer_render_s"]["median"] > 0

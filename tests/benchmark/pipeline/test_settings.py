@@ -155,3 +155,12 @@ def test_a_scheduled_geometry_key_names_the_schedules_code_version_and_the_other
     on = SimpleNamespace(scene_key="abc", settings=_settings("geometry.train.resolution_schedule=frequency"))
     assert geometry_key_inputs(off) == {"scene": "abc"}  # the keys of before
     assert geometry_key_inputs(on) == {"scene": "abc", "resolution_schedule_version": str(SCHEDULE_VERSION)}
+
+
+def test_a_set_objective_reads_the_presets_declarations_for_it():
+    """TRASE's rule for its own objective (the soft correspondence on small monocular images)
+    does not follow a run that trains another objective through --set."""
+    own = _settings(size=(64, 48))
+    assert own.method.features.objective_params == {"correspondence": "jaccard"}
+    other = _settings("method.features.objective=trase-all", size=(64, 48))
+    assert other.method.features.objective == "trase-all" and other.method.features.objective_params == {}

@@ -54,8 +54,10 @@ def test_bad_shapes_fail_clearly():
         pair_stats(torch.zeros(3, 4), s)
 
 
-def test_fused_pair_losses_match_reference_values_and_gradients():
+@pytest.mark.parametrize("soft", [False, True], ids=["binary C", "soft C"])
+def test_fused_pair_losses_match_reference_values_and_gradients(soft):
     from trase.objectives.soft import (
+        mask_jaccard,
         select_pairs,
         soft_anchors,
         weighted_pair_losses,
@@ -74,7 +76,12 @@ def test_fused_pair_losses_match_reference_values_and_gradients():
         ps = pair_stats(x, s)
         pa, na = soft_anchors(ps)
         pos, neg, pc, nc = select_pairs(ps, pa, na)
-        lp, ln = fn(ps, pos, neg, pc.sum(), nc.sum())
+        scales = (None, None)
+        if soft:  # the soft C's weights on the same selection
+            share = mask_jaccard(member[ps.valid]).double()
+            scales = (share, 1.0 - share)
+            assert ((share > 0) & (share < 1)).any()
+        lp, ln = fn(ps, pos, neg, pc.sum(), nc.sum(), *scales)
         (lp + ln).backward()
         grads.append((lp.item(), ln.item(), x.grad.clone()))
     assert grads[0][0] == pytest.approx(grads[1][0], abs=1e-12)

@@ -55,6 +55,22 @@ def test_a_shared_large_mask_pulls_half_and_pushes_half():
     assert torch.isfinite(f.grad).all() and f.grad.abs().sum() > 0
 
 
+def test_an_imperfect_positive_with_a_shared_large_mask_pulls_by_half():
+    # pixels 0 and 1 share the large mask b only (C = 1/2) and are orthogonal: an imperfect
+    # positive weighted W / 2; pixel 2 shares both of pixel 0's masks (C = 1)
+    s = _sample([[1, 1], [0, 1], [1, 1]], areas=[2.0, 3.0])
+    f = torch.tensor([[1.0, 0.0], [0.0, 1.0], [1.0, 0.0]], requires_grad=True)
+    _, stats = SoftMining(correspondence="jaccard", impl="reference")(f, s)
+    ps = pair_stats(f, s)
+    # positive anchors (column side): 1 (partner 0, C_F 0) -> pair (0, 1); 2's only imperfect
+    # positive partner is 1 -> pairs (0, 2), (1, 2); Z_pos = 1 + 2
+    expected = -(ps.W[0, 1] * 0.5 * ps.CF[0, 1] + ps.W[0, 2] * 1.0 * ps.CF[0, 2] + ps.W[1, 2] * 0.5 * ps.CF[1, 2]) / 3
+    assert stats["loss_pos"] == pytest.approx(float(expected), rel=1e-6)
+    assert stats["n_pos"] == 3
+    _, fused = SoftMining(correspondence="jaccard", impl="fused")(f.detach().clone(), s)
+    assert fused == pytest.approx(stats)
+
+
 def test_jaccard_on_degenerate_inputs_is_finite():
     obj = SoftMining(correspondence="jaccard")
     for s, f in [(_sample([[1]] * 4), torch.randn(4, 3)), (_sample([[0], [0]]), torch.randn(2, 3)),
