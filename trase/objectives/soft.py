@@ -147,7 +147,8 @@ def weighted_pair_losses(ps: PairStats, pos_pairs, neg_pairs, z_pos, z_neg, pos_
 
     W and the selections are constants, so each term is ``ps.pair_sum(coef)`` with one
     constant coefficient matrix (relu folded in as the mask C_F > 0, which is also its exact
-    gradient). Z is clamped to >= 1, so empty selections give 0.
+    gradient). Z is clamped to >= 1, so empty selections give 0. ``pos_scale`` / ``neg_scale``
+    [V, V]: factors of W per pair (the soft correspondence's C and 1 - C), None: 1.
     ``weighted_pair_losses_reference`` is the literal element-wise form the tests compare."""
     W, CF = ps.W, ps.CF
     zp = max(float(z_pos), 1.0)
