@@ -40,8 +40,8 @@ class AllMining(SoftMining):
         # soft anchor test with these thresholds is exactly the "all" rule
         return math.inf, -math.inf
 
-    def anchors(self, ps, positive=None, negative=None):
-        return all_anchors(ps, positive, negative)
+    def anchors(self, ps):
+        return all_anchors(ps)
 
 
 def all_mining_loss(

@@ -87,14 +87,10 @@ class HardMining(Objective):
 
     def __init__(
         self, tau_pos: float = TAU_POS, tau_neg: float = TAU_NEG, reg_weight: float = 1.0,
-        impl: str = "auto", correspondence: str = "binary",
+        impl: str = "auto",
     ) -> None:
         super().__init__()
         check_thresholds(tau_pos, tau_neg)
-        if correspondence != "binary":
-            # one selection bit per pair in the fused kernels: a soft C pair can be selected as
-            # a positive and as a negative at once
-            raise ValueError(f"hard mining reads the binary correspondence only, got {correspondence!r}")
         if impl not in IMPLS:
             raise ValueError(f"impl must be one of {IMPLS}, got {impl!r}")
         self.impl = impl

@@ -192,11 +192,11 @@ TRASE_PRESETS.declare("cpu", when=TINY_IMAGES, render_rule="visible")
 # scenes the same (docs/notes/corrective-clicks.md, "A click on a selected cluster").
 TRASE_PRESETS.declare("cpu", {"prompts.on_selected": "next"}, when=TINY_IMAGES)
 # ... and on a monocular rig TRASE's objective reads the soft correspondence (C = shared
-# masks over the masks covering either pixel, trase.objectives.soft), the paper's proposal for
-# small objects that a larger mask also covers. Why: with 3-6 views of 64 x 48 px the masks that merge a small
-# object with the floor around it weigh as much as those that separate it (the seed-0 NeRF-DS
-# format's ring: merged in 2 of 6 views, dropped in 2), and the binary C reads them as "the same
-# object". Chosen on the seed-1..3 tiny monocular scenes, ground-truth geometry: mIoU 0.856 ->
+# masks over the masks covering either pixel, trase.objectives.base.mask_jaccard), the paper's
+# proposal for small objects that a larger mask also covers. Why: with 3-6 views of 64 x 48 px
+# the masks that merge a small object with the floor around it weigh as much as those that
+# separate it (the seed-0 NeRF-DS format's ring: merged in 2 of 6 views, dropped in 2), and the
+# binary C reads them as "the same object". Chosen on the seed-1..3 tiny monocular scenes, ground-truth geometry: mIoU 0.856 ->
 # 0.915, 0.844 -> 0.897, 0.807 -> 0.902 (NeRF-DS format), 0.879 -> 0.877, 0.878 -> 0.899, 0.897
 # -> 0.901 (HyperNeRF), each its oracle. Not on the multi-view rigs: their seed-1 tiny scenes lost
 # (Neu3D format 0.584 -> 0.511, Technicolor 0.840 -> 0.814; Immersive 0.599 -> 0.624)

@@ -228,7 +228,7 @@ def _resolve(method, ctx: Context, overrides: dict, masks: dict, extra: dict) ->
     seed = run_seed(overrides)
     ctx = dataclasses.replace(ctx, device=_device_here())
     preset, auto_preset = take_preset(overrides, ctx.device)
-    ctx = dataclasses.replace(ctx, objective=_objective_asked(overrides))
+    ctx = dataclasses.replace(ctx, objective=flatten(overrides).get("method.features.objective"))  # --set's
     geometry = GEOMETRY_PRESETS.resolve(preset, ctx)
     resolved = method.resolve_settings(preset, ctx)
     asked = overrides.get("method", {}).get("preset") if isinstance(overrides.get("method"), dict) else None
@@ -252,14 +252,6 @@ def _resolve(method, ctx: Context, overrides: dict, masks: dict, extra: dict) ->
     settings.group_hash = config_hash(recorded_settings({**group, "masks": recorded_masks(group["masks"])}))
     settings.is_default = preset == auto_preset and group == default
     return settings
-
-
-def _objective_asked(overrides: dict) -> str | None:
-    """``--set method.features.objective=NAME``'s name, None without it."""
-    method = overrides.get("method")
-    features = method.get("features") if isinstance(method, dict) else None
-    name = features.get("objective") if isinstance(features, dict) else None
-    return str(name) if name is not None else None
 
 
 def _with_devices(cfg: dict, settings: RunSettings) -> dict:

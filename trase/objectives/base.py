@@ -101,6 +101,25 @@ class PairStats:
     W: torch.Tensor  # [V, V] pair weights in [1, W_MAX]
     upper: torch.Tensor  # [V, V] bool: i < j (non-redundant pairs)
     fn: torch.Tensor  # [V, D] L2-normalised features of the valid pixels (differentiable)
+    # [V, V] the soft correspondence (``mask_jaccard``) when the objective reads it; None: binary
+    share: torch.Tensor | None = None
+
+    @property
+    def positive(self) -> torch.Tensor:
+        """[V, V] bool: the pairs that count as positives (C = 1; soft: C > 0)."""
+        return self.C if self.share is None else self.share > 0
+
+    @property
+    def negative(self) -> torch.Tensor:
+        """[V, V] bool: the pairs that count as negatives (C = 0; soft: C < 1)."""
+        return ~self.C if self.share is None else self.share < 1
+
+    def pair_weights(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """([V, V] weight of each pair as a positive, as a negative): W, W (binary C) or
+        W C, W (1 - C) (soft)."""
+        if self.share is None:
+            return self.W, self.W
+        return self.W * self.share, self.W * (1.0 - self.share)
 
     def pair_sum(self, coef: torch.Tensor) -> torch.Tensor:
         """sum_ij coef_ij C_F[i, j] for a constant coef [V, V], differentiable w.r.t. features.
@@ -171,9 +190,21 @@ def pair_weights_reference(mean_area: torch.Tensor) -> torch.Tensor:
     return W.to(torch.float32)
 
 
-def pair_stats(features: torch.Tensor, sample: PixelSample) -> PairStats:
-    """Correspondence C, feature cosine C_F and weights W over the valid sampled pixels."""
+def mask_jaccard(member: torch.Tensor) -> torch.Tensor:
+    """[V, M] bool membership of pixels in >= 1 mask -> [V, V] float32: shared masks over the
+    masks covering either pixel (the soft correspondence; 1 on the diagonal)."""
+    m = member.to(torch.float32)
+    shared = m @ m.T  # [V, V] counts, exact in float32 for M < 2^24
+    count = m.sum(dim=1)  # [V] >= 1
+    return shared / (count[:, None] + count[None, :] - shared)
+
+
+def pair_stats(features: torch.Tensor, sample: PixelSample, correspondence: str = "binary") -> PairStats:
+    """Correspondence C (and the soft one where asked), feature cosine C_F and weights W over
+    the valid sampled pixels."""
     check_features(features, sample)
+    if correspondence not in CORRESPONDENCES:
+        raise ValueError(f"correspondence must be one of {CORRESPONDENCES}, got {correspondence!r}")
     member = sample.membership
     valid = member.any(dim=1)  # [Np]
     m = member[valid].to(torch.float32)  # [V, M]
@@ -184,7 +215,8 @@ def pair_stats(features: torch.Tensor, sample: PixelSample) -> PairStats:
     W = pair_weights(sample.pixel_mean_area[valid]).to(features.dtype)
     V = int(valid.sum())
     upper = torch.ones(V, V, dtype=torch.bool, device=features.device).triu(diagonal=1)
-    return PairStats(valid=valid, C=C, CF=CF, W=W, upper=upper, fn=f)
+    share = mask_jaccard(member[valid]).to(features.dtype) if correspondence == "jaccard" else None
+    return PairStats(valid=valid, C=C, CF=CF, W=W, upper=upper, fn=f, share=share)
 
 
 def norm_regulariser(features: torch.Tensor) -> torch.Tensor:

@@ -76,33 +76,19 @@ def _any_offdiag(m: torch.Tensor) -> torch.Tensor:
     return m.any(dim=0)
 
 
-def soft_anchors(ps: PairStats, tau_pos: float = TAU_POS, tau_neg: float = TAU_NEG,
-                 positive: torch.Tensor | None = None, negative: torch.Tensor | None = None):
+def soft_anchors(ps: PairStats, tau_pos: float = TAU_POS, tau_neg: float = TAU_NEG):
     """-> (pos_anchor [V] bool, neg_anchor [V] bool): pixels with at least one imperfect
-    positive (C=1, C_F < tau_pos) or negative (C=0, C_F > tau_neg) partner, diagonal excluded.
-    ``positive`` / ``negative`` [V, V] bool: the pairs that count as such (default C, ~C)."""
+    positive (``ps.positive``, C_F < tau_pos) or negative (``ps.negative``, C_F > tau_neg)
+    partner, diagonal excluded."""
     CF = ps.CF.detach()
-    positive = ps.C if positive is None else positive
-    negative = ~ps.C if negative is None else negative
-    pos = _any_offdiag(positive & (CF < tau_pos))
-    neg = _any_offdiag(negative & (CF > tau_neg))
+    pos = _any_offdiag(ps.positive & (CF < tau_pos))
+    neg = _any_offdiag(ps.negative & (CF > tau_neg))
     return pos, neg
 
 
-def mask_jaccard(member: torch.Tensor) -> torch.Tensor:
-    """[V, M] bool membership of pixels in >= 1 mask -> [V, V] float32: shared masks over the
-    masks covering either pixel (the soft correspondence; 1 on the diagonal)."""
-    m = member.to(torch.float32)
-    shared = m @ m.T  # [V, V] counts, exact in float32 for M < 2^24
-    count = m.sum(dim=1)  # [V] >= 1
-    return shared / (count[:, None] + count[None, :] - shared)
-
-
-def all_anchors(ps: PairStats, positive: torch.Tensor | None = None, negative: torch.Tensor | None = None):
+def all_anchors(ps: PairStats):
     """-> (pos_anchor, neg_anchor): pixels with any positive / any negative partner ("all")."""
-    positive = ps.C if positive is None else positive
-    negative = ~ps.C if negative is None else negative
-    return _any_offdiag(positive.clone()), _any_offdiag(negative.clone())
+    return _any_offdiag(ps.positive.clone()), _any_offdiag(ps.negative.clone())
 
 
 def anchor_pair_count(anchor: torch.Tensor, side: str = "column") -> int:
@@ -136,26 +122,25 @@ def select_pairs(ps: PairStats, pos_anchor, neg_anchor, side: str = "column"):
     """-> (pos_pairs, neg_pairs, pos_candidates, neg_candidates), all [V, V] bool.
 
     candidates: upper pairs on an anchor of that kind (the public code's Z); pairs: the
-    candidates that are positive (C) resp. negative (~C)."""
+    candidates that are positive (``ps.positive``) resp. negative (``ps.negative``)."""
     pos_cand = anchor_pairs(pos_anchor, ps.upper, side)
     neg_cand = anchor_pairs(neg_anchor, ps.upper, side)
-    return pos_cand & ps.C, neg_cand & ~ps.C, pos_cand, neg_cand
+    return pos_cand & ps.positive, neg_cand & ps.negative, pos_cand, neg_cand
 
 
-def weighted_pair_losses(ps: PairStats, pos_pairs, neg_pairs, z_pos, z_neg, pos_scale=None, neg_scale=None):
-    """L_pos = -sum(W C_F)/Z_pos over pos_pairs, L_neg = sum(W relu(C_F))/Z_neg over neg_pairs.
+def weighted_pair_losses(ps: PairStats, pos_pairs, neg_pairs, z_pos, z_neg):
+    """L_pos = -sum(W C_F)/Z_pos over pos_pairs, L_neg = sum(W relu(C_F))/Z_neg over neg_pairs
+    (W C and W (1 - C) with the soft correspondence: ``PairStats.pair_weights``).
 
     W and the selections are constants, so each term is ``ps.pair_sum(coef)`` with one
     constant coefficient matrix (relu folded in as the mask C_F > 0, which is also its exact
-    gradient). Z is clamped to >= 1, so empty selections give 0. ``pos_scale`` / ``neg_scale``
-    [V, V]: factors of W per pair (the soft correspondence's C and 1 - C), None: 1.
+    gradient). Z is clamped to >= 1, so empty selections give 0.
     ``weighted_pair_losses_reference`` is the literal element-wise form the tests compare."""
-    W, CF = ps.W, ps.CF
+    CF = ps.CF
     zp = max(float(z_pos), 1.0)
     zn = max(float(z_neg), 1.0)
-    zero = W.new_zeros(())
-    w_pos = W if pos_scale is None else W * pos_scale
-    w_neg = W if neg_scale is None else W * neg_scale
+    w_pos, w_neg = ps.pair_weights()
+    zero = w_pos.new_zeros(())
     l_pos = -ps.pair_sum(torch.where(pos_pairs, w_pos, zero)) / zp
     l_neg = ps.pair_sum(torch.where(neg_pairs & (CF > 0), w_neg, zero)) / zn
     return l_pos, l_neg
@@ -181,14 +166,12 @@ def combine_pair_losses(n_valid: int, features, l_pos, l_neg, n_pos: int, n_neg:
     return loss, stats
 
 
-def weighted_pair_losses_reference(ps: PairStats, pos_pairs, neg_pairs, z_pos, z_neg, pos_scale=None,
-                                   neg_scale=None):
+def weighted_pair_losses_reference(ps: PairStats, pos_pairs, neg_pairs, z_pos, z_neg):
     """Plain form of ``weighted_pair_losses`` with C_F rebuilt in the autograd graph."""
     CF = ps.fn @ ps.fn.T
     zp = max(float(z_pos), 1.0)
     zn = max(float(z_neg), 1.0)
-    w_pos = ps.W if pos_scale is None else ps.W * pos_scale
-    w_neg = ps.W if neg_scale is None else ps.W * neg_scale
+    w_pos, w_neg = ps.pair_weights()
     l_pos = -(w_pos * CF * pos_pairs).sum() / zp
     l_neg = (w_neg * torch.relu(CF) * neg_pairs).sum() / zn
     return l_pos, l_neg
@@ -230,8 +213,8 @@ class SoftMining(Objective):
         positive (negative) partner an anchor ("all" mining)."""
         return self.tau_pos, self.tau_neg
 
-    def anchors(self, ps: PairStats, positive=None, negative=None):
-        return soft_anchors(ps, *self.thresholds(), positive=positive, negative=negative)
+    def anchors(self, ps: PairStats):
+        return soft_anchors(ps, *self.thresholds())
 
     def forward(self, features: torch.Tensor, sample: PixelSample) -> tuple[torch.Tensor, dict]:
         """features [Np, D] rendered at sample.pixels -> (loss, stats)."""
@@ -246,20 +229,15 @@ class SoftMining(Objective):
 
     def forward_reference(self, features: torch.Tensor, sample: PixelSample) -> tuple[torch.Tensor, dict]:
         """The dense torch form (readable; the tests compare ``forward`` against it)."""
-        ps = pair_stats(features, sample)
-        positive, negative, pos_scale, neg_scale = ps.C, ~ps.C, None, None
-        if self.correspondence == "jaccard":
-            pos_scale = mask_jaccard(sample.membership[ps.valid]).to(features.dtype)  # [V, V]
-            positive, negative, neg_scale = pos_scale > 0, pos_scale < 1, 1.0 - pos_scale
-        pos_a, neg_a = self.anchors(ps, positive, negative)
-        pos = anchor_pairs(pos_a, ps.upper, self.anchor_side) & positive
-        neg = anchor_pairs(neg_a, ps.upper, self.anchor_side) & negative
+        ps = pair_stats(features, sample, self.correspondence)
+        pos_a, neg_a = self.anchors(ps)
+        pos, neg, _, _ = select_pairs(ps, pos_a, neg_a, self.anchor_side)
         n_pos, n_neg = int(torch.count_nonzero(pos)), int(torch.count_nonzero(neg))
         if self.normalise == "anchor_pairs":
             z_pos = anchor_pair_count(pos_a, self.anchor_side)
             z_neg = anchor_pair_count(neg_a, self.anchor_side)
         else:
             z_pos, z_neg = n_pos, n_neg
-        l_pos, l_neg = weighted_pair_losses(ps, pos, neg, z_pos, z_neg, pos_scale, neg_scale)
+        l_pos, l_neg = weighted_pair_losses(ps, pos, neg, z_pos, z_neg)
         return combine_pair_losses(ps, regulariser_features(features, sample), l_pos, l_neg, n_pos, n_neg,
                                    self.reg_weight)

@@ -164,6 +164,9 @@ def test_a_parameter_the_objective_does_not_take_stops_the_run_before_any_stage(
         TraseMethod().check_settings(cfg)
     cfg.features.objective_params = {"min_mask_pixels": 12}
     TraseMethod().check_settings(cfg)
+    cfg.features.objective, cfg.features.objective_params = "trase-hard", {"correspondence": "jaccard"}
+    with pytest.raises(ConfigError, match="objective 'trase-hard' takes no such parameter"):
+        TraseMethod().check_settings(cfg)
 
 
 def test_each_click_is_lifted_in_its_own_frame(monkeypatch):

@@ -57,7 +57,6 @@ def test_bad_shapes_fail_clearly():
 @pytest.mark.parametrize("soft", [False, True], ids=["binary C", "soft C"])
 def test_fused_pair_losses_match_reference_values_and_gradients(soft):
     from trase.objectives.soft import (
-        mask_jaccard,
         select_pairs,
         soft_anchors,
         weighted_pair_losses,
@@ -73,15 +72,12 @@ def test_fused_pair_losses_match_reference_values_and_gradients(soft):
     grads = []
     for fn in (weighted_pair_losses, weighted_pair_losses_reference):
         x = f.clone().requires_grad_(True)
-        ps = pair_stats(x, s)
+        ps = pair_stats(x, s, "jaccard" if soft else "binary")
         pa, na = soft_anchors(ps)
         pos, neg, pc, nc = select_pairs(ps, pa, na)
-        scales = (None, None)
-        if soft:  # the soft C's weights on the same selection
-            share = mask_jaccard(member[ps.valid]).double()
-            scales = (share, 1.0 - share)
-            assert ((share > 0) & (share < 1)).any()
-        lp, ln = fn(ps, pos, neg, pc.sum(), nc.sum(), *scales)
+        if soft:  # C strictly between 0 and 1 somewhere: weights W C and W (1 - C)
+            assert ((ps.share > 0) & (ps.share < 1)).any()
+        lp, ln = fn(ps, pos, neg, pc.sum(), nc.sum())
         (lp + ln).backward()
         grads.append((lp.item(), ln.item(), x.grad.clone()))
     assert grads[0][0] == pytest.approx(grads[1][0], abs=1e-12)

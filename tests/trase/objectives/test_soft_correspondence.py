@@ -5,8 +5,8 @@ import torch
 
 from baselines.all_mining import AllMining
 from tests.trase.objectives.test_soft import _sample
-from trase.objectives.base import pair_stats
-from trase.objectives.soft import SoftMining, mask_jaccard
+from trase.objectives.base import mask_jaccard, pair_stats
+from trase.objectives.soft import SoftMining
 
 
 def test_jaccard_values_by_hand():
@@ -84,8 +84,9 @@ def test_jaccard_on_degenerate_inputs_is_finite():
 def test_bad_correspondence_options_fail():
     with pytest.raises(ValueError, match="correspondence must be one of"):
         SoftMining(correspondence="soft")
-    from baselines.hard_mining import HardMining
+    from trase.objectives.fused import fused_pair_losses
 
-    with pytest.raises(ValueError, match="binary correspondence only"):
-        HardMining(correspondence="jaccard")
-    assert HardMining(correspondence="binary").impl == "auto"
+    s = _sample([[1, 1], [0, 1]])
+    # hard mining's kernels keep one selection bit per pair: a soft pair can be both kinds
+    with pytest.raises(ValueError, match="'binary' for hard mining"):
+        fused_pair_losses(torch.randn(2, 3), s, hard=True, tau_pos=0.75, tau_neg=0.5, correspondence="jaccard")
