@@ -50,7 +50,7 @@ from trase.gaussians import GaussianModel
 from trase.losses import l1_loss, mean_squared_error, opacity_entropy, psnr, ssim
 from trase.reconstruction_config import ReconstructionConfig, expon_lr, time_noise_scale
 from trase.render_views import render_view
-from trase.resolution_schedule import scaled_views
+from trase.resolution_schedule import config_schedule, scaled_views
 from trase.static_checks import check_static, restart_static_checks
 from trase.trainer import Trainer, new_trainer, resumed_trainer, save_trainer
 from trase.training_images import ImageCache
@@ -125,8 +125,9 @@ def _reconstruct(views, points, point_colors, config, out_dir, resume, progress,
         tr = new_trainer(points, point_colors, cfg, dev, strategy, gen, static)
     if not held:
         tr.plateau = None  # none held out (too few views, or no stop possible): the full schedule
-    tr.scaled = scaled_views(data, cfg, len(points))
-    strategy.cap_at = tr.scaled.schedule.cap_at if tr.scaled is not None else None
+    schedule = config_schedule(data, cfg, len(points))
+    tr.scaled = scaled_views(data, cfg, schedule)
+    strategy.cap_at = schedule.cap_at if schedule is not None else None
     if tr.plateau is None or tr.plateau.stopped_at is None:  # a run that stopped when converged is done
         _train(tr, data, bg, cfg, out_dir, start, progress, backend, max_seconds, held_data)
     if cfg.stop_interval > 0:

@@ -10,7 +10,7 @@ import re
 
 DENSIFY_STATISTICS = ("means2d", "lstsq")
 RESOLUTION_SCHEDULES = ("off", "frequency")  # trase.resolution_schedule
-PRIMITIVE_SCHEDULES = ("off", "resolution")
+PRIMITIVE_SCHEDULES = ("off", "resolution", "frequency")
 DEFORM_PRESETS = {"paper": (8, 256), "small": (4, 64)}  # name -> (depth D, width W)
 
 
@@ -60,8 +60,10 @@ class ReconstructionConfig:
     resolution_schedule: str = "off"
     resolution_max_factor: float = 4.0
     resolution_until: int = 0
-    # with a resolution schedule, "resolution" caps the gaussian count at max_gaussians x the
-    # share of pixels rendered (grow with the resolution); "off": the configured cap throughout
+    # the gaussian cap growing with the detail fitted: "resolution" (with a resolution schedule)
+    # caps the count at max_gaussians x the share of pixels rendered; "frequency" at the share
+    # the frequency schedule would render (resolution_max_factor, resolution_until) whether or
+    # not the views render small; "off": the configured cap throughout
     primitive_schedule: str = "off"
     # appearance
     sh_degree: int = 3
@@ -162,8 +164,9 @@ class ReconstructionConfig:
         if not (self.resolution_max_factor >= 1 and self.resolution_until >= 0):
             raise ValueError(f"resolution_max_factor must be >= 1 and resolution_until >= 0, got "
                              f"{self.resolution_max_factor} and {self.resolution_until}")
-        if self.primitive_schedule != "off" and self.resolution_schedule == "off":
-            raise ValueError("primitive_schedule follows the resolution: it needs a resolution_schedule")
+        if self.primitive_schedule == "resolution" and self.resolution_schedule == "off":
+            raise ValueError("primitive_schedule 'resolution' follows the rendered size: it needs a resolution_schedule "
+                             "('frequency' follows the images' spectrum at full size)")
         if self.densify_statistic not in DENSIFY_STATISTICS:
             raise ValueError(f"densify_statistic must be one of {', '.join(DENSIFY_STATISTICS)}, "
                              f"got {self.densify_statistic!r}")

@@ -1,6 +1,7 @@
 """Resolution and primitive schedules of the reconstruction: render the training views small
 while the optimisation fits their low frequencies, and grow the gaussian count with the
-resolution instead of densifying to the cap early.
+resolution instead of densifying to the cap early (or with the resolution the spectrum asks
+for, while the views render at full size).
 
 The idea is DashGaussian's (CVPR 2025), written anew here: an image's spectral energy sits
 mostly at low frequencies, so the first iterations need few pixels. The schedule is set by the
@@ -132,15 +133,24 @@ class ScaledViews:
         return self._cache[key]
 
 
-def scaled_views(data, cfg, start_gaussians: int) -> ScaledViews | None:
-    """The scaled views of ``cfg``'s resolution schedule (a ReconstructionConfig), None where it
-    is off."""
-    if cfg.resolution_schedule == "off" or not len(data):
+def config_schedule(data, cfg, start_gaussians: int) -> ResolutionSchedule | None:
+    """The schedule ``cfg`` (a ReconstructionConfig) asks of these training views: for the
+    rendered size, the gaussian cap or both; None where neither schedule is on."""
+    if (cfg.resolution_schedule == "off" and cfg.primitive_schedule == "off") or not len(data.images):
         return None
     cam = data.cameras[0]
-    schedule = make_schedule(data.images, cam.width, cam.height, cfg.resolution_max_factor,
-                             cfg.resolution_until or cfg.densify_until, cfg.primitive_schedule == "resolution",
-                             cfg.max_gaussians, start_gaussians)
+    return make_schedule(data.images, cam.width, cam.height, cfg.resolution_max_factor,
+                         cfg.resolution_until or cfg.densify_until, cfg.primitive_schedule != "off",
+                         cfg.max_gaussians, start_gaussians)
+
+
+def scaled_views(data, cfg, schedule: ResolutionSchedule | None) -> ScaledViews | None:
+    """The views at each iteration's size under ``schedule``, None where ``cfg`` renders them at
+    full size throughout (the resolution schedule off)."""
+    if cfg.resolution_schedule == "off" or schedule is None:
+        return None
     return ScaledViews(data, schedule)
-__all__ = ["SCHEDULE_VERSION", "ResolutionSchedule", "ScaledViews", "band_energy", "candidate_factors", "downscaled", "make_schedule",
-           "scaled_views"]
+
+
+__all__ = ["SCHEDULE_VERSION", "ResolutionSchedule", "ScaledViews", "band_energy", "candidate_factors", "config_schedule",
+           "downscaled", "make_schedule", "scaled_views"]

@@ -32,7 +32,7 @@ from benchmark.perf import SUITES, get_suite, machine_info
               help="Methods for suites that compare them (methods; default: every registered method).")
 @click.option("--variant", "variant_names", multiple=True, metavar="NAME",
               help="Only these variants, for suites that measure several (skip: full, static, converged, "
-                   "resolution, resolution+primitives; keep full for the ratios to it; repeatable).")
+                   "resolution, resolution+primitives, primitives; keep full for the ratios to it; repeatable).")
 @click.option("--threads", type=click.IntRange(min=1), default=None,
               help="Threads for torch and numba (default: theirs, all cores). On a shared, loaded "
                    "machine --threads 1 gives the steadiest side-by-side ratios.")

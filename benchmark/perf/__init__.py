@@ -40,7 +40,8 @@ SUITES.add("dnerf", "benchmark.perf.dnerf:run",
 SUITES.add("methods", "benchmark.perf.methods:run",
            "Every method's feature stage on one scene, a fresh process each: ms per step, stage time, peak memory.")
 SUITES.add("skip", "benchmark.perf.skip:run",
-           "Skipping what a scene does not need (static gaussians, stages stopped when converged), on and off per "
+           "Skipping what a scene does not need (static gaussians, stages stopped when converged, resolution and "
+           "primitive schedules), on and off per "
            "format: stage seconds, PSNR, ceiling, mIoU; a PNG per format with the Pareto front.")
 SUITES.add("frames", "benchmark.perf.frames:run",
            "How much new content each frame of a monocular sequence carries (built-in formats, D-NeRF --scene): "

@@ -68,9 +68,11 @@ QUICK_SCENE = ["geometry.train.warm_up=10", "geometry.train.static_from=10", "ge
 FULL = ["method.features.stop_interval=0"]  # the cpu preset stops the feature stage; "full" runs every step
 
 
-# the reconstruction rendered small first (trase.resolution_schedule), and its gaussians grown with it
+# the reconstruction rendered small first (trase.resolution_schedule), and its gaussians grown with it;
+# or the gaussians grown with the spectrum while the views render at full size
 RESOLUTION = ["geometry.train.resolution_schedule=frequency"]
 PRIMITIVES = [*RESOLUTION, "geometry.train.primitive_schedule=resolution"]
+PRIMITIVES_ALONE = ["geometry.train.primitive_schedule=frequency"]
 
 
 def variants(threshold: float, quick: bool = False, names: list[str] | None = None) -> dict[str, list[str]]:
@@ -79,7 +81,8 @@ def variants(threshold: float, quick: bool = False, names: list[str] | None = No
                                      f"geometry.train.static_time_gap={STATIC_TIME_GAP}",
                                      f"geometry.train.static_hold_error={STATIC_HOLD_ERROR}"],
             "converged": converged(QUICK_STOP_INTERVAL if quick else STOP_INTERVAL),
-            "resolution": [*FULL, *RESOLUTION], "resolution+primitives": [*FULL, *PRIMITIVES]}
+            "resolution": [*FULL, *RESOLUTION], "resolution+primitives": [*FULL, *PRIMITIVES],
+            "primitives": [*FULL, *PRIMITIVES_ALONE]}
     unknown = [n for n in names or [] if n not in every]
     if unknown:
         raise UserError(f"unknown skip variant(s) {', '.join(unknown)} (the suite's: {', '.join(every)})")

@@ -16,10 +16,11 @@ SOURCES = ("reconstruct", "ground-truth", "import")
 
 def geometry_key_inputs(ctx: SequenceRun) -> dict:
     """The inputs a geometry key hashes besides its settings: the scene, and the resolution
-    schedule's code version where the schedule is on (its older results are not reused, the
+    schedules' code version where either is on (its older results are not reused, the
     others' keys stay as they were)."""
     inputs = {"scene": ctx.scene_key}
-    if ctx.settings.geometry.train.resolution_schedule != "off":
+    train = ctx.settings.geometry.train
+    if train.resolution_schedule != "off" or train.primitive_schedule != "off":
         from trase.resolution_schedule import SCHEDULE_VERSION
 
         inputs["resolution_schedule_version"] = str(SCHEDULE_VERSION)

@@ -98,9 +98,11 @@ AS_BEFORE = {
     "static_hold_error": (0.0, ("static_hold_error",)),  # above the time gap, hold every gaussian back
     "deform_scale_rule": ("clamp", ("deform_scale_rule",)),  # the CPU presets' scale rule, the only one before
     "near_plane": (0.01, ("near_plane",)),  # the rasterizer's near plane, the only one before
-    # full-size renders throughout (trase.resolution_schedule): off
-    "resolution_schedule": ("off", ("resolution_schedule", "resolution_max_factor", "resolution_until")),
+    # full-size renders and the configured cap throughout (trase.resolution_schedule): both off,
+    # and the frequency schedule's settings unread
+    "resolution_schedule": ("off", ("resolution_schedule",)),
     "primitive_schedule": ("off", ("primitive_schedule",)),
+    ("resolution_schedule", "primitive_schedule"): (("off", "off"), ("resolution_max_factor", "resolution_until")),
     "numerics": ("native", ("numerics",)),  # each library's own kernels for this processor (benchmark.numerics)
     # the first clicks alone (the single-click protocol)
     "corrections": (0, ("corrections", "correction_target", "correction_min_gain", "correction_check_frames")),
@@ -116,14 +118,19 @@ AS_BEFORE = {
 }
 
 
+def _as_before(section: dict, key, value) -> bool:
+    """Whether ``section`` holds AS_BEFORE's ``value`` for ``key`` (a tuple of keys: all of them)."""
+    keys, values = (key, value) if isinstance(key, tuple) else ((key,), (value,))
+    return all(k in section and section[k] == v for k, v in zip(keys, values))
+
+
 def recorded_settings(section):
     """``section`` (nested dicts) as a run records and hashes it: in each dict, the settings of
     AS_BEFORE that hold their "as before" value are left out with those named beside them, and
     so is a section those drops leave empty (``machine`` with native numerics)."""
     if not isinstance(section, dict):
         return section
-    dropped = {name for key, (value, names) in AS_BEFORE.items() if key in section and section[key] == value
-               for name in names}
+    dropped = {name for key, (value, names) in AS_BEFORE.items() if _as_before(section, key, value) for name in names}
     out = {k: recorded_settings(v) for k, v in section.items() if k not in dropped}
     return {k: v for k, v in out.items() if v != {} or section[k] == {}}
 

@@ -23,8 +23,10 @@ from trase.resolution_schedule import (
     ScaledViews,
     band_energy,
     candidate_factors,
+    config_schedule,
     downscaled,
     make_schedule,
+    scaled_views,
 )
 
 
@@ -66,6 +68,8 @@ def test_the_settings_are_checked():
         ReconstructionConfig(resolution_schedule="dash")
     with pytest.raises(ValueError, match="needs a resolution_schedule"):
         ReconstructionConfig(primitive_schedule="resolution")
+    with pytest.raises(ValueError, match="primitive_schedule one of"):
+        ReconstructionConfig(primitive_schedule="dash")
     with pytest.raises(ValueError, match="resolution_max_factor must be >= 1"):
         ReconstructionConfig(resolution_max_factor=0.5)
 
@@ -95,3 +99,32 @@ def test_a_scaled_view_camera_fits_its_image_when_the_size_is_rounded():
     np.testing.assert_allclose(corner * [small.width / 160, small.height / 120],
                                [[small.K[0, 0] * (160 - 80) / 150 + small.K[0, 2],
                                  small.K[1, 1] * (120 - 60) / 150 + small.K[1, 2]]], atol=1e-9)
+
+
+def test_the_frequency_cap_grows_with_the_spectrum_while_the_views_render_at_full_size():
+    """primitive_schedule "frequency" without a resolution schedule: the cap follows the sizes the
+    spectrum asks for, the views stay full size; with both schedules off there is no schedule."""
+    rng = np.random.default_rng(0)
+    cam = Camera(K=intrinsics(60.0, 60.0, 32.0, 32.0), w2c=np.eye(4), width=64, height=64)
+    data = SimpleNamespace(cameras=[cam] * 3, images=[torch.from_numpy(rng.random((64, 64, 3), dtype=np.float32))] * 3)
+    cfg = ReconstructionConfig(primitive_schedule="frequency", max_gaussians=1000, densify_until=100)
+    schedule = config_schedule(data, cfg, start_gaussians=50)
+    assert schedule is not None and scaled_views(data, cfg, schedule) is None
+    assert 50 <= schedule.cap_at(0) < 1000 and schedule.cap_at(100) == 1000
+    assert [schedule.cap_at(i) for i in range(0, 101, 10)] == sorted(schedule.cap_at(i) for i in range(0, 101, 10))
+    both = dataclasses.replace(cfg, resolution_schedule="frequency")
+    assert config_schedule(data, both, 50).cap_at(0) == schedule.cap_at(0) and scaled_views(data, both, schedule) is not None
+    assert config_schedule(data, ReconstructionConfig(max_gaussians=1000), 50) is None
+
+
+def test_a_reconstruction_under_the_frequency_cap_alone_keeps_below_it(tmp_path):
+    views, pts, _, _ = write_scene(tmp_path / "images", num=6, size=64)
+    early = {}
+    for rule in ("off", "frequency"):  # 20 iterations of a schedule whose cap reaches full at 35
+        cfg = reconstruction_preset("cpu", iterations=20, warm_up=15, densify_from=10, densify_until=35,
+                                    densify_interval=10, checkpoint_interval=20, time_noise_steps=20,
+                                    position_lr_max_steps=40, deform_lr_max_steps=40, max_gaussians=len(pts) + 400,
+                                    densify_grad_threshold=1e-9, primitive_schedule=rule)
+        g, _ = reconstruct(views, pts, None, cfg, tmp_path / f"m-{rule}", progress=False)
+        early[rule] = g.num_gaussians
+    assert early["frequency"] < early["off"] <= len(pts) + 400

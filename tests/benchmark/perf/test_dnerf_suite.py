@@ -60,7 +60,7 @@ def test_perf_skip_measures_each_skip_on_a_dnerf_scene(tmp_path, monkeypatch):
                    out_dir=tmp_path / "out")
     assert not out["failed"], out["runs"]
     full, _, converged, *_ = out["runs"]
-    assert [r["variant"] for r in out["runs"]] == ["full", "static", "converged", "resolution", "resolution+primitives"]
+    assert [r["variant"] for r in out["runs"]] == ["full", "static", "converged", "resolution", "resolution+primitives", "primitives"]
     assert {r["dataset"] for r in out["runs"]} == {"dnerf/hook"}
     assert full["stopping"] == {} and set(converged["stopping"]) == {"geometry", "features"}
     assert {s: st["cap"] for s, st in converged["stopping"].items()} == {"geometry": 60, "features": 30}
@@ -71,15 +71,15 @@ def test_perf_skip_measures_each_skip_on_a_dnerf_scene(tmp_path, monkeypatch):
     assert full["static_gaussians"] == 0
     # each variant trained its own geometry (the static threshold and the stopping are keyed)
     keys = {v: json.loads((tmp_path / "out" / "skip-dnerf" / "hook" / v / "fit.json").read_text())["stages"]["geometry"]["key"]
-            for v in ("full", "static", "converged", "resolution", "resolution+primitives")}
-    assert len(set(keys.values())) == 5, keys
+            for v in ("full", "static", "converged", "resolution", "resolution+primitives", "primitives")}
+    assert len(set(keys.values())) == 6, keys
     text = "\n".join(lines)
     assert text.startswith("skips on and off, dnerf/hook, trase, settings")  # the scene only, no format
     assert "foreground IoU, mask prompt" in text and "dnerf/hook" in text and "geometry s vs full" in text
     assert (tmp_path / "out" / "skip-dnerf-hook.png").stat().st_size > 1000
     told = (tmp_path / "out" / "skip-runs.jsonl").read_text().splitlines()  # a line per fit, as each ended
-    assert len(told) == 5 and "[3/5] dnerf/hook converged: " in text and "foreground IoU" in text
-    assert "[5/5] dnerf/hook resolution+primitives: " in text
+    assert len(told) == 6 and "[3/6] dnerf/hook converged: " in text and "foreground IoU" in text
+    assert "[5/6] dnerf/hook resolution+primitives: " in text and "[6/6] dnerf/hook primitives: " in text
 
 
 def test_capture_settings_reach_the_scenes_only():

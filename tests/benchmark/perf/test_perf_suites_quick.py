@@ -78,8 +78,9 @@ def _check_run_suites(s: dict, text: str) -> None:
 
 def _check_skip_suite(sk: dict, text: str, tmp_path) -> None:
     """static gaussians on and off, stages that stop when converged, the schedules."""
-    assert not sk["failed"] and [r["variant"] for r in sk["runs"]] == ["full", "static", "converged", "resolution", "resolution+primitives"]
-    full, static, converged, resolution, primitives = sk["runs"]
+    assert not sk["failed"] and [r["variant"] for r in sk["runs"]] == ["full", "static", "converged", "resolution", "resolution+primitives",
+                                                                       "primitives"]
+    full, static, converged, resolution, primitives, primitives_alone = sk["runs"]
     assert full["stopping"] == {}  # full: no stopping
     assert {s: st["cap"] for s, st in converged["stopping"].items()} == {"geometry": 60, "features": 20}
     assert all(st["stopped_at"] is None or 10 <= st["stopped_at"] < st["cap"] for st in converged["stopping"].values())
@@ -90,9 +91,9 @@ def _check_skip_suite(sk: dict, text: str, tmp_path) -> None:
     assert full["seconds"]["geometry"] > 0 and static["seconds"]["geometry"] > 0 and "geometry s vs full" in text
     # each run was told as it ended: a line printed and a line in the runs file (an interrupted suite keeps them)
     told = [json.loads(line) for line in (tmp_path / "skip-runs.jsonl").read_text().splitlines()]
-    assert [r["variant"] for r in told] == ["full", "static", "converged", "resolution", "resolution+primitives"] and told[0]["miou"] == full["miou"]
-    assert "[1/5] neu3d full: " in text and "[5/5] neu3d resolution+primitives: " in text
-    assert resolution["seconds"]["geometry"] > 0 and primitives["gaussians"] > 0
+    assert [r["variant"] for r in told] == [r["variant"] for r in sk["runs"]] and told[0]["miou"] == full["miou"]
+    assert "[1/6] neu3d full: " in text and "[6/6] neu3d primitives: " in text
+    assert resolution["seconds"]["geometry"] > 0 and primitives["gaussians"] > 0 and primitives_alone["gaussians"] > 0
     from benchmark.perf.skip import tables
 
     assert tables(told) in text  # the runs file gives back the table the suite printed

@@ -8,7 +8,9 @@ from benchmark.perf.skip import STATIC_THRESHOLD, variants
 
 def test_every_variant_by_default_and_a_subset_in_the_suites_order():
     every = variants(STATIC_THRESHOLD)
-    assert list(every) == ["full", "static", "converged", "resolution", "resolution+primitives"]
+    assert list(every) == ["full", "static", "converged", "resolution", "resolution+primitives", "primitives"]
+    assert "geometry.train.primitive_schedule=frequency" in every["primitives"]
+    assert not any("resolution_schedule" in o for o in every["primitives"])
     some = variants(STATIC_THRESHOLD, names=["resolution+primitives", "full"])
     assert list(some) == ["full", "resolution+primitives"] and some["full"] == every["full"]
 

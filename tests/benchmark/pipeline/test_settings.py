@@ -164,3 +164,17 @@ def test_a_set_objective_reads_the_presets_declarations_for_it():
     assert own.method.features.objective_params == {"correspondence": "jaccard"}
     other = _settings("method.features.objective=trase-all", size=(64, 48))
     assert other.method.features.objective == "trase-all" and other.method.features.objective_params == {}
+
+
+def test_the_frequency_schedules_settings_are_recorded_while_either_schedule_reads_them():
+    """resolution_max_factor and resolution_until act through either schedule: left out only
+    while both are off (as before the schedules), recorded and keyed once either is on."""
+    base = _settings().to_dict()["geometry"]["train"]
+    assert not {"resolution_schedule", "primitive_schedule", "resolution_max_factor", "resolution_until"} & set(base)
+    assert _settings("geometry.train.resolution_until=500").group_hash == _settings().group_hash
+    for on in (["geometry.train.primitive_schedule=frequency"], ["geometry.train.resolution_schedule=frequency"]):
+        rec = _settings(*on).to_dict()["geometry"]["train"]
+        assert {"resolution_max_factor", "resolution_until"} <= set(rec)
+        assert _settings(*on, "geometry.train.resolution_until=500").group_hash != _settings(*on).group_hash
+    resolution_only = _settings("geometry.train.resolution_schedule=frequency").to_dict()["geometry"]["train"]
+    assert "primitive_schedule" not in resolution_only
