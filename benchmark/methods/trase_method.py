@@ -8,6 +8,7 @@ or a subclass registered under another name with ``objective = "..."``.
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import time
 from pathlib import Path
 
@@ -211,8 +212,6 @@ def _unseen_from_neighbours(feats: np.ndarray, config: TraseSettings, gaussians,
 
 def _check_objective_params(name: str, params: dict) -> None:
     """A parameter the objective's class does not take stops the run before any stage."""
-    import inspect
-
     from benchmark.config import ConfigError
     from trase.objectives.base import OBJECTIVES
 

@@ -194,8 +194,11 @@ def mask_jaccard(member: torch.Tensor) -> torch.Tensor:
     """[V, M] bool membership of pixels in >= 1 mask -> [V, V] float32: shared masks over the
     masks covering either pixel (the soft correspondence; 1 on the diagonal)."""
     m = member.to(torch.float32)
-    shared = m @ m.T  # [V, V] counts, exact in float32 for M < 2^24
-    count = m.sum(dim=1)  # [V] >= 1
+    return _jaccard(m @ m.T, m.sum(dim=1))
+
+
+def _jaccard(shared: torch.Tensor, count: torch.Tensor) -> torch.Tensor:
+    """shared [V, V] mask counts (exact in float32 for M < 2^24), count [V] >= 1 -> [V, V]."""
     return shared / (count[:, None] + count[None, :] - shared)
 
 
@@ -208,14 +211,15 @@ def pair_stats(features: torch.Tensor, sample: PixelSample, correspondence: str 
     member = sample.membership
     valid = member.any(dim=1)  # [Np]
     m = member[valid].to(torch.float32)  # [V, M]
-    C = (m @ m.T) > 0  # [V, V]
+    shared = m @ m.T  # [V, V] sampled masks both pixels lie in
+    C = shared > 0
     f = F.normalize(features[valid], dim=1, eps=1e-12)  # zero features stay zero, not NaN
     with torch.no_grad():
         CF = f @ f.T  # [V, V]
     W = pair_weights(sample.pixel_mean_area[valid]).to(features.dtype)
     V = int(valid.sum())
     upper = torch.ones(V, V, dtype=torch.bool, device=features.device).triu(diagonal=1)
-    share = mask_jaccard(member[valid]).to(features.dtype) if correspondence == "jaccard" else None
+    share = _jaccard(shared, m.sum(dim=1)).to(features.dtype) if correspondence == "jaccard" else None
     return PairStats(valid=valid, C=C, CF=CF, W=W, upper=upper, fn=f, share=share)
 
 

@@ -202,7 +202,7 @@ def fused_pair_losses(
       "all" mining; ``side`` and ``normalise`` as ``SoftMining``;
     * ``hard=True``: the individually violating pairs, each term divided by its pair count.
 
-    ``correspondence="jaccard"`` (soft and all mining): the soft C of ``soft.mask_jaccard``;
+    ``correspondence="jaccard"`` (soft and all mining): the soft C of ``base.mask_jaccard``;
     positives are the pairs with C > 0 (weighted W C), negatives those with C < 1 (W (1 - C)).
     """
     check_features(features, sample)

@@ -71,7 +71,7 @@ def _popcount(x):
 @njit(inline="always")
 def _jaccard_row(bits, cnt, i, j0, cr):
     """cr[k] = shared masks / masks covering i or j0 + k (the soft C, rounded in float32 as
-    ``soft.mask_jaccard`` rounds it); ``cnt`` [V] float32 masks per pixel."""
+    ``base.mask_jaccard`` rounds it); ``cnt`` [V] float32 masks per pixel."""
     nw = bits.shape[0]
     x = bits[0, i]
     bw = bits[0, j0:]
